@@ -1,0 +1,98 @@
+"""Every zenoh key expression of the fleet is built and parsed here (DESIGN.md, "Key expressions").
+
+Layout: ``fleet/<fleet>/...``
+
+- ``vehicle/<vid>/{pose,state,cmd,telemetry,plan}``
+- ``planner/plan`` (queryable)
+- ``mission/<id>/{start,abort,status}``
+- ``sim/truth/<vid>``
+- ``alive/<service>/<instance>`` (liveliness tokens)
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Literal
+
+VehicleTopic = Literal["pose", "state", "cmd", "telemetry", "plan", "event"]
+VEHICLE_TOPICS: tuple[VehicleTopic, ...] = ("pose", "state", "cmd", "telemetry", "plan", "event")
+MissionTopic = Literal["start", "abort", "status"]
+
+DEFAULT_FLEET = "default"
+_CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
+
+
+def check_chunk(value: str, what: str) -> str:
+    """A vehicle id, fleet name or instance must be one plain key chunk (no '/', '*', '$', '?', '#')."""
+    if not _CHUNK.match(value):
+        raise ValueError(f"{what} {value!r} is not a plain key chunk (letters, digits, '_', '-', '.')")
+    return value
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expressions of one fleet."""
+
+    fleet: str = DEFAULT_FLEET
+
+    def __post_init__(self) -> None:
+        check_chunk(self.fleet, "fleet name")
+
+    @property
+    def root(self) -> str:
+        return f"fleet/{self.fleet}"
+
+    def vehicle(self, vid: str, topic: VehicleTopic) -> str:
+        check_chunk(vid, "vehicle id")
+        return f"{self.root}/vehicle/{vid}/{topic}"
+
+    def all_vehicles(self, topic: VehicleTopic) -> str:
+        return f"{self.root}/vehicle/*/{topic}"
+
+    def parse_vehicle(self, key: str) -> tuple[str, str] | None:
+        """``fleet/<f>/vehicle/<vid>/<topic>`` -> (vid, topic); None for any other key."""
+        prefix = f"{self.root}/vehicle/"
+        if not key.startswith(prefix):
+            return None
+        parts = key[len(prefix):].split("/")
+        if len(parts) != 2 or parts[1] not in VEHICLE_TOPICS:
+            return None
+        return parts[0], parts[1]
+
+    @property
+    def planner_plan(self) -> str:
+        return f"{self.root}/planner/plan"
+
+    def mission(self, mission_id: str, topic: MissionTopic) -> str:
+        check_chunk(mission_id, "mission id")
+        return f"{self.root}/mission/{mission_id}/{topic}"
+
+    def all_missions(self, topic: MissionTopic) -> str:
+        return f"{self.root}/mission/*/{topic}"
+
+    def sim_truth(self, vid: str) -> str:
+        check_chunk(vid, "vehicle id")
+        return f"{self.root}/sim/truth/{vid}"
+
+    @property
+    def all_sim_truth(self) -> str:
+        return f"{self.root}/sim/truth/*"
+
+    def alive(self, service: str, instance: str) -> str:
+        check_chunk(service, "service name")
+        check_chunk(instance, "instance name")
+        return f"{self.root}/alive/{service}/{instance}"
+
+    def all_alive(self, service: str = "*") -> str:
+        return f"{self.root}/alive/{service}/*"
+
+    def parse_alive(self, key: str) -> tuple[str, str] | None:
+        prefix = f"{self.root}/alive/"
+        if not key.startswith(prefix):
+            return None
+        parts = key[len(prefix):].split("/")
+        return (parts[0], parts[1]) if len(parts) == 2 else None
+
+    def last_chunk(self, key: str) -> str:
+        return str(key).rsplit("/", 1)[-1]
