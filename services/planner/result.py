@@ -1,0 +1,39 @@
+"""What every planner returns, and how a result becomes the plan file (DESIGN.md)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from common.planfile import PathEntry, Plan, Task
+from services.planner.graph import FleetGraph
+
+
+@dataclass
+class PlanResult:
+    """ok: every vehicle has a path. On failure `error` says why and `failed_vehicle` names the
+    vehicle that could not be placed (prioritized planning) when there is one."""
+
+    ok: bool
+    paths: dict[str, list[PathEntry]] = field(default_factory=dict)
+    cost: float = 0.0
+    planning_time_s: float = 0.0
+    error: str = ""
+    failed_vehicle: str = ""
+    mip_gap: float | None = None
+    stats: dict[str, float] = field(default_factory=dict)
+
+
+def to_plan(graph: FleetGraph, map_name: str, planner: str, mu: float, tasks: dict[str, Task], result: PlanResult) -> Plan:
+    return Plan(
+        map=map_name,
+        planner=planner,
+        mu=mu,
+        model=graph.plan_model(),
+        graph=graph.to_plan_graph(),
+        tasks=tasks,
+        paths=result.paths,
+        cost=result.cost,
+        planning_time_s=result.planning_time_s,
+        dt=graph.dt,
+        mip_gap=result.mip_gap,
+    )
