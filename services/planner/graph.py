@@ -48,6 +48,7 @@ class FleetGraph:
     scale: CostScale
     out_edges: list[np.ndarray] = field(repr=False)
     edge_index: dict[tuple[int, int], int] = field(repr=False)
+    open_endpoints: bool = False  # any ground node may be a start or goal (MovingAI grids)
 
     @property
     def n_nodes(self) -> int:
@@ -63,8 +64,10 @@ class FleetGraph:
         return compute_conflicts(self.pos, self.edges, self.model.radius, self.model.height)
 
     def endpoints(self) -> list[str]:
-        """Spots where a task may start or end: parking spots and helipads."""
-        return [n for n, k in zip(self.ids, self.kinds, strict=True) if k in ("parking", "helipad")]
+        """Spots where a task may start or end: parking spots and helipads (any ground node on maps
+        with open endpoints)."""
+        allowed = ("parking", "helipad", "land") if self.open_endpoints else ("parking", "helipad")
+        return [n for n, k in zip(self.ids, self.kinds, strict=True) if k in allowed]
 
     def edge_cost(self, mu: float) -> np.ndarray:
         """Eq. 3 per edge."""
@@ -319,7 +322,7 @@ class _Builder:
         )
 
 
-def build_graph(spec: MapSpec, dt: float | None = None, source: str | None = None) -> FleetGraph:
+def build_graph(spec: MapSpec, dt: float | None = None, source: str | None = None, open_endpoints: bool = False) -> FleetGraph:
     """Build the 3D graph of a map; with `dt`, on the uniform-time-step graph (§V-E)."""
     src = source or spec.name
     b = _Builder(spec, src)
@@ -329,6 +332,7 @@ def build_graph(spec: MapSpec, dt: float | None = None, source: str | None = Non
     if dt is not None:
         b.subdivide(dt)
     graph = b.freeze(dt)
+    graph.open_endpoints = open_endpoints
     check_reachable(graph, src)
     return graph
 
