@@ -105,14 +105,15 @@ def cmd_map_generate(args: argparse.Namespace) -> int:
 def cmd_plan(args: argparse.Namespace) -> int:
     from common.planfile import write_plan
     from services.planner.loading import load_problem
-    from services.planner.planners import run_planner
-    from services.planner.validate import validate_plan
 
     if not 0.0 <= args.mu <= 1.0:
         raise InputError("--mu", "", f"must be in [0, 1], got {args.mu}")
     if args.time_limit <= 0:
         raise InputError("--time-limit", "", "must be positive")
     problem = load_problem(args)
+    from services.planner.planners import run_planner
+    from services.planner.validate import validate_plan
+
     t0 = time.perf_counter()
     plan, result = run_planner(problem, args.planner, args.mu, args.time_limit, args.seed)
     if plan is None:

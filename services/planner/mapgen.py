@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterable
 import msgspec
 import yaml
 
-from common.mapfile import AirRegion, MapSpec, NoFlyZone, Obstacle, ParkingSpot, RoadNode, Roads, Helipad
+from common.mapfile import AirRegion, Helipad, MapSpec, NoFlyZone, Obstacle, ParkingSpot, RoadNode, Roads
 
 SPOT_OFFSET = 0.17  # m from the road: more than a body diameter (0.12 m) so parked cars never block it
 

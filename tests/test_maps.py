@@ -1,0 +1,239 @@
+"""Map format, graph builder and cost model (issue 2): shipped maps, eq. 1-5 by hand, bad input."""
+
+from __future__ import annotations
+
+import math
+
+import networkx as nx
+import numpy as np
+import pytest
+
+from common.cli import main
+from common.mapfile import MAPS_DIR, load_map
+from common.model import G, VehicleModel
+from services.planner.graph import build_graph
+from services.planner.loading import load_graph
+from services.planner.mapgen import GENERATORS, to_yaml
+from services.planner.scenario import load_scenario, random_tasks
+
+SHIPPED = ["town", "grid125", "city934"]
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_maps_check(name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["map", "check", name]) == 0
+    out = capsys.readouterr().out
+    assert "nodes:" in out and out.strip().endswith("ok")
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_maps_match_their_generator(name: str) -> None:
+    assert (MAPS_DIR / f"{name}.yaml").read_text() == to_yaml(GENERATORS[name]())
+
+
+def test_town_is_two_ground_regions_joined_through_the_air() -> None:
+    graph = load_graph("town")
+    spec = load_map("town")
+    assert spec.size == (4.2, 2.1)
+    assert spec.vehicle.radius >= 0.06
+    ground = nx.Graph([(u, v) for u, v, k in graph.g.edges(data="kind") if k == "drive"])
+    regions = list(nx.connected_components(ground))
+    assert len(regions) == 2
+    for region in regions:
+        assert sum(graph.kinds[graph.index[n]] == "parking" for n in region) >= 8
+    assert nx.has_path(graph.g, "WP1", "EP1") and nx.has_path(graph.g, "EP1", "WP1")
+    # airspace only over the corridor: no air node outside y in [0.7, 1.4]
+    air = graph.pos[np.array(graph.kinds) == "air"]
+    assert air[:, 1].min() >= 0.7 + spec.vehicle.radius and air[:, 1].max() <= 1.4 - spec.vehicle.radius
+
+
+def test_sizes_of_grid125_and_city934() -> None:
+    assert 100 <= load_graph("grid125").n_nodes <= 150
+    city = load_graph("city934")
+    assert 850 <= city.n_nodes <= 1050
+    assert len(city.endpoints()) >= 120
+
+
+def test_uniform_graph_every_edge_one_step_never_faster() -> None:
+    graph = load_graph("town", uniform=True)
+    assert graph.dt == 2.0
+    assert np.allclose(graph.duration, 2.0)
+    speeds = np.array([graph.model.edge_speed(k) for k in graph.edge_kinds])
+    assert np.all(graph.length / graph.duration <= speeds + 1e-9)
+    assert graph.counts()[0]["waypoint"] > 0
+
+
+def _edge(graph, u: str, v: str) -> int:
+    return graph.edge_index[(graph.index[u], graph.index[v])]
+
+
+def test_eq_1_to_5_by_hand_for_each_edge_kind() -> None:
+    graph = load_graph("town")
+    m = VehicleModel()
+    w_max, t_max = graph.scale.w_max, graph.scale.t_max
+    mu = 0.3
+    cases = {
+        # kind: (u, v, length, duration, work)
+        "drive": ("Wb0", "Wb1", 0.3, 3.0, 0.60 * 3.0),
+        "takeoff": ("Wl3", "a0_0_1", 0.4, 2.0, 7.83 * 2.0 + 0.041 * G * 0.4),
+        "fly": ("a0_0_1", "a0_1_1", 0.25, 0.25 / 0.3, 7.83 * 0.25 / 0.3),
+        "land": ("a0_0_1", "Wl3", 0.4, 2.0, 7.83 * 2.0),
+    }
+    cost = graph.edge_cost(mu)
+    for kind, (u, v, length, duration, work) in cases.items():
+        e = _edge(graph, u, v)
+        assert graph.edge_kinds[e] == kind
+        assert graph.length[e] == pytest.approx(length)
+        assert graph.duration[e] == pytest.approx(duration)
+        assert graph.energy[e] == pytest.approx(work)  # eq. 1-2
+        assert cost[e] == pytest.approx(mu * work / w_max + (1 - mu) * duration / t_max)  # eq. 3
+        power = 0.60 if kind == "drive" else 7.83
+        assert graph.charge[e] == pytest.approx(power / 3.7 * duration / 3600)  # eq. 4-5
+    assert w_max == pytest.approx(graph.energy.max()) and t_max == pytest.approx(3.0)
+    assert m.usable_ah == pytest.approx(0.176 - 0.018)
+
+
+def test_wait_costs_hover_at_fly_power_and_idle_on_the_ground() -> None:
+    graph = load_graph("town")
+    rate = graph.wait_cost_rate(1.0)
+    assert rate[graph.index["a0_0_1"]] == pytest.approx(7.83 / graph.scale.w_max)
+    assert rate[graph.index["WP1"]] == pytest.approx(0.15 / graph.scale.w_max)
+
+
+def test_crossing_air_edges_are_in_contact_without_sharing_a_node() -> None:
+    graph = load_graph("town")
+    e = _edge(graph, "a0_1_0", "a0_2_1")
+    f = _edge(graph, "a0_2_0", "a0_1_1")
+    assert not {"a0_1_0", "a0_2_1"} & {"a0_2_0", "a0_1_1"}
+    win = graph.conflicts.edge_edges[e]
+    k = list(win.other).index(f)
+    assert win.self_lo[k] < 0.5 < win.self_hi[k] and win.lo[k] < 0.5 < win.hi[k]
+    # parallel air edges one spacing apart are not in contact
+    g2 = _edge(graph, "a0_1_2", "a0_2_2")
+    assert g2 not in set(graph.conflicts.edge_edges[_edge(graph, "a0_1_0", "a0_2_0")].other)
+
+
+def test_air_nodes_removed_inside_no_fly_zones_and_obstacles() -> None:
+    spec = GENERATORS["grid125"]()
+    graph = build_graph(spec)
+    air = graph.pos[np.array(graph.kinds) == "air"]
+    centre = np.array([1.0, 1.0])
+    assert np.all(np.linalg.norm(air[:, :2] - centre, axis=1) > 0.3)
+
+
+def test_random_scenarios_are_well_formed_and_seeded() -> None:
+    graph = load_graph("city934")
+    a = random_tasks(graph, 60, seed=4)
+    assert a == random_tasks(graph, 60, seed=4) != random_tasks(graph, 60, seed=5)
+    spots = [t.start for t in a.values()] + [t.goal for t in a.values()]
+    assert len(set(spots)) == 120
+    assert all(graph.kinds[graph.index[s]] == "parking" for s in spots)
+
+
+def test_town_scenario_loads() -> None:
+    tasks = load_scenario(MAPS_DIR / "scenarios" / "town_8.yaml", load_graph("town"))
+    assert len(tasks) == 8
+    assert sum(t.start[0] != t.goal[0] for t in tasks.values()) >= 4
+
+
+def test_export_writes_the_plan_graph(tmp_path) -> None:
+    import json
+
+    out = tmp_path / "g.json"
+    assert main(["map", "export", "grid125", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert len(data["nodes"]) == load_graph("grid125").n_nodes
+    assert {e[2] for e in data["edges"]} == {"drive", "takeoff", "fly", "land"}
+
+
+def test_show_draws_a_png(tmp_path) -> None:
+    out = tmp_path / "town.png"
+    assert main(["map", "show", "town", "--out", str(out)]) == 0
+    assert out.read_bytes()[:4] == b"\x89PNG" and out.stat().st_size > 20_000
+
+
+# --- bad input: exit code 2, one line naming file, field and problem ------------------------------
+
+TOWN = (MAPS_DIR / "town.yaml").read_text()
+
+
+def _check(tmp_path, text: str, capsys) -> str:
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    assert main(["map", "check", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err and str(path) in err
+    return err
+
+
+def test_unknown_key(tmp_path, capsys) -> None:
+    err = _check(tmp_path, TOWN.replace("spacing: 0.25", "spacing: 0.25\n  colour: red"), capsys)
+    assert "air" in err and "colour" in err
+
+
+def test_wrong_type(tmp_path, capsys) -> None:
+    err = _check(tmp_path, TOWN.replace("spacing: 0.25", "spacing: wide"), capsys)
+    assert "air.spacing" in err and "float" in err
+
+
+def test_dangling_edge(tmp_path, capsys) -> None:
+    err = _check(tmp_path, TOWN.replace("- [Wb0, Wb1]", "- [Wb0, Nowhere]"), capsys)
+    assert "roads.two_way[0]" in err and "Nowhere" in err
+
+
+def test_unreachable_parking_spot(tmp_path, capsys) -> None:
+    text = TOWN.replace("nodes:\n", "nodes:\n    Lonely: {x: 3.0, y: 0.2}\n", 1)
+    text = text.replace("parking:\n", "parking:\n- {id: PX, x: 3.0, y: 0.03, road: Lonely}\n", 1)
+    err = _check(tmp_path, text, capsys)
+    assert "PX" in err and "unreachable" in err
+
+
+def test_spots_too_close(tmp_path, capsys) -> None:
+    text = TOWN.replace("parking:\n", "parking:\n- {id: PX, x: 0.62, y: 0.1, road: Wb1}\n", 1)
+    err = _check(tmp_path, text, capsys)
+    assert "parking[0]" in err and "too close" in err
+
+
+def test_invalid_yaml(tmp_path, capsys) -> None:
+    err = _check(tmp_path, TOWN.replace("roads:", "roads: [", 1), capsys)
+    assert "invalid YAML" in err and "line" in err
+
+
+def test_negative_vehicle_radius(tmp_path, capsys) -> None:
+    err = _check(tmp_path, TOWN.replace("radius: 0.06", "radius: -0.06"), capsys)
+    assert "vehicle" in err and "radius" in err
+
+
+def _plan_with_scenario(tmp_path, tasks: str, capsys) -> str:
+    path = tmp_path / "scen.yaml"
+    path.write_text(f"tasks:\n{tasks}")
+    assert main(["plan", "--map", "town", "--scenario", str(path), "--out", str(tmp_path / "p.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and str(path) in err
+    return err
+
+
+def test_scenario_start_not_a_parking_spot(tmp_path, capsys) -> None:
+    err = _plan_with_scenario(tmp_path, "  cf1: {start: Wb0, goal: EP1}\n", capsys)
+    assert "tasks.cf1.start" in err and "not a parking spot" in err
+
+
+def test_scenario_goals_repeat(tmp_path, capsys) -> None:
+    err = _plan_with_scenario(tmp_path, "  cf1: {start: WP1, goal: EP1}\n  cf2: {start: WP2, goal: EP1}\n", capsys)
+    assert "tasks.cf2.goal" in err and "cf1" in err
+
+
+def test_scenario_unknown_field(tmp_path, capsys) -> None:
+    err = _plan_with_scenario(tmp_path, "  cf1: {start: WP1, goal: EP1, speed: 3}\n", capsys)
+    assert "speed" in err
+
+
+def test_missing_map_file(capsys) -> None:
+    assert main(["map", "check", "no/such/map.yaml"]) == 2
+    assert "no/such/map.yaml" in capsys.readouterr().err
+
+
+def test_time_to_cross_the_town_is_plausible() -> None:
+    graph = load_graph("town")
+    t = nx.shortest_path_length(graph.g, "WP1", "EP1", weight="duration")
+    assert 5 < t < 60 and math.isfinite(t)
