@@ -299,8 +299,11 @@ class Queryable(Generic[Req, Rep]):
 
 def _reply_error(query: zenoh.Query, message: str) -> None:
     """Send an error reply and finalise the query (its querier stops waiting)."""
-    with query:
-        query.reply_err(message)
+    try:
+        with query:
+            query.reply_err(message)
+    except zenoh.ZError as exc:  # the query was finalised already
+        log.debug("cannot reply %r: %s", message, exc)
 
 
 def serve(session: zenoh.Session, key: str, req_type: type[Req], rep_type: type[Rep],

@@ -150,6 +150,7 @@ class Service:
                 closer()
             except zenoh.ZError as exc:
                 log.warning("%s/%s: closing: %s", self.name, self.instance, exc)
+        await asyncio.sleep(0)  # cancelled query answers send their "service stopping" replies now
         if self._session is not None:
             self._session.close()
             self._session = None

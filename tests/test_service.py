@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from common.bus import Publisher, drop_name, query, subscribe
+from common.bus import Publisher, QueryError, drop_name, query, subscribe
 from common.keys import Keys
 from common.liveliness import watch_alive
 from common.messages import PlanReply, PlanRequest, Pose, VehicleState
@@ -32,7 +32,7 @@ async def eventually(predicate: Callable[[], bool], timeout: float = 3.0) -> Non
 
 
 class Echo(Service):
-    """Turns poses into states and answers plan requests with the map's name."""
+    """Turns poses into states and answers plan requests with the map's name ('slow' never)."""
 
     async def main(self) -> None:
         states = self.publisher(KEYS.vehicle("v1", "state"), VehicleState)
@@ -42,6 +42,8 @@ class Echo(Service):
                                     x=pose.x, y=pose.y, z=pose.z, yaw=pose.yaw))
 
         async def on_plan(request: PlanRequest) -> PlanReply:
+            if request.map == "slow":
+                await asyncio.sleep(30)
             return PlanReply(ok=True, error=request.map)
 
         self.subscribe(KEYS.vehicle("v1", "pose"), Pose, on_pose)
@@ -70,8 +72,13 @@ def test_service_works_through_its_helpers_and_stop_releases_everything(
         assert reply.error == "town"
         await eventually(lambda: echo.counters.total() == 1)
 
+        slow = asyncio.create_task(query(other, KEYS.planner_plan, PlanRequest(map="slow", tasks={}),
+                                         PlanReply, timeout=5))
+        await asyncio.sleep(0.1)
         echo.stop()
         code = await asyncio.wait_for(running, 3)
+        with pytest.raises(QueryError, match="service stopping"):
+            await slow
         await alive.wait_until(lambda s: not s, 1)
         await eventually(lambda: not poses.matched)
         return code
