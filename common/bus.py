@@ -33,6 +33,9 @@ Rep = TypeVar("Rep")
 MessageHandler = Callable[[T, str], Awaitable[None] | None]
 """Called on the event loop with each decoded message and its concrete key (may be a coroutine)."""
 
+MAILBOX_SIZE = 256
+"""Default bound of a subscription's mailbox (about 2.5 s of one 100 Hz topic)."""
+
 _QUERY_TIMEOUT_MARGIN_S = 1.0
 """zenoh's own query timeout is set this much later than ours, so ours always decides."""
 
@@ -54,12 +57,12 @@ class Counters(Mapping[str, int]):
             value = self._counts[name] = self._counts.get(name, 0) + n
         return value
 
-    def drop(self, reason: str, typ: type, key: str, detail: str) -> None:
-        """Count one dropped message; log it if it is the first under its name."""
+    def drop(self, reason: str, typ: type, key: str, detail: str, exc: BaseException | None = None) -> None:
+        """Count one dropped message; log it (with `exc`'s traceback) if it is the first under its name."""
         name = drop_name(reason, typ, key)
         if self.inc(name) == 1:
             log.warning("dropped %s %s on %s: %s (further drops only counted as %r)",
-                        reason, typ.__name__, key, detail, name)
+                        reason, typ.__name__, key, detail, name, exc_info=exc)
 
     def total(self, prefix: str = "drop:") -> int:
         with self._lock:
@@ -225,7 +228,7 @@ class Subscription(Generic[T]):
                 if inspect.isawaitable(result):
                     await result
             except Exception as exc:
-                self.counters.drop("handler", self.type, key, f"{type(exc).__name__}: {exc}")
+                self.counters.drop("handler", self.type, key, f"{type(exc).__name__}: {exc}", exc)
 
     def close(self) -> None:
         self._closed = True
@@ -235,7 +238,7 @@ class Subscription(Generic[T]):
 
 
 def subscribe(session: zenoh.Session, key: str, typ: type[T], handler: MessageHandler[T] | None = None, *,
-              counters: Counters | None = None, maxlen: int = 256) -> Subscription[T]:
+              counters: Counters | None = None, maxlen: int = MAILBOX_SIZE) -> Subscription[T]:
     """Subscribe to `key` for messages of `typ` (call from the event loop).
 
     ``subscribe(s, keys.all_vehicles("pose"), Pose, on_pose, counters=svc.counters)``

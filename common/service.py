@@ -26,7 +26,17 @@ from typing import Any, TypeVar
 
 import zenoh
 
-from common.bus import Counters, MessageHandler, Publisher, Queryable, Subscription, serve, subscribe
+from common.bus import (
+    MAILBOX_SIZE,
+    Counters,
+    MessageHandler,
+    Publisher,
+    Queryable,
+    Subscription,
+    call_in_loop,
+    serve,
+    subscribe,
+)
 from common.keys import Keys
 from common.liveliness import AliveSet, ChangeCallback, declare_alive, watch_alive
 from common.zsession import ZenohConfig, open_session
@@ -75,7 +85,7 @@ class Service:
         """Ask `run()` to stop (from any thread, also before `run()` has started)."""
         self._stop_requested = True
         if self._loop is not None:
-            self._loop.call_soon_threadsafe(self._stop.set)
+            call_in_loop(self._loop, self._stop.set)
 
     def spawn(self, coro: Coroutine[Any, Any, T], name: str | None = None) -> asyncio.Task[T]:
         """Run `coro` as a task of this service: cancelled at stop; its failure stops the service."""
@@ -98,7 +108,7 @@ class Service:
         return pub
 
     def subscribe(self, key: str, typ: type[T], handler: MessageHandler[T] | None = None,
-                  maxlen: int = 256) -> Subscription[T]:
+                  maxlen: int = MAILBOX_SIZE) -> Subscription[T]:
         sub = subscribe(self.session, key, typ, handler, counters=self.counters, maxlen=maxlen)
         self._closers.append(sub.close)
         return sub
@@ -129,7 +139,7 @@ class Service:
             self._closers.append(declare_alive(self.session, self.keys, self.name, self.instance).undeclare)
             log.info("%s/%s running", self.name, self.instance)
             main = self.spawn(self.main(), name="main")
-            stop = asyncio.ensure_future(self._stop.wait())
+            stop = asyncio.create_task(self._stop.wait())
             await asyncio.wait({main, stop}, return_when=asyncio.FIRST_COMPLETED)
             stop.cancel()
             return 1 if self._failed else 0
