@@ -1,0 +1,120 @@
+"""Fault detection and the fault manoeuvres of one vehicle: low battery (paper 000 §V-C: charge may
+not fall below C_low), lost radio link, and where to go when the plan must be left.
+
+- low battery: the charge used (eq. 4-5, estimated by the executor) reaches the usable charge
+  (capacity - reserve), or the telemetry voltage stays below `vbat_low` for `vbat_low_s`;
+- lost link: the gateway reports `link_ok = False`, or telemetry that was flowing stops;
+- safe landing: fly level to above the nearest ground node of the vehicle's own plan (a node it
+  was going to use anyway), then descend at the landing speed;
+- emergency descent: without a trustworthy pose, a level, open-loop descent profile.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from common.messages import PlanStep, Telemetry
+from common.model import VehicleModel
+
+
+@dataclass(frozen=True, slots=True)
+class FaultParams:
+    """vbat_low: V under load (the Crazyflie firmware warns at 3.2 V; a margin above it);
+    link_timeout_s: telemetry silence meaning a lost link; max_hold_s: longest ground hold before
+    giving up the plan; descent_speed / descent_accel: emergency descent profile (m/s, m/s^2)."""
+
+    vbat_low: float = 3.3
+    vbat_low_s: float = 1.0
+    link_timeout_s: float = 1.0
+    max_hold_s: float = 3.0
+    descent_speed: float = 0.3
+    descent_accel: float = 1.0
+
+
+class FaultMonitor:
+    """Battery and link health of one vehicle from its telemetry and estimated charge."""
+
+    def __init__(self, model: VehicleModel, params: FaultParams = FaultParams()) -> None:
+        self.model = model
+        self.params = params
+        self.last_telemetry: Telemetry | None = None
+        self._telemetry_at = -math.inf
+        self._vbat_low_since: float | None = None
+
+    def on_telemetry(self, tel: Telemetry, now: float) -> None:
+        self.last_telemetry = tel
+        self._telemetry_at = now
+        if tel.vbat < self.params.vbat_low:
+            if self._vbat_low_since is None:
+                self._vbat_low_since = now
+        else:
+            self._vbat_low_since = None
+
+    def low_battery(self, charge_used_ah: float, now: float) -> bool:
+        if charge_used_ah >= self.model.usable_ah:
+            return True
+        since = self._vbat_low_since
+        return since is not None and now - since >= self.params.vbat_low_s
+
+    def link_lost(self, now: float) -> bool:
+        tel = self.last_telemetry
+        if tel is None:
+            return False
+        return not tel.link_ok or now - self._telemetry_at > self.params.link_timeout_s
+
+
+def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence[PlanStep],
+                       model: VehicleModel) -> list[PlanStep]:
+    """Path entries from `pos` at time `t`: level flight to above the plan's ground node nearest
+    in the horizontal, then a descent onto it, at the model's fly and land speeds."""
+    ground = [s for s in plan if s.kind != "air"]
+    if not ground:
+        target = PlanStep(node="below", t=0.0, pos=(pos[0], pos[1], 0.0), kind="land")
+    else:
+        target = min(ground, key=lambda s: math.hypot(s.pos[0] - pos[0], s.pos[1] - pos[1]))
+    gx, gy, gz = target.pos
+    steps = [PlanStep(node="fault", t=t, pos=pos, kind="air")]
+    reach = math.hypot(gx - pos[0], gy - pos[1])
+    if reach > 0.01:
+        t += reach / model.speed.fly
+        steps.append(PlanStep(node=f"above-{target.node}", t=t, pos=(gx, gy, pos[2]), kind="air", edge="fly"))
+    t += max(pos[2] - gz, 0.0) / model.speed.land
+    steps.append(PlanStep(node=target.node, t=t, pos=(gx, gy, gz), kind=target.kind, edge="land"))
+    return steps
+
+
+@dataclass(frozen=True, slots=True)
+class DescentProfile:
+    """Open-loop vertical acceleration (m/s^2) of a level emergency descent from `height` m:
+    accelerate down to the descent speed, coast, brake to rest at the ground, then motors off."""
+
+    height: float
+    speed: float
+    accel: float
+
+    @classmethod
+    def plan(cls, height: float, params: FaultParams) -> DescentProfile:
+        h = max(height, 0.0)
+        speed = min(params.descent_speed, math.sqrt(params.descent_accel * h))
+        return cls(h, speed, params.descent_accel)
+
+    @property
+    def duration(self) -> float:
+        if self.speed <= 0.0:
+            return 0.0
+        ramp = self.speed / self.accel
+        return 2.0 * ramp + (self.height - self.speed * ramp) / self.speed
+
+    def accel_at(self, t: float) -> float | None:
+        """Commanded vertical acceleration `t` s into the descent; None once it is over."""
+        total = self.duration
+        if t >= total:
+            return None
+        ramp = self.speed / self.accel
+        if t < ramp:
+            return -self.accel
+        if t > total - ramp:
+            return self.accel
+        return 0.0

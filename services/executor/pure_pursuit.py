@@ -1,0 +1,87 @@
+"""Pure pursuit for the differential-drive wheel base (paper 000 §VI-B: "For ground waypoints, a
+pure pursuit controller is used to follow the desired trajectory. The two ground motors allow for
+simple differential steering control").
+
+The reference is timed, so the goal point is the reference `lookahead_time` ahead (the lookahead
+distance grows with the reference speed, never below `min_lookahead`) and the forward speed is the
+reference speed plus a correction of the along-track error, which keeps the plan's timing. The
+curvature is the classic 2 y / d^2 to the goal point (Coulter 1992), with d no shorter than the
+minimum lookahead so that a goal close by does not spin the vehicle; wheel speeds are scaled
+together when one would exceed the limit, which keeps the curvature. A direction of travel more
+than `turn_angle` off the heading is first turned to in place; a vehicle ahead of its reference
+waits rather than reverses; near a resting reference it holds position without steering.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from common.messages import WheelSetpoint
+from common.thrust import WheelBase
+from services.executor.estimator import Estimate
+from services.executor.trajectory import RefSample, wrap_angle
+
+
+@dataclass(frozen=True, slots=True)
+class PursuitParams:
+    """lookahead_time: s of reference ahead; min_lookahead: m; k_along: 1/s gain on the along-track
+    error; k_turn: 1/s gain of the in-place turn, limited to max_turn_rate (rad/s); turn_angle: rad between heading and direction of
+    travel that triggers it; hold_radius: m within which a resting reference is held by driving
+    straight forward or back, without steering."""
+
+    lookahead_time: float = 0.3
+    min_lookahead: float = 0.03
+    k_along: float = 2.0
+    k_turn: float = 3.0
+    max_turn_rate: float = 3.0
+    turn_angle: float = math.radians(60.0)
+    hold_radius: float = 0.03
+
+
+class PurePursuit:
+    """Wheel speeds from the estimate and the reference now and one lookahead ahead."""
+
+    def __init__(self, wheels: WheelBase | None = None, params: PursuitParams = PursuitParams()) -> None:
+        self.wheels = wheels or WheelBase()
+        self.params = params
+
+    def lookahead(self, ref: RefSample) -> float:
+        """Lookahead time (s) for the current reference speed: `lookahead_time`, stretched so that
+        the lookahead distance is at least `min_lookahead`."""
+        speed = math.hypot(ref.vx, ref.vy)
+        p = self.params
+        return max(p.lookahead_time, p.min_lookahead / speed) if speed > 1e-6 else 0.0
+
+    def command(self, est: Estimate, ref: RefSample, goal: RefSample) -> WheelSetpoint:
+        """`ref` is the reference now, `goal` the reference `lookahead(ref)` s later."""
+        p = self.params
+        c, s = math.cos(est.yaw), math.sin(est.yaw)
+        # along-track error of the reference now, in the body frame (positive: reference ahead)
+        ex = (ref.x - est.x) * c + (ref.y - est.y) * s
+        gx, gy = goal.x - est.x, goal.y - est.y
+        d2 = gx * gx + gy * gy
+        moving = abs(ref.vx) + abs(ref.vy) > 1e-6
+        if not moving and d2 < p.hold_radius**2:
+            return self._wheels(p.k_along * ex, 0.0)
+        # face the direction of travel (or, at rest, the point to return to) before driving
+        heading = math.atan2(ref.vy, ref.vx) if moving else math.atan2(gy, gx)
+        err = wrap_angle(heading - est.yaw)
+        if abs(err) > p.turn_angle:
+            return self._wheels(0.0, min(max(p.k_turn * err, -p.max_turn_rate), p.max_turn_rate))
+        v = ref.vx * c + ref.vy * s + p.k_along * ex
+        if moving:
+            v = max(v, 0.0)  # ahead of the reference: wait for it rather than reverse
+        bx, by = gx * c + gy * s, -gx * s + gy * c
+        kappa = 2.0 * by / max(d2, p.min_lookahead**2) if bx > 0.0 and v > 0.0 else 0.0
+        return self._wheels(v, kappa * v)
+
+    def _wheels(self, v: float, omega: float) -> WheelSetpoint:
+        """Unicycle (v, omega) -> wheel rim speeds, both scaled down if one exceeds the limit."""
+        half = 0.5 * omega * self.wheels.track
+        left, right = v - half, v + half
+        peak = max(abs(left), abs(right))
+        if peak > self.wheels.max_speed:
+            k = self.wheels.max_speed / peak
+            left, right = left * k, right * k
+        return WheelSetpoint(left=left, right=right)

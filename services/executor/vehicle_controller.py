@@ -1,0 +1,279 @@
+"""The control stack of one vehicle (paper 000 §VI-B/§VI-C): trajectory, mode state machine,
+estimator, pure pursuit on the ground, LQR in the air, fault handling. No I/O: the executor service
+feeds it poses and telemetry and calls `tick` at the control rate; it returns the setpoint to send
+and the state to publish.
+
+All times are on one clock (epoch seconds in the fleet, the simulator's clock in tests); the plan's
+step times are relative to the mission start `t0`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from common.messages import (
+    Cmd,
+    Pose,
+    Setpoint,
+    StopSetpoint,
+    Telemetry,
+    VehiclePlan,
+    VehicleState,
+    WheelSetpoint,
+)
+from common.model import G, VehicleModel
+from common.thrust import WheelBase, thrust_command, to_flight_setpoint
+from services.executor.estimator import Estimate, EstimatorParams, PoseEstimator
+from services.executor.faults import DescentProfile, FaultMonitor, FaultParams, safe_landing_steps
+from services.executor.lqr import FlightLqr, FlightModel, LqrWeights
+from services.executor.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
+from services.executor.pure_pursuit import PurePursuit, PursuitParams
+from services.executor.trajectory import RefSample, Trajectory, TrajectoryParams
+
+
+@dataclass(frozen=True)
+class ControlParams:
+    """dt: control period (s); touchdown_height: height above the landing node (m) below which,
+    with the reference there too, a landing is complete and the motors stop; liftoff_height:
+    height above which the flight integrators run; arrive_radius: m from the goal that counts as
+    arrived."""
+
+    dt: float = 0.01
+    touchdown_height: float = 0.02
+    liftoff_height: float = 0.01
+    arrive_radius: float = 0.05
+    trajectory: TrajectoryParams = field(default_factory=TrajectoryParams)
+    estimator: EstimatorParams = field(default_factory=EstimatorParams)
+    pursuit: PursuitParams = field(default_factory=PursuitParams)
+    lqr: LqrWeights = field(default_factory=LqrWeights)
+    faults: FaultParams = field(default_factory=FaultParams)
+    wheels: WheelBase = field(default_factory=WheelBase)
+
+
+class VehicleController:
+    """`load` a plan, `start` it (or load one with `t0`), feed `on_pose` / `on_telemetry`, and
+    `tick(now)` at `params.dt` for the setpoint and state."""
+
+    def __init__(self, vid: str, model: VehicleModel | None = None, owner: str = "",
+                 params: ControlParams | None = None) -> None:
+        self.vid = vid
+        self.owner = owner
+        self.params = params or ControlParams()
+        self.model = model or VehicleModel()
+        self.estimator = PoseEstimator(self.params.estimator)
+        self.pursuit = PurePursuit(self.params.wheels, self.params.pursuit)
+        self.machine = ModeMachine(vid)
+        self.plan: VehiclePlan | None = None
+        self.trajectory: Trajectory | None = None
+        self.t0: float | None = None
+        self.seq = 0
+        self.charge_used_ah = 0.0
+        self.lqr = FlightLqr(self.model.mass, FlightModel(dt=self.params.dt), self.params.lqr)
+        self.faults = FaultMonitor(self.model, self.params.faults)
+        self._reset_mission()
+
+    def _reset_mission(self) -> None:
+        self._active: Trajectory | None = self.trajectory  # the plan's, or a fault landing's
+        self._fault_landing = False
+        self._landing_node_z = 0.0
+        self._landing_end = 0.0
+        self._hold_since: float | None = None
+        self._descent: tuple[float, DescentProfile] | None = None
+        self._abort: str | None = None
+        self._last_tick: float | None = None
+
+    # ---- inputs ---------------------------------------------------------------------------
+
+    def load(self, plan: VehiclePlan) -> None:
+        """Take a new plan (replacing any other): the vehicle parks until the mission starts."""
+        if plan.vid != self.vid:
+            raise ValueError(f"plan for {plan.vid!r} loaded into the controller of {self.vid!r}")
+        self.plan = plan
+        self.model = self.faults.model = plan.model
+        self.lqr = FlightLqr(plan.model.mass, FlightModel(dt=self.params.dt), self.params.lqr)
+        est = self.estimator.estimate(self.estimator.t or 0.0)
+        self.trajectory = Trajectory(plan.steps, self.params.trajectory,
+                                     yaw0=None if est.stale else est.yaw)
+        self.t0 = plan.t0 or None
+        self._reset_mission()
+        if self.machine.mode in AIRBORNE:
+            return  # a new plan does not change how the vehicle gets down; it applies once landed
+        self.machine.request(Mode.PARKED, self.estimator.t or 0.0, "plan loaded")
+
+    def start(self, t0: float) -> None:
+        """The mission starts at `t0` (the plan's step times are relative to it)."""
+        self.t0 = t0
+
+    def abort(self, reason: str) -> None:
+        """Mission abort: land at the nearest safe point if airborne, stop if on the ground."""
+        self._abort = reason
+
+    def on_pose(self, pose: Pose) -> bool:
+        """Fuse a motion-capture pose; False if dropped or rejected as an outlier."""
+        return self.estimator.update(pose)
+
+    def on_telemetry(self, tel: Telemetry, now: float) -> None:
+        self.faults.on_telemetry(tel, now)
+
+    @property
+    def mode(self) -> Mode:
+        return self.machine.mode
+
+    def reference(self, now: float) -> RefSample | None:
+        """The reference being followed at `now` (the plan's, or a fault landing's); None before
+        the mission starts."""
+        if self._active is None or self.t0 is None:
+            return None
+        return self._active.sample(now - self.t0)
+
+    # ---- the control tick -----------------------------------------------------------------
+
+    def tick(self, now: float) -> tuple[Cmd, VehicleState]:
+        """One control step at `now`: supervise the mode, run its controller, account the charge."""
+        est = self.estimator.estimate(now)
+        dt = 0.0 if self._last_tick is None else min(max(now - self._last_tick, 0.0), 0.1)
+        self._last_tick = now
+        ref: RefSample | None = None
+        before = self.machine.mode
+        if self._active is not None and self.t0 is not None:
+            self._supervise(now, now - self.t0, est)
+            ref = self.reference(now)
+        setpoint = self._control(now, est, ref, before)
+        self.charge_used_ah += self.model.charge_ah(self._power(ref), dt)
+        self.seq += 1
+        cmd = Cmd(vid=self.vid, owner=self.owner, seq=self.seq, t=now, setpoint=setpoint,
+                  mode=str(self.machine.mode))
+        return cmd, self._state(now, est, ref)
+
+    def _supervise(self, now: float, rel: float, est: Estimate) -> None:
+        m = self.machine
+        if m.mode in (Mode.DONE, Mode.EMERGENCY_LANDING):
+            return
+        low = self.faults.low_battery(self.charge_used_ah, now)
+        link = self.faults.link_lost(now)
+        if m.airborne:
+            if est.stale:
+                height = est.z - self._ground_below()
+                if m.request(Mode.EMERGENCY_LANDING, now, "pose stale in the air"):
+                    self._descent = (now, DescentProfile.plan(height, self.params.faults))
+                return
+            reason = "low battery" if low else "link lost" if link else self._abort
+            if reason and not self._fault_landing:
+                self._begin_safe_landing(now, rel, est, reason)
+                return
+            if self._fault_landing or (m.mode == Mode.LANDING and rel >= self._landing_end):
+                return  # a landing lasts until touchdown (see `_control`), even past its plan time
+            self._follow_plan(now, rel)
+            return
+        if self._abort or low:
+            m.request(Mode.DONE, now, self._abort or "low battery")
+            return
+        if est.stale or link:
+            if m.mode != Mode.HOLDING:
+                self._hold_since = now
+                m.request(Mode.HOLDING, now, "pose stale" if est.stale else "link lost")
+            elif now - (self._hold_since or now) > self.params.faults.max_hold_s:
+                m.request(Mode.DONE, now, "held too long, plan given up")
+            return
+        self._follow_plan(now, rel)
+
+    def _follow_plan(self, now: float, rel: float) -> None:
+        traj = self._active
+        assert traj is not None
+        planned = traj.modes[traj.segment(rel)]
+        if planned == Mode.LANDING:
+            if not self.machine.airborne:
+                return  # touched down before the plan's landing ended
+            if self.machine.mode != Mode.LANDING:
+                self._enter_landing(traj, rel)
+        self.machine.request(planned, now, "plan")
+
+    def _enter_landing(self, traj: Trajectory, rel: float) -> None:
+        """Remember where and when the landing that starts now ends."""
+        seg = traj.segment(rel)
+        end = next((i for i in range(seg, len(traj.steps)) if traj.modes[i + 1] != Mode.LANDING),
+                   len(traj.steps) - 1)
+        self._landing_end = traj.times[end]
+        self._landing_node_z = traj.nodes[end][2]
+
+    def _begin_safe_landing(self, now: float, rel: float, est: Estimate, reason: str) -> None:
+        assert self.trajectory is not None
+        steps = safe_landing_steps((est.x, est.y, est.z), rel, self.trajectory.steps, self.model)
+        self._active = Trajectory(steps, self.params.trajectory, yaw0=est.yaw)
+        self._fault_landing = True
+        self._landing_end = steps[-1].t
+        self._landing_node_z = steps[-1].pos[2]
+        self.machine.request(Mode.LANDING, now, reason)
+
+    def _ground_below(self) -> float:
+        return self._landing_node_z if self.machine.mode == Mode.LANDING else 0.0
+
+    # ---- controllers ----------------------------------------------------------------------
+
+    def _control(self, now: float, est: Estimate, ref: RefSample | None, before: Mode) -> Setpoint:
+        mode = self.machine.mode
+        if before in GROUNDED and mode in AIRBORNE:
+            self.lqr.reset()
+            return WheelSetpoint(left=0.0, right=0.0)  # wheels off for the takeoff
+        if mode == Mode.EMERGENCY_LANDING:
+            return self._emergency(now)
+        if mode in AIRBORNE and ref is not None:
+            if mode == Mode.LANDING and self._touched_down(est, ref):
+                self._after_touchdown(now, ref.t)
+                return StopSetpoint()
+            return self.lqr.command(est, ref, integrate=est.z - self._ground_below() > self.params.liftoff_height)
+        if mode == Mode.DRIVING and ref is not None and not est.stale:
+            assert self._active is not None
+            goal = self._active.sample(ref.t + self.pursuit.lookahead(ref))
+            return self.pursuit.command(est, ref, goal)
+        return StopSetpoint()
+
+    def _touched_down(self, est: Estimate, ref: RefSample) -> bool:
+        h = self.params.touchdown_height
+        return est.z - self._landing_node_z < h and ref.z - self._landing_node_z < h
+
+    def _after_touchdown(self, now: float, rel: float) -> None:
+        if self._fault_landing:
+            self.machine.request(Mode.DONE, now, "landed after fault")
+            return
+        traj = self._active
+        assert traj is not None
+        nxt = traj.modes[traj.segment(max(rel, self._landing_end))]
+        self.machine.request(Mode.DRIVING if nxt == Mode.LANDING else nxt, now, "touchdown")
+
+    def _emergency(self, now: float) -> Setpoint:
+        """Level, open-loop descent; the thrust keeps the bias the flight integrators learned."""
+        assert self._descent is not None
+        start, profile = self._descent
+        accel = profile.accel_at(now - start)
+        if accel is None:
+            self.machine.request(Mode.DONE, now, "emergency descent complete")
+            return StopSetpoint()
+        thrust = self.model.mass * (G + self.lqr.accel_bias() + accel)
+        return to_flight_setpoint(0.0, 0.0, 0.0, thrust_command(thrust))
+
+    # ---- accounting and state -------------------------------------------------------------
+
+    def _power(self, ref: RefSample | None) -> float:
+        """Power the mode draws (Table II), for the eq. 4-5 charge estimate."""
+        mode = self.machine.mode
+        if mode in AIRBORNE:
+            return self.model.power.fly
+        if mode == Mode.DRIVING and ref is not None and abs(ref.vx) + abs(ref.vy) > 1e-6:
+            return self.model.power.drive
+        return self.model.power.idle
+
+    def _state(self, now: float, est: Estimate, ref: RefSample | None) -> VehicleState:
+        err = 0.0 if ref is None or est.stale else math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z))
+        traj = self.trajectory
+        arrived = False
+        if traj is not None and self.machine.mode == Mode.DONE and not est.stale:
+            arrived = math.dist((est.x, est.y, est.z), traj.nodes[-1]) < self.params.arrive_radius
+        return VehicleState(
+            vid=self.vid, t=now, owner=self.owner, mode=str(self.machine.mode),
+            x=est.x, y=est.y, z=est.z, yaw=est.yaw, vx=est.vx, vy=est.vy, vz=est.vz,
+            pose_ok=not est.stale, mission=self.plan.mission if self.plan else "",
+            step=min(ref.step, len(traj.steps)) if ref is not None and traj is not None else 0,
+            steps=len(traj.steps) if traj is not None else 0,
+            tracking_error=err, charge_used_ah=self.charge_used_ah, arrived=arrived)
