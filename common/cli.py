@@ -18,6 +18,8 @@ from common.planfile import PlanFileError
 # Modules that contribute subcommands: each has `register(subparsers)`.
 _COMMAND_MODULES = (
     "services.planner.cli",
+    "common.router",
+    "common.deploy_cli",
 )
 
 
@@ -43,6 +45,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:  # output piped into `head` and the like
+        return 0
 
 
 if __name__ == "__main__":

@@ -1,0 +1,115 @@
+"""compose.yaml -> local processes (`fleet up` / `fleet down`).
+
+This machine has no container engine, so `fleet up` runs each compose service as a local process:
+the service's `command` (a leading `fleet` becomes this Python's `-m common.cli`), its `environment`,
+`deploy.replicas` copies (each with FLEET_INSTANCE=<service>-<n>), in `depends_on` order. A service
+whose image is not ours (the zenoh router) declares its local stand-in under `x-fleet-local`.
+`${VAR:-default}` is interpolated as compose does; `fleet up` sets the *_HOST variables to 127.0.0.1
+so that container host names resolve to this machine.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import msgspec
+
+from common.errors import InputError
+from common.mapfile import decode_yaml, read_text
+
+LOCAL_HOSTS = {"ROUTER_HOST": "127.0.0.1", "SIM_HOST": "127.0.0.1"}
+_VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::?-([^}]*))?\}")
+
+
+class Deploy(msgspec.Struct, frozen=True):
+    replicas: int = 1
+
+
+class ComposeService(msgspec.Struct, frozen=True):
+    """The compose fields `fleet up` uses; other compose keys (image, build, ports, ...) only matter
+    to a container engine and are ignored here."""
+
+    command: list[str] | str | None = None
+    environment: dict[str, str | int | float] | list[str] = {}
+    deploy: Deploy = Deploy()
+    depends_on: list[str] = []
+    x_fleet_local: list[str] | None = msgspec.field(default=None, name="x-fleet-local")
+
+
+class ComposeFile(msgspec.Struct, frozen=True):
+    services: dict[str, ComposeService]
+    name: str = "fleet"
+
+
+@dataclass
+class Process:
+    """One process to start: a compose service replica."""
+
+    service: str
+    instance: str
+    argv: list[str]
+    env: dict[str, str] = field(default_factory=dict)
+
+
+def interpolate(text: str, env: dict[str, str]) -> str:
+    """Compose's ${VAR}, ${VAR:-default} and ${VAR-default}."""
+    return _VAR.sub(lambda m: env.get(m.group(1)) or (m.group(2) or ""), text)
+
+
+def local_argv(argv: list[str]) -> list[str]:
+    """A container command run here: `fleet ...` becomes this interpreter's `-m common.cli ...`."""
+    if argv and argv[0] == "fleet":
+        return [sys.executable, "-m", "common.cli", *argv[1:]]
+    return argv
+
+
+def _order(services: dict[str, ComposeService], source: str) -> list[str]:
+    done: list[str] = []
+    visiting: set[str] = set()
+
+    def visit(name: str) -> None:
+        if name in done:
+            return
+        if name in visiting:
+            raise InputError(source, f"services.{name}.depends_on", "dependency cycle")
+        visiting.add(name)
+        for dep in services[name].depends_on:
+            if dep not in services:
+                raise InputError(source, f"services.{name}.depends_on", f"unknown service {dep!r}")
+            visit(dep)
+        visiting.discard(name)
+        done.append(name)
+
+    for name in services:
+        visit(name)
+    return done
+
+
+def load_compose(path: str | Path, overrides: dict[str, str] | None = None) -> list[Process]:
+    """Parse compose.yaml into processes, in start order."""
+    source = str(path)
+    env = {**os.environ, **LOCAL_HOSTS, **(overrides or {})}
+    text = interpolate(read_text(Path(path)), env)
+    spec: ComposeFile = decode_yaml(text, ComposeFile, source)
+    procs: list[Process] = []
+    for name in _order(spec.services, source):
+        svc = spec.services[name]
+        argv = svc.x_fleet_local if svc.x_fleet_local is not None else svc.command
+        if argv is None:
+            raise InputError(source, f"services.{name}", "needs `command` (or `x-fleet-local` for foreign images)")
+        argv = argv.split() if isinstance(argv, str) else list(argv)
+        if isinstance(svc.environment, list):
+            pairs = [item.split("=", 1) for item in svc.environment]
+            service_env = {k: v for k, v in pairs}
+        else:
+            service_env = {k: str(v) for k, v in svc.environment.items()}
+        if svc.deploy.replicas < 1:
+            raise InputError(source, f"services.{name}.deploy.replicas", "must be at least 1")
+        for i in range(svc.deploy.replicas):
+            instance = name if svc.deploy.replicas == 1 else f"{name}-{i + 1}"
+            procs.append(Process(name, instance, local_argv(argv), {**service_env, "FLEET_INSTANCE": instance}))
+    return procs

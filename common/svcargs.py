@@ -1,0 +1,68 @@
+"""Command-line and environment configuration shared by every service process.
+
+Each service command takes `--connect`, `--listen`, `--mode`, `--fleet` and `--instance`; defaults come
+from FLEET_ZENOH_CONNECT (comma-separated endpoints), FLEET_NAME and FLEET_INSTANCE (set per replica by
+compose and `fleet up`). Credentials come from FLEET_ZENOH_USER / FLEET_ZENOH_PASSWORD or
+FLEET_ZENOH_PASSWORD_FILE, never from the repository.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import socket
+from pathlib import Path
+
+from common.errors import InputError
+from common.keys import DEFAULT_FLEET, Keys
+from common.service import Service
+from common.zsession import ZenohConfig
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def add_zenoh_args(parser: argparse.ArgumentParser, default_instance: str | None = None) -> None:
+    env = os.environ
+    parser.add_argument("--connect", default=env.get("FLEET_ZENOH_CONNECT", DEFAULT_ENDPOINT),
+                        help="router endpoint(s), comma-separated (env FLEET_ZENOH_CONNECT)")
+    parser.add_argument("--listen", default=env.get("FLEET_ZENOH_LISTEN", ""), help="endpoints to listen on")
+    parser.add_argument("--mode", choices=["client", "peer"], default=env.get("FLEET_ZENOH_MODE", "client"))
+    parser.add_argument("--fleet", default=env.get("FLEET_NAME", DEFAULT_FLEET), help="fleet name (key prefix)")
+    parser.add_argument("--instance", default=env.get("FLEET_INSTANCE", default_instance or socket.gethostname()),
+                        help="this replica's name (env FLEET_INSTANCE)")
+
+
+def _split(value: str) -> tuple[str, ...]:
+    return tuple(v.strip() for v in value.split(",") if v.strip())
+
+
+def credentials() -> tuple[str | None, str | None]:
+    """User and password from the environment (the password may come from a file)."""
+    user = os.environ.get("FLEET_ZENOH_USER")
+    password = os.environ.get("FLEET_ZENOH_PASSWORD")
+    password_file = os.environ.get("FLEET_ZENOH_PASSWORD_FILE")
+    if password_file:
+        try:
+            password = Path(password_file).read_text().strip()
+        except OSError as exc:
+            raise InputError(password_file, "FLEET_ZENOH_PASSWORD_FILE", f"cannot read ({exc.strerror})") from None
+    return user, password
+
+
+def zconfig_from_args(args: argparse.Namespace) -> ZenohConfig:
+    user, password = credentials()
+    return ZenohConfig(mode=args.mode, connect=_split(args.connect), listen=_split(args.listen),
+                       user=user, password=password)
+
+
+def keys_from_args(args: argparse.Namespace) -> Keys:
+    try:
+        return Keys(args.fleet)
+    except ValueError as exc:
+        raise InputError("--fleet", "", str(exc)) from None
+
+
+def run_service(service: Service) -> int:
+    """Run a service to its end in this process; its exit code."""
+    return asyncio.run(service.run())

@@ -1,0 +1,106 @@
+"""Fleet telemetry in rerun: the map graph, no-fly zones and obstacles as 3D geometry, the planned
+paths, live bodies coloured by mode, battery and link quality as time series (one recording per
+mission, saved as .rrd; optionally a live viewer or the web viewer)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+
+from common.mapfile import MapSpec
+from common.messages import SimTruth, Telemetry, VehicleState
+from common.planfile import Plan, PlanGraph
+
+EDGE_RGB = {"drive": (90, 90, 90), "takeoff": (40, 170, 60), "fly": (60, 120, 220), "land": (240, 150, 40)}
+NODE_RGB = {
+    "parking": (220, 50, 50), "land": (60, 60, 60), "waypoint": (150, 90, 200), "air": (60, 120, 220),
+    "helipad": (240, 200, 0),
+}
+MODE_RGB = {
+    "parked": (150, 150, 150), "driving": (40, 170, 60), "taking_off": (240, 200, 0), "flying": (60, 120, 220),
+    "landing": (240, 150, 40), "holding": (160, 80, 200), "emergency_landing": (230, 30, 30),
+    "stopped": (230, 30, 30), "done": (255, 255, 255),
+}
+NO_FLY_TOP = 1.2  # m: how high to draw no-fly prisms that reach the sky
+
+
+def mode_colour(mode: str) -> tuple[int, int, int]:
+    return MODE_RGB.get(mode.lower(), (0, 0, 0))
+
+
+class FleetRecording:
+    """One rerun recording: static map and plan, then time-stamped vehicle data (epoch seconds)."""
+
+    def __init__(self, recording_id: str, rrd: Path | None = None, viewer: bool = False, web: bool = False) -> None:
+        self.rec = rr.RecordingStream("fleet", recording_id=recording_id)
+        sinks: list = []
+        if rrd is not None:
+            rrd.parent.mkdir(parents=True, exist_ok=True)
+            sinks.append(rr.FileSink(str(rrd)))
+        if viewer:
+            self.rec.spawn(connect=False)
+            sinks.append(rr.GrpcSink())
+        if web:
+            url = self.rec.serve_grpc()
+            rr.serve_web_viewer(connect_to=url, open_browser=False)
+        elif sinks:
+            self.rec.set_sinks(*sinks)
+        self.body: tuple[float, float] = (0.06, 0.05)
+
+    def log_map(self, graph: PlanGraph, spec: MapSpec | None = None) -> None:
+        ids = list(graph.nodes)
+        pos = np.array([graph.nodes[n].pos for n in ids])
+        kinds = [graph.nodes[n].kind for n in ids]
+        self.rec.log("map/nodes", rr.Points3D(pos, colors=[NODE_RGB[k] for k in kinds], radii=0.008), static=True)
+        index = {n: i for i, n in enumerate(ids)}
+        for kind, rgb in EDGE_RGB.items():
+            strips = [pos[[index[u], index[v]]] for u, v, k in graph.edges if k == kind and (k != "fly" or u < v)]
+            if strips:
+                self.rec.log(f"map/edges/{kind}", rr.LineStrips3D(strips, colors=rgb, radii=0.002), static=True)
+        if spec is None:
+            return
+        for zone in spec.no_fly:
+            poly = np.array(zone.polygon + [zone.polygon[0]])
+            lo, hi = zone.z[0], min(zone.z[1], NO_FLY_TOP)
+            rings = [np.c_[poly, np.full(len(poly), z)] for z in (lo, hi)]
+            posts = [np.array([[x, y, lo], [x, y, hi]]) for x, y in zone.polygon]
+            self.rec.log(f"map/no_fly/{zone.name}", rr.LineStrips3D(rings + posts, colors=(220, 40, 40), radii=0.004), static=True)
+        if spec.obstacles:
+            lo = np.array([b.min for b in spec.obstacles])
+            hi = np.array([b.max for b in spec.obstacles])
+            self.rec.log("map/obstacles", rr.Boxes3D(centers=(lo + hi) / 2, half_sizes=(hi - lo) / 2,
+                                                      colors=(120, 120, 120), labels=[b.name for b in spec.obstacles]), static=True)
+
+    def log_plan(self, plan: Plan) -> None:
+        self.body = (plan.model.radius, plan.model.height)
+        for vid, path in plan.paths.items():
+            pts = np.array([plan.graph.nodes[e.node].pos for e in path])
+            self.rec.log(f"plan/{vid}", rr.LineStrips3D([pts], radii=0.003, labels=[vid]), static=True)
+
+    def _at(self, t: float) -> None:
+        self.rec.set_time("time", timestamp=t)
+
+    def log_state(self, state: VehicleState) -> None:
+        self._at(state.t)
+        r, h = self.body
+        self.rec.log(f"vehicles/{state.vid}/body", rr.Cylinders3D(
+            lengths=[h], radii=[r], centers=[(state.x, state.y, state.z)], colors=[mode_colour(state.mode)],
+            labels=[f"{state.vid} {state.mode}"]))
+        self.rec.log(f"vehicles/{state.vid}/tracking_error", rr.Scalars(state.tracking_error))
+        self.rec.log(f"vehicles/{state.vid}/progress", rr.Scalars(state.step / max(state.steps, 1)))
+
+    def log_truth(self, truth: SimTruth) -> None:
+        self._at(truth.t)
+        self.rec.log(f"truth/{truth.vid}", rr.Points3D([(truth.x, truth.y, truth.z)], radii=0.01, colors=(0, 0, 0)))
+
+    def log_telemetry(self, tel: Telemetry) -> None:
+        self._at(tel.t)
+        self.rec.log(f"vehicles/{tel.vid}/battery_v", rr.Scalars(tel.vbat))
+        self.rec.log(f"vehicles/{tel.vid}/link_quality", rr.Scalars(tel.link_quality))
+        self.rec.log(f"vehicles/{tel.vid}/cmd_rate_hz", rr.Scalars(tel.cmd_rate_hz))
+
+    def close(self) -> None:
+        self.rec.flush()
+        self.rec.disconnect()
