@@ -13,6 +13,7 @@ import pytest
 from common.cli import main as fleet_main
 from common.geometry import contact_intervals
 from common.planfile import GraphNode, PathEntry, Plan, PlanGraph, PlanModel, Task, write_plan
+from services.planner import validate
 from services.planner.validate import closest_horizontal, validate_plan
 
 MU = 0.25
@@ -204,6 +205,14 @@ def test_hit_while_parked_at_start_before_leaving():
     assert report.contacts[0].t == pytest.approx(20.0)
 
 
+def test_parked_too_close_without_moving():
+    nodes = {"S": ((0.0, 0.0, 0.0), "parking"), "T": ((0.1, 0.0, 0.0), "parking")}
+    plan = make_plan({"a": [("S", 0.0)], "b": [("T", 0.0)]}, nodes=nodes, edges=[])
+    report = validate_plan(plan)
+    assert len(report.errors) == 1 and len(report.contacts) == 1
+    assert report.contacts[0].separation == pytest.approx(0.1) and report.min_separation == pytest.approx(0.1)
+
+
 def test_battery_over_capacity_minus_reserve():
     hover = {"a": [("A1", 0.0), ("A1", 10.0)]}  # 7.83 W / 3.7 V * 10 s = 5.878e-3 Ah
     used = 7.83 / 3.7 * 10 / 3600
@@ -282,6 +291,64 @@ def test_closest_approach_agrees_with_contact_intervals():
     clear = np.abs(sep - 0.12) > 1e-6
     assert np.array_equal((sep < 0.12)[clear], (lo < hi)[clear])
     assert 500 < np.count_nonzero(lo < hi) < 19000
+
+
+def walks(n: int, steps: int, side: int = 8, seed: int = 0) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Random walks on a side x side grid (0.25 m) whose nodes sit at heights within and beyond h of
+    each other, with waits (some of zero length) and speeds 1-1.5x nominal: many contacts."""
+    rng = np.random.default_rng(seed)
+    z = rng.choice([1.0, 1.03, 1.2], size=(side, side))
+    times, points = [], []
+    for _ in range(n):
+        ij, t, ts, ps = rng.integers(side, size=2), float(rng.uniform(0, 2)), [], []
+        for _ in range(steps):
+            ts.append(t)
+            ps.append((0.25 * ij[0], 0.25 * ij[1], z[ij[0], ij[1]]))
+            if rng.random() < 0.3:
+                t += float(rng.choice([0.0, rng.uniform(0.1, 2.0)]))
+            else:
+                ij = np.clip(ij + rng.choice([-1, 1]) * np.eye(2, dtype=int)[rng.integers(2)], 0, side - 1)
+                t += float(rng.uniform(1.0, 1.5))
+        times.append(np.array(ts))
+        points.append(np.array(ps))
+    return times, points
+
+
+def brute_force_episodes(times, points, radius, height) -> dict[tuple[int, int], int]:
+    """Oracle: every pair on every interval of the union of entry times, by common.geometry."""
+    grid = np.unique(np.concatenate(times))
+    grid = np.append(grid, grid[-1] + 1.0)
+    pos = np.stack([np.stack([np.interp(grid, t, p[:, c]) for c in range(3)], axis=1) for t, p in zip(times, points, strict=True)])
+    episodes = {}
+    for a in range(len(times)):
+        for b in range(a + 1, len(times)):
+            d = pos[a] - pos[b]
+            lo, hi = contact_intervals(d[:-1], d[1:], 2 * radius, height)
+            runs = np.count_nonzero(np.diff(np.concatenate([[0], (lo < hi).astype(int)])) == 1)
+            if runs:
+                episodes[(a, b)] = runs
+    return episodes
+
+
+@pytest.mark.parametrize(("seed", "settings"), [
+    (0, {}),
+    (1, {"POSITION_BUDGET": 1}),  # one slab per batch: episodes spanning batches must merge
+    (3, {"SLAB": 1, "SEPARATION_HORIZON": 1.0}),  # pruning boxes with no margin to spare
+])
+def test_contacts_match_a_brute_force_oracle(monkeypatch, seed, settings):
+    """Sweep-and-prune finds exactly the contact episodes of an all-pairs, all-intervals check."""
+    for name, value in settings.items():
+        monkeypatch.setattr(validate, name, value)
+    times, points = walks(24, 40, seed=seed)
+    names = [f"v{i:02d}" for i in range(24)]
+    contacts, _ = validate.find_contacts(names, times, points, 0.06, 0.05)
+    found: dict[tuple[int, int], int] = {}
+    for c in contacts:
+        key = (names.index(c.a), names.index(c.b))
+        found[key] = found.get(key, 0) + 1
+    expected = brute_force_episodes(times, points, 0.06, 0.05)
+    assert len(expected) > 10
+    assert found == expected
 
 
 # -- scale -----------------------------------------------------------------------------------------------------
