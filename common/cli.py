@@ -18,6 +18,8 @@ from common.planfile import PlanFileError
 # Modules that contribute subcommands: each has `register(subparsers)`.
 _COMMAND_MODULES = (
     "services.planner.cli",
+    "services.planner.service",
+    "services.mission.cli",
     "common.router",
     "common.deploy_cli",
 )
