@@ -332,7 +332,7 @@ def brute_force_episodes(times, points, radius, height) -> dict[tuple[int, int],
 
 @pytest.mark.parametrize(("seed", "settings"), [
     (0, {}),
-    (1, {"POSITION_BUDGET": 1}),  # one slab per batch: episodes spanning batches must merge
+    (1, {"POSITION_BUDGET": 1, "ROW_BUDGET": 40}),  # one slab per batch, two pairs per row chunk
     (3, {"SLAB": 1, "SEPARATION_HORIZON": 1.0}),  # pruning boxes with no margin to spare
 ])
 def test_contacts_match_a_brute_force_oracle(monkeypatch, seed, settings):

@@ -36,6 +36,7 @@ MAX_ERRORS = 200  # errors listed in a report; the rest are counted
 SEPARATION_HORIZON = 2.0  # min_separation is measured exactly below this many body diameters
 SLAB = 16  # global time intervals per pruning slab
 POSITION_BUDGET = 1_000_000  # vehicle positions interpolated per batch: bounds memory
+ROW_BUDGET = 2_000_000  # (vehicle pair, interval) rows evaluated exactly at once: bounds memory
 
 
 @dataclass(frozen=True)
@@ -392,20 +393,15 @@ def _near_pairs(lo: np.ndarray, hi: np.ndarray, reach: np.ndarray) -> tuple[np.n
     return slab[keep], np.minimum(a, b)[keep], np.maximum(a, b)[keep]
 
 
-def _candidate_rows(pos: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(a, b, interval) rows for the slabs where vehicles a and b come within `reach` on every axis:
-    in the other slabs the pair is farther apart than reach on some axis throughout."""
-    lo, hi, starts = _slab_boxes(pos)
-    slab, a, b = _near_pairs(lo, hi, reach)
-    counts = np.minimum(starts[slab] + SLAB, pos.shape[1] - 1) - starts[slab]
-    k = np.repeat(starts[slab], counts) + _ragged_arange(counts)
-    return np.repeat(a, counts), np.repeat(b, counts), k
-
-
-def _sweep_batch(pos: np.ndarray, grid: np.ndarray, k0: int, radius: float, height: float) -> _Hits:
-    """Exact closest approach on every candidate row of one batch of global intervals."""
-    reach = np.array([2 * radius * SEPARATION_HORIZON] * 2 + [height])
-    a, b, k = _candidate_rows(pos, reach)
+def _exact_rows(
+    pos: np.ndarray, grid: np.ndarray, k0: int, first: np.ndarray, last: np.ndarray,
+    a: np.ndarray, b: np.ndarray, radius: float, height: float,
+) -> _Hits:
+    """Closest approach of vehicles a[i] and b[i] on each interval first[i] <= k < last[i] of a batch
+    (global interval k0 + k); keeps the rows in contact."""
+    counts = last - first
+    k = np.repeat(first, counts) + _ragged_arange(counts)
+    a, b = np.repeat(a, counts), np.repeat(b, counts)
     s, sep = closest_horizontal(pos[a, k] - pos[b, k], pos[a, k + 1] - pos[b, k + 1], height)
     hit = sep < 2 * radius - EPS
     a, b, k, s = a[hit], b[hit], k[hit], s[hit][:, None]
@@ -419,6 +415,22 @@ def _sweep_batch(pos: np.ndarray, grid: np.ndarray, k0: int, radius: float, heig
         pos_b=pos[b, k] + s * (pos[b, k + 1] - pos[b, k]),
         min_sep=float(sep.min(initial=np.inf)),
     )
+
+
+def _sweep_batch(pos: np.ndarray, grid: np.ndarray, k0: int, radius: float, height: float) -> _Hits:
+    """Contacts within one batch of global intervals: prune vehicle pairs slab by slab, then the exact
+    closest approach on every interval of the remaining (pair, slab)s, ROW_BUDGET rows at a time. A
+    pair left out is farther apart than `reach` on some axis throughout the slab."""
+    reach = np.array([2 * radius * SEPARATION_HORIZON] * 2 + [height])
+    lo, hi, starts = _slab_boxes(pos)
+    slab, a, b = _near_pairs(lo, hi, reach)
+    first = starts[slab]
+    last = np.minimum(first + SLAB, pos.shape[1] - 1)
+    step = max(1, ROW_BUDGET // SLAB)
+    return _concat([
+        _exact_rows(pos, grid, k0, first[i : i + step], last[i : i + step], a[i : i + step], b[i : i + step], radius, height)
+        for i in range(0, max(len(slab), 1), step)
+    ])
 
 
 def _episodes(hits: _Hits) -> np.ndarray:
