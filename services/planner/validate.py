@@ -12,8 +12,9 @@ What it checks, after paper 000:
 Contacts are found analytically. The union of every path's entry times cuts time into global
 intervals inside which every vehicle moves linearly, so each pair's relative position is linear too
 and its closest approach has a closed form. To keep this fast for large fleets, intervals are grouped
-into slabs; a pair is examined exactly only in the slabs where the bounding boxes of the two
-vehicles' motion come within reach of each other (numpy throughout, no sampling).
+into slabs of SLAB; in each slab a sweep and prune over the bounding boxes of the vehicles' motion
+keeps the pairs whose boxes come within reach, and only those are solved exactly, interval by
+interval (numpy throughout, no sampling, no per-pair Python loop).
 """
 
 from __future__ import annotations
