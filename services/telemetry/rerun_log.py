@@ -10,8 +10,8 @@ import numpy as np
 import rerun as rr
 
 from common.mapfile import MapSpec
-from common.messages import SimTruth, Telemetry, VehicleState
-from common.planfile import Plan, PlanGraph
+from common.messages import SimTruth, Telemetry, VehiclePlan, VehicleState
+from common.planfile import PlanGraph
 
 EDGE_RGB = {"drive": (90, 90, 90), "takeoff": (40, 170, 60), "fly": (60, 120, 220), "land": (240, 150, 40)}
 NODE_RGB = {
@@ -73,11 +73,11 @@ class FleetRecording:
             self.rec.log("map/obstacles", rr.Boxes3D(centers=(lo + hi) / 2, half_sizes=(hi - lo) / 2,
                                                       colors=(120, 120, 120), labels=[b.name for b in spec.obstacles]), static=True)
 
-    def log_plan(self, plan: Plan) -> None:
+    def log_vehicle_plan(self, plan: VehiclePlan) -> None:
+        """A vehicle's planned path as a static line (re-logging the same plan is harmless)."""
         self.body = (plan.model.radius, plan.model.height)
-        for vid, path in plan.paths.items():
-            pts = np.array([plan.graph.nodes[e.node].pos for e in path])
-            self.rec.log(f"plan/{vid}", rr.LineStrips3D([pts], radii=0.003, labels=[vid]), static=True)
+        pts = np.array([s.pos for s in plan.steps])
+        self.rec.log(f"plan/{plan.vid}", rr.LineStrips3D([pts], radii=0.003, labels=[plan.vid]), static=True)
 
     def _at(self, t: float) -> None:
         self.rec.set_time("time", timestamp=t)

@@ -1,0 +1,89 @@
+"""The telemetry recorder: zenoh -> rerun. One recording per mission (`<out>/<mission>.rrd`),
+opened when the mission's plans arrive: the map graph, no-fly zones and obstacles, the planned
+paths, then live bodies coloured by mode, ground truth, battery and link quality."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+from common.errors import InputError
+from common.mapfile import load_map
+from common.messages import SimTruth, Telemetry, VehiclePlan, VehicleState
+from common.service import Service
+from common.svcargs import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
+from services.telemetry.rerun_log import FleetRecording
+
+log = logging.getLogger(__name__)
+
+
+class TelemetryService(Service):
+    def __init__(self, instance: str, *args, out: Path = Path("out/recordings"), viewer: bool = False,
+                 web: bool = False, **kwargs) -> None:
+        super().__init__("telemetry", instance, *args, **kwargs)
+        self.out = out
+        self.viewer = viewer
+        self.web = web
+        self.mission = ""
+        self.recording: FleetRecording | None = None
+        self.files: list[Path] = []
+        self.drawn: set[str] = set()
+
+    async def main(self) -> None:
+        k = self.keys
+        self.subscribe(k.all_vehicles("plan"), VehiclePlan, self._on_plan)
+        self.subscribe(k.all_vehicles("state"), VehicleState, self._with_recording(FleetRecording.log_state), maxlen=4096)
+        self.subscribe(k.all_vehicles("telemetry"), Telemetry, self._with_recording(FleetRecording.log_telemetry), maxlen=4096)
+        self.subscribe(k.all_sim_truth, SimTruth, self._with_recording(FleetRecording.log_truth), maxlen=4096)
+        try:
+            await self.stopped()
+        finally:
+            if self.recording is not None:
+                self.recording.close()
+
+    def _with_recording(self, log_fn):
+        def handler(msg, _key: str) -> None:
+            if self.recording is not None:
+                log_fn(self.recording, msg)
+        return handler
+
+    def _on_plan(self, plan: VehiclePlan, _key: str) -> None:
+        if plan.mission != self.mission:
+            self._open(plan)
+        assert self.recording is not None
+        if plan.vid not in self.drawn:  # the mission runner re-publishes plans every second
+            self.drawn.add(plan.vid)
+            self.recording.log_vehicle_plan(plan)
+
+    def _open(self, plan: VehiclePlan) -> None:
+        if self.recording is not None:
+            self.recording.close()
+        self.mission = plan.mission
+        self.drawn.clear()
+        path = self.out / f"{plan.mission or 'no-mission'}.rrd"
+        self.recording = FleetRecording(plan.mission or "fleet", path, viewer=self.viewer, web=self.web)
+        self.files.append(path)
+        try:
+            from services.planner.loading import load_graph
+
+            graph = load_graph(plan.map)
+            self.recording.log_map(graph.to_plan_graph(), load_map(plan.map))
+        except InputError as exc:
+            log.warning("telemetry: cannot draw map %s: %s", plan.map, exc)
+        log.info("recording mission %s to %s", plan.mission, path)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("telemetry", help="record the fleet to rerun (.rrd per mission, live viewer optional)")
+    p.add_argument("--out", type=Path, default=Path("out/recordings"), help="directory for .rrd files")
+    p.add_argument("--viewer", action="store_true", help="spawn the rerun viewer")
+    p.add_argument("--web", action="store_true", help="serve the rerun web viewer")
+    add_zenoh_args(p, default_instance="telemetry")
+    p.set_defaults(handler=cmd_telemetry)
+
+
+def cmd_telemetry(args: argparse.Namespace) -> int:
+    svc = TelemetryService(args.instance, zconfig_from_args(args), keys_from_args(args),
+                           out=args.out, viewer=args.viewer, web=args.web)
+    return run_service(svc)
