@@ -1,0 +1,84 @@
+"""The planner service over real zenoh: a plan request answered with a validated plan and the
+vehicles' plans published; bad requests answered with clear errors; an absent planner fails fast."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from common.bus import QueryError, query, subscribe
+from common.keys import Keys
+from common.messages import PlanReply, PlanRequest, VehiclePlan
+from common.planfile import Task
+from common.zsession import ZenohConfig, open_session
+from services.planner.service import PlannerService
+from services.planner.validate import validate_plan
+
+KEYS = Keys("ptest")
+TASKS = {"cf1": Task(start="WP1", goal="EP4"), "cf2": Task(start="EP1", goal="WP6")}
+
+
+async def _with_planner(endpoint: str, body):
+    svc = PlannerService("planner", "p1", ZenohConfig.client(endpoint), KEYS)
+    task = asyncio.create_task(svc.run())
+    client = open_session(ZenohConfig.client(endpoint))
+    try:
+        await asyncio.sleep(0.3)
+        return await body(client)
+    finally:
+        svc.stop()
+        assert await task == 0
+        client.close()
+
+
+@pytest.mark.timeout(60)
+def test_plan_request_returns_a_valid_plan_and_publishes_vehicle_plans(zenoh_router: str) -> None:
+    async def body(client):
+        got: dict[str, VehiclePlan] = {}
+        sub = subscribe(client, KEYS.all_vehicles("plan"), VehiclePlan, lambda p, _k: got.__setitem__(p.vid, p))
+        await asyncio.sleep(0.2)
+        req = PlanRequest(map="town", tasks=TASKS, planner="sipp", mu=0.5, time_limit=20, mission="m1")
+        reply = await query(client, KEYS.planner_plan, req, PlanReply, timeout=30)
+        for _ in range(50):
+            if len(got) == 2:
+                break
+            await asyncio.sleep(0.05)
+        sub.close()
+        return reply, got
+
+    reply, got = asyncio.run(_with_planner(zenoh_router, body))
+    assert reply.ok and reply.plan is not None
+    assert validate_plan(reply.plan).ok
+    assert set(got) == {"cf1", "cf2"}
+    cf1 = got["cf1"]
+    assert cf1.mission == "m1" and cf1.steps[0].node == "WP1" and cf1.steps[-1].node == "EP4"
+    assert {s.edge for s in cf1.steps} >= {"drive", "takeoff", "fly", "land"}  # it must fly over the gap
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize(("request_", "message"), [
+    (PlanRequest(map="atlantis", tasks=TASKS), "atlantis"),
+    (PlanRequest(map="town", tasks={"cf1": Task(start="Wb0", goal="EP4")}), "tasks.cf1.start"),
+    (PlanRequest(map="town", tasks=TASKS, planner="magic"), "unknown planner"),
+    (PlanRequest(map="town", tasks=TASKS, mu=2.0), "mu"),
+])
+def test_bad_requests_get_clear_errors(zenoh_router: str, request_: PlanRequest, message: str) -> None:
+    async def body(client):
+        return await query(client, KEYS.planner_plan, request_, PlanReply, timeout=30)
+
+    reply = asyncio.run(_with_planner(zenoh_router, body))
+    assert not reply.ok and message in reply.error
+
+
+@pytest.mark.timeout(20)
+def test_no_planner_fails_fast(zenoh_router: str) -> None:
+    async def body() -> None:
+        client = open_session(ZenohConfig.client(zenoh_router))
+        try:
+            await query(client, KEYS.planner_plan, PlanRequest(map="town", tasks=TASKS), PlanReply, timeout=5)
+        finally:
+            client.close()
+
+    with pytest.raises(QueryError):
+        asyncio.run(body())
