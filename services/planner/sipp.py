@@ -1,0 +1,153 @@
+"""Prioritized planning with multimodal SIPP (paper 000 §V-D): `plan_sipp`, registered as "sipp".
+
+Vehicles are planned one at a time in a priority order; each one's path (Alg. 1-2,
+services/planner/sipp_search.py) avoids the space-time claimed by the ones before it
+(services/planner/safe_intervals.py). On well-formed infrastructure (§V-D: starts and goals on
+parking spots or helipads, paths that do not pass through other spots) the vehicles not planned yet
+close the space their parked bodies touch, for all time (revised prioritized planning, Čáp et al.
+2015), so every later vehicle can still leave its start and no order can fail for want of room. On
+maps with open endpoints (MovingAI grids, §VII-style benchmarks) a lower-priority vehicle's start is
+not reserved; it must leave before a higher-priority path passes.
+
+The first order is the task order; when a vehicle cannot be placed, the next order puts it first and
+shuffles the rest (seeded), until a plan is found, the vehicle fails even at the top priority, or the
+time limit passes. Every plan returned is conflict-free by construction.
+"""
+
+from __future__ import annotations
+
+import random
+import time
+from dataclasses import dataclass
+
+from common.planfile import PathEntry, Task
+from services.planner.graph import FleetGraph
+from services.planner.result import PlanResult
+from services.planner.safe_intervals import Reservations
+from services.planner.sipp_heuristic import CostToGo
+from services.planner.sipp_search import SearchGraph, SearchTimeout, TimedPath, sipp
+
+
+@dataclass(frozen=True)
+class _Failure:
+    vid: str
+    reason: str
+
+
+def plan_sipp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: float, seed: int) -> PlanResult:
+    """Plan every task on `graph` with eq. 3 weight `mu`; PlanResult names the vehicle it could not place."""
+    t0 = time.perf_counter()
+    deadline = t0 + time_limit
+    ends = {vid: (graph.index[t.start], graph.index[t.goal]) for vid, t in tasks.items()}
+    ctg = CostToGo.of(graph, mu)
+    ctg.prepare(g for _, g in ends.values())
+    hopeless = _check_reachable(graph, tasks, ends, ctg)
+    if hopeless:
+        return _failed(hopeless, t0, orders=0)
+    sg = SearchGraph.of(graph, mu)
+    park_starts = not graph.open_endpoints
+    order = list(tasks)
+    rng = random.Random(seed)
+    orders = 0
+    while True:
+        orders += 1
+        outcome = _plan_order(graph, sg, ctg, ends, order, park_starts, deadline)
+        if isinstance(outcome, dict):
+            return _solved(graph, list(tasks), outcome, t0, orders)
+        if outcome.vid == order[0] or time.perf_counter() > deadline:
+            return _failed(outcome, t0, orders)
+        rest = [v for v in order if v != outcome.vid]
+        rng.shuffle(rest)
+        order = [outcome.vid, *rest]
+
+
+def _check_reachable(
+    graph: FleetGraph, tasks: dict[str, Task], ends: dict[str, tuple[int, int]], ctg: CostToGo
+) -> _Failure | None:
+    """Tasks no order can serve: goal unreachable, or more charge than usable even alone (§V-C)."""
+    usable = graph.model.usable_ah
+    for vid, (s, g) in ends.items():
+        task = tasks[vid]
+        if ctg.h[g][s] == float("inf"):
+            return _Failure(vid, f"no route from {task.start!r} to {task.goal!r} (entering spots only as the goal)")
+        if ctg.q[g][s] > usable:
+            return _Failure(
+                vid,
+                f"battery: {task.start!r} -> {task.goal!r} needs at least {ctg.q[g][s]:.5f} Ah, "
+                f"more than the usable {usable:.5f} Ah (capacity - reserve)",
+            )
+    return None
+
+
+def _plan_order(
+    graph: FleetGraph,
+    sg: SearchGraph,
+    ctg: CostToGo,
+    ends: dict[str, tuple[int, int]],
+    order: list[str],
+    park_starts: bool,
+    deadline: float,
+) -> dict[str, TimedPath] | _Failure:
+    """One pass of prioritized planning in `order`: every path, or the first vehicle that fails."""
+    res = Reservations(graph)
+    if park_starts:
+        for vid in order:
+            res.park(ends[vid][0], +1)
+    usable = graph.model.usable_ah
+    paths: dict[str, TimedPath] = {}
+    for vid in order:
+        start, goal = ends[vid]
+        if park_starts:
+            res.park(start, -1)
+        where = f"{graph.ids[start]!r} -> {graph.ids[goal]!r}"
+        if res.node_closed[goal]:
+            return _Failure(vid, f"goal of {where} touches a parked vehicle that has not left yet")
+        try:
+            path = sipp(sg, res, start, goal, ctg.h[goal], ctg.q[goal], usable, deadline)
+        except SearchTimeout:
+            return _Failure(vid, f"time limit reached while planning {where} ({len(paths)} vehicles placed)")
+        if path is None:
+            return _Failure(vid, f"no collision-free path {where} within the battery ({len(paths)} vehicles placed)")
+        _reserve(res, path)
+        paths[vid] = path
+    return paths
+
+
+def _reserve(res: Reservations, path: TimedPath) -> None:
+    """Claim a planned path's space-time: rests at nodes (start from 0, goal forever) and traversals."""
+    for i, node in enumerate(path.nodes):
+        if path.depart[i] > path.arrive[i]:
+            res.rest(node, path.arrive[i], path.depart[i])
+        if i < len(path.edges):
+            res.move(path.edges[i], path.depart[i])
+
+
+def _entries(graph: FleetGraph, path: TimedPath) -> list[PathEntry]:
+    """Plan-file entries: each arrival, and the end of each wait (DESIGN.md "Plan file")."""
+    out = []
+    for node, arrive, depart in zip(path.nodes, path.arrive, path.depart, strict=True):
+        out.append(PathEntry(graph.ids[node], arrive))
+        if arrive < depart < float("inf"):
+            out.append(PathEntry(graph.ids[node], depart))
+    return out
+
+
+def _solved(graph: FleetGraph, vids: list[str], paths: dict[str, TimedPath], t0: float, orders: int) -> PlanResult:
+    return PlanResult(
+        ok=True,
+        paths={vid: _entries(graph, paths[vid]) for vid in vids},
+        cost=sum(p.cost for p in paths.values()),
+        planning_time_s=time.perf_counter() - t0,
+        stats={"orders": orders},
+    )
+
+
+def _failed(failure: _Failure, t0: float, orders: int) -> PlanResult:
+    tried = f" after {orders} priority order{'s' if orders != 1 else ''}" if orders else ""
+    return PlanResult(
+        ok=False,
+        error=f"{failure.vid}: {failure.reason}{tried}",
+        failed_vehicle=failure.vid,
+        planning_time_s=time.perf_counter() - t0,
+        stats={"orders": orders},
+    )
