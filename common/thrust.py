@@ -48,6 +48,9 @@ TAU_YAW_RATE = 0.15
 """s, first-order lag from yaw-rate setpoint to yaw rate (assumed)."""
 MAX_TILT_DEG = 25.0
 """deg, the largest roll/pitch the flight controller commands (keeps vertical thrust >= 0.9 T)."""
+DRAG = 0.009
+"""kg/s, linear aerodynamic drag: Förster 2015's K_aero,xy = 9.1785e-7 kg/rad times the summed rotor
+speed at the 41 g hover command (4 x 2355 rad/s by his omega = 0.04076521 pwm + 380.8359)."""
 
 
 def thrust_newtons(cmd: float) -> float:

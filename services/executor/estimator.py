@@ -2,11 +2,14 @@
 filter with position and yaw estimates from a Vicon motion capture system is used to estimate the
 state of the robots").
 
-State [x, y, z, vx, vy, vz, yaw, yaw_rate], constant-velocity model driven by white acceleration
-noise (filterpy's `KalmanFilter`). A pose whose innovation has a squared Mahalanobis distance above
-the chi-square gate is rejected as an outlier; between poses the estimate is extrapolated, so short
-dropouts are bridged; when the predicted position standard deviation exceeds `stale_std` the
-pose is "stale" and the state machine must stop trusting it.
+State [x, y, z, vx, vy, vz, yaw, yaw_rate], constant-velocity model (filterpy's `KalmanFilter`)
+driven by the acceleration the controller commands (`set_input`, the B u of the prediction) plus
+white acceleration noise. A pose whose innovation has a squared Mahalanobis distance above the
+chi-square gate is rejected as an outlier. Between poses the state is dead-reckoned with the
+commanded accelerations, so short dropouts are bridged and a controller acting on the prediction
+sees the response to its own commands (no runaway on a stale velocity); when the predicted position
+standard deviation exceeds `stale_std` the pose is "stale" and the state machine must stop
+trusting it.
 """
 
 from __future__ import annotations
@@ -57,11 +60,11 @@ class Estimate:
 
 
 class PoseEstimator:
-    """Constant-velocity Kalman filter over mocap poses of one vehicle."""
+    """Kalman filter over mocap poses of one vehicle, with the commanded acceleration as input."""
 
     def __init__(self, params: EstimatorParams = EstimatorParams()) -> None:
         self.params = params
-        kf = KalmanFilter(dim_x=8, dim_z=4)
+        kf = KalmanFilter(dim_x=8, dim_z=4, dim_u=3)
         kf.H = np.zeros((4, 8))
         kf.H[0, 0] = kf.H[1, 1] = kf.H[2, 2] = kf.H[3, 6] = 1.0
         kf.R = np.diag([params.pos_std**2] * 3 + [params.yaw_std**2])
@@ -70,28 +73,28 @@ class PoseEstimator:
         self.accepted = 0
         self.rejected = 0
         self._rejected_run = 0
-        self._models: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        self._models: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._accel = (0.0, 0.0, 0.0)
+        self._dr_t = 0.0  # dead reckoning since the last pose: time, position, velocity
+        self._dr = [0.0] * 6
 
-    @property
-    def initialised(self) -> bool:
-        return self.t is not None
-
-    def _model(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """F and Q for a step of `dt` s, cached per 0.1 ms (poses come at a near-constant rate)."""
+    def _model(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """F, Q and B for a step of `dt` s, cached per 0.1 ms (poses come at a near-constant rate)."""
         key = round(dt, 4)
         cached = self._models.get(key)
         if cached is None:
             f = np.eye(8)
             f[0, 3] = f[1, 4] = f[2, 5] = f[6, 7] = key
+            b = np.zeros((8, 3))
             q = np.zeros((8, 8))
             qa = Q_discrete_white_noise(2, dt=key, var=self.params.accel_std**2)
             for axis in range(3):
-                idx = np.ix_([axis, axis + 3], [axis, axis + 3])
-                q[idx] = qa
+                b[axis, axis], b[axis + 3, axis] = 0.5 * key * key, key
+                q[np.ix_([axis, axis + 3], [axis, axis + 3])] = qa
             q[np.ix_([6, 7], [6, 7])] = Q_discrete_white_noise(2, dt=key, var=self.params.yaw_accel_std**2)
             if len(self._models) > 64:
                 self._models.clear()
-            cached = self._models[key] = (f, q)
+            cached = self._models[key] = (f, q, b)
         return cached
 
     def reset(self, pose: Pose) -> None:
@@ -100,6 +103,27 @@ class PoseEstimator:
         self.kf.x = np.array([[pose.x], [pose.y], [pose.z], [0.0], [0.0], [0.0], [pose.yaw], [0.0]])
         self.kf.P = np.diag([p.pos_std**2] * 3 + [0.1**2] * 3 + [p.yaw_std**2, 0.5**2])
         self.t = pose.t
+        self._restart_dead_reckoning()
+
+    def _restart_dead_reckoning(self) -> None:
+        assert self.t is not None
+        self._dr_t = self.t
+        self._dr = self.kf.x[:6, 0].tolist()
+
+    def _reckon(self, now: float) -> list[float]:
+        """Position and velocity dead-reckoned from the last pose to `now` (no change of state)."""
+        dt = now - self._dr_t
+        x, a = self._dr, self._accel
+        if dt <= 0.0:
+            return x
+        return [x[0] + (x[3] + 0.5 * a[0] * dt) * dt, x[1] + (x[4] + 0.5 * a[1] * dt) * dt,
+                x[2] + (x[5] + 0.5 * a[2] * dt) * dt, x[3] + a[0] * dt, x[4] + a[1] * dt, x[5] + a[2] * dt]
+
+    def set_input(self, accel: tuple[float, float, float], now: float) -> None:
+        """The acceleration (world frame, m/s^2) the vehicle is commanded from `now` on."""
+        if self.t is not None and now > self._dr_t:
+            self._dr, self._dr_t = self._reckon(now), now
+        self._accel = accel
 
     def update(self, pose: Pose) -> bool:
         """Fuse one pose; False if it was dropped (out of order) or rejected by the gate."""
@@ -111,12 +135,17 @@ class PoseEstimator:
         if dt <= 0.0:
             return False
         kf = self.kf
-        f, q = self._model(dt)
-        kf.predict(F=f, Q=q)
+        f, q, b = self._model(dt)
+        kf.predict(u=np.array([self._accel]).T, B=b, F=f, Q=q)
         self.t = pose.t
         yaw_est = kf.x[6, 0]
         kf.update(np.array([[pose.x], [pose.y], [pose.z], [yaw_est + wrap_angle(pose.yaw - yaw_est)]]))
-        if kf.mahalanobis**2 > self.params.gate:
+        accepted = kf.mahalanobis**2 <= self.params.gate
+        if accepted:
+            self._rejected_run = 0
+            self.accepted += 1
+            kf.x[6, 0] = wrap_angle(kf.x[6, 0])
+        else:
             # outlier: back to the prediction (filterpy keeps it in x_prior / P_prior)
             kf.x, kf.P = kf.x_prior.copy(), kf.P_prior.copy()
             self.rejected += 1
@@ -124,11 +153,8 @@ class PoseEstimator:
             if self._rejected_run >= self.params.reacquire_after:
                 self.reset(pose)
                 self._rejected_run = 0
-            return False
-        self._rejected_run = 0
-        kf.x[6, 0] = wrap_angle(kf.x[6, 0])
-        self.accepted += 1
-        return True
+        self._restart_dead_reckoning()
+        return accepted
 
     def pos_std(self, now: float) -> float:
         """Largest per-axis position std (m) predicted at `now`; inf before the first pose."""
@@ -141,11 +167,11 @@ class PoseEstimator:
         return math.sqrt(var + qa * dt**4 / 4.0)
 
     def estimate(self, now: float) -> Estimate:
-        """The state extrapolated (constant velocity) to `now`, without changing the filter."""
+        """The state predicted to `now` (dead reckoning since the last pose), without changing the filter."""
         if self.t is None:
             return Estimate(now, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, math.inf, True)
-        dt = max(now - self.t, 0.0)
-        x = self.kf.x[:, 0].tolist()
+        px, py, pz, vx, vy, vz = self._reckon(now)
+        yaw, yaw_rate = float(self.kf.x[6, 0]), float(self.kf.x[7, 0])
         std = self.pos_std(now)
-        return Estimate(now, x[0] + x[3] * dt, x[1] + x[4] * dt, x[2] + x[5] * dt, x[3], x[4], x[5],
-                        wrap_angle(x[6] + x[7] * dt), x[7], std, std > self.params.stale_std)
+        return Estimate(now, px, py, pz, vx, vy, vz, wrap_angle(yaw + yaw_rate * max(now - self.t, 0.0)),
+                        yaw_rate, std, std > self.params.stale_std)

@@ -6,7 +6,10 @@ not fall below C_low), lost radio link, and where to go when the plan must be le
 - lost link: the gateway reports `link_ok = False`, or telemetry that was flowing stops;
 - safe landing: fly level to above the nearest ground node of the vehicle's own plan (a node it
   was going to use anyway), then descend at the landing speed;
-- emergency descent: without a trustworthy pose, a level, open-loop descent profile.
+- emergency descent: without a trustworthy pose, a level descent at `descent_speed` on the
+  dead-reckoned state (the estimator predicts with the commanded accelerations); the real vehicle
+  may descend slower (drag, thrust error), so the motors stop only after the predicted descent
+  time again (`descent_slack`) plus `descent_margin_s`.
 """
 
 from __future__ import annotations
@@ -23,14 +26,24 @@ from common.model import VehicleModel
 class FaultParams:
     """vbat_low: V under load (the Crazyflie firmware warns at 3.2 V; a margin above it);
     link_timeout_s: telemetry silence meaning a lost link; max_hold_s: longest ground hold before
-    giving up the plan; descent_speed / descent_accel: emergency descent profile (m/s, m/s^2)."""
+    giving up the plan; emergency descent: speed (m/s), gain on its error (1/s), acceleration
+    limit (m/s^2), and the wait past the predicted touchdown before the motors stop, as a
+    fraction of the predicted descent time plus a margin (s)."""
 
     vbat_low: float = 3.3
     vbat_low_s: float = 1.0
     link_timeout_s: float = 1.0
     max_hold_s: float = 3.0
-    descent_speed: float = 0.3
+    descent_speed: float = 0.25
+    descent_gain: float = 3.0
     descent_accel: float = 1.0
+    descent_slack: float = 1.0
+    descent_margin_s: float = 0.3
+
+    def descent_accel_cmd(self, vz: float) -> float:
+        """Vertical acceleration (m/s^2) steering the dead-reckoned vertical speed to -descent_speed."""
+        a = self.descent_gain * (-self.descent_speed - vz)
+        return min(max(a, -self.descent_accel), self.descent_accel)
 
 
 class FaultMonitor:
@@ -83,38 +96,3 @@ def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence
     t += max(pos[2] - gz, 0.0) / model.speed.land
     steps.append(PlanStep(node=target.node, t=t, pos=(gx, gy, gz), kind=target.kind, edge="land"))
     return steps
-
-
-@dataclass(frozen=True, slots=True)
-class DescentProfile:
-    """Open-loop vertical acceleration (m/s^2) of a level emergency descent from `height` m:
-    accelerate down to the descent speed, coast, brake to rest at the ground, then motors off."""
-
-    height: float
-    speed: float
-    accel: float
-
-    @classmethod
-    def plan(cls, height: float, params: FaultParams) -> DescentProfile:
-        h = max(height, 0.0)
-        speed = min(params.descent_speed, math.sqrt(params.descent_accel * h))
-        return cls(h, speed, params.descent_accel)
-
-    @property
-    def duration(self) -> float:
-        if self.speed <= 0.0:
-            return 0.0
-        ramp = self.speed / self.accel
-        return 2.0 * ramp + (self.height - self.speed * ramp) / self.speed
-
-    def accel_at(self, t: float) -> float | None:
-        """Commanded vertical acceleration `t` s into the descent; None once it is over."""
-        total = self.duration
-        if t >= total:
-            return None
-        ramp = self.speed / self.accel
-        if t < ramp:
-            return -self.accel
-        if t > total - ramp:
-            return self.accel
-        return 0.0

@@ -3,7 +3,7 @@ roll and thrust commands to the Crazyflie's on-board attitude controller").
 
 Design model: the quadrotor linearised about hover in the frame yawed with the vehicle (x forward,
 y left, z up). Small angles give v'x = g pitch, v'y = -g roll, v'z = a_z (thrust deviation over
-mass); the on-board attitude loop is a first-order lag from the roll/pitch setpoint to the angle
+mass), each less the linear drag (`common.thrust.DRAG`); the on-board attitude loop is a first-order lag from the roll/pitch setpoint to the angle
 and from the yaw-rate setpoint to the yaw rate (`common.thrust`); integrators on the position
 error remove steady offsets (mass, thrust curve, drag). State (13):
 
@@ -15,7 +15,8 @@ the control period and the gain comes from the discrete algebraic Riccati equati
 Roll and pitch are not measured (motion capture gives position and yaw), so the controller
 propagates them through the same lag model from its own commands. The reference's acceleration is
 fed forward as attitude and thrust; the thrust is divided by cos(roll) cos(pitch) and mapped to the
-PWM command through the shared thrust curve.
+PWM command through the shared thrust curve. The acceleration the command should produce is kept
+for the estimator's prediction (`expected_accel`).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from scipy.linalg import expm, solve_discrete_are
 from common.messages import FlightSetpoint
 from common.model import G
 from common.thrust import (
+    DRAG,
     MAX_TILT_DEG,
     TAU_ROLL_PITCH,
     TAU_YAW_RATE,
@@ -48,8 +50,8 @@ N_INPUTS = 4
 class LqrWeights:
     """Largest acceptable value of each state error and input (Bryson's rule)."""
 
-    pos: float = 0.03
-    vel: float = 0.2
+    pos: float = 0.05
+    vel: float = 0.3
     tilt: float = 0.3
     yaw: float = 0.1
     yaw_rate: float = 1.0
@@ -61,11 +63,13 @@ class LqrWeights:
 
 @dataclass(frozen=True, slots=True)
 class FlightModel:
-    """The linearisation's parameters: control period (s) and attitude-loop lags (s)."""
+    """The linearisation's parameters: control period (s), attitude-loop lags (s) and drag over
+    mass (1/s; the default is for Table I's 41 g)."""
 
     dt: float = 0.01
     tau_roll_pitch: float = TAU_ROLL_PITCH
     tau_yaw_rate: float = TAU_YAW_RATE
+    drag_rate: float = DRAG / 0.041
 
 
 def continuous_model(model: FlightModel) -> tuple[np.ndarray, np.ndarray]:
@@ -75,6 +79,7 @@ def continuous_model(model: FlightModel) -> tuple[np.ndarray, np.ndarray]:
     for i in range(3):
         a[i, 3 + i] = 1.0  # p' = v
         a[10 + i, i] = 1.0  # integral' = p
+        a[3 + i, 3 + i] = -model.drag_rate  # drag
     a[3, 7] = G  # vx' = g pitch
     a[4, 6] = -G  # vy' = -g roll
     b[5, 3] = 1.0  # vz' = a_z
@@ -113,10 +118,10 @@ def lqr_gain(model: FlightModel = FlightModel(), weights: LqrWeights = LqrWeight
 class FlightLqr:
     """Roll, pitch, yaw rate and thrust setpoints for one vehicle of `mass` kg."""
 
-    def __init__(self, mass: float, model: FlightModel = FlightModel(), weights: LqrWeights = LqrWeights(),
+    def __init__(self, mass: float, dt: float = 0.01, weights: LqrWeights = LqrWeights(),
                  integral_limit: float = 0.1) -> None:
         self.mass = mass
-        self.model = model
+        self.model = model = FlightModel(dt=dt, drag_rate=DRAG / mass)
         self.k = lqr_gain(model, weights)
         self.integral_limit = integral_limit
         self.max_tilt = math.radians(MAX_TILT_DEG)
@@ -127,6 +132,7 @@ class FlightLqr:
         """Forget the integrators and the propagated attitude (call when a flight starts)."""
         self.integral = [0.0, 0.0, 0.0]
         self.roll = self.pitch = self.yaw_rate = 0.0
+        self.expected_accel = (0.0, 0.0, 0.0)  # world frame, m/s^2, of the last command
 
     def accel_bias(self) -> float:
         """Vertical acceleration (m/s^2) the z integrator adds: the thrust-model error it learned."""
@@ -166,4 +172,10 @@ class FlightLqr:
         self.roll += (roll - self.roll) * kr
         self.pitch += (pitch - self.pitch) * kr
         self.yaw_rate += (yaw_rate - self.yaw_rate) * ky
+        # what the vehicle should do now, for the estimator's prediction: tilt accelerates it
+        # (v'x = g pitch, v'y = -g roll in the yawed frame), the thrust beyond the learned bias lifts it
+        bx, by = G * self.pitch, -G * self.roll
+        d = self.model.drag_rate
+        self.expected_accel = (bx * c - by * s - d * est.vx, bx * s + by * c - d * est.vy,
+                               accel - self.accel_bias() - d * est.vz)
         return to_flight_setpoint(roll, pitch, yaw_rate, thrust_command(thrust))

@@ -25,8 +25,8 @@ from common.messages import (
 from common.model import G, VehicleModel
 from common.thrust import WheelBase, thrust_command, to_flight_setpoint
 from services.executor.estimator import Estimate, EstimatorParams, PoseEstimator
-from services.executor.faults import DescentProfile, FaultMonitor, FaultParams, safe_landing_steps
-from services.executor.lqr import FlightLqr, FlightModel, LqrWeights
+from services.executor.faults import FaultMonitor, FaultParams, safe_landing_steps
+from services.executor.lqr import FlightLqr, LqrWeights
 from services.executor.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
 from services.executor.pure_pursuit import PurePursuit, PursuitParams
 from services.executor.trajectory import RefSample, Trajectory, TrajectoryParams
@@ -69,17 +69,17 @@ class VehicleController:
         self.t0: float | None = None
         self.seq = 0
         self.charge_used_ah = 0.0
-        self.lqr = FlightLqr(self.model.mass, FlightModel(dt=self.params.dt), self.params.lqr)
+        self.lqr = FlightLqr(self.model.mass, self.params.dt, self.params.lqr)
         self.faults = FaultMonitor(self.model, self.params.faults)
         self._reset_mission()
 
     def _reset_mission(self) -> None:
         self._active: Trajectory | None = self.trajectory  # the plan's, or a fault landing's
         self._fault_landing = False
-        self._landing_node_z = 0.0
+        self._ground_z = 0.0  # height of the ground the vehicle took off from or lands on
         self._landing_end = 0.0
         self._hold_since: float | None = None
-        self._descent: tuple[float, DescentProfile] | None = None
+        self._descent: tuple[float, float | None] | None = None  # emergency: start, motors-off time
         self._abort: str | None = None
         self._last_tick: float | None = None
 
@@ -91,7 +91,7 @@ class VehicleController:
             raise ValueError(f"plan for {plan.vid!r} loaded into the controller of {self.vid!r}")
         self.plan = plan
         self.model = self.faults.model = plan.model
-        self.lqr = FlightLqr(plan.model.mass, FlightModel(dt=self.params.dt), self.params.lqr)
+        self.lqr = FlightLqr(plan.model.mass, self.params.dt, self.params.lqr)
         est = self.estimator.estimate(self.estimator.t or 0.0)
         self.trajectory = Trajectory(plan.steps, self.params.trajectory,
                                      yaw0=None if est.stale else est.yaw)
@@ -154,9 +154,8 @@ class VehicleController:
         link = self.faults.link_lost(now)
         if m.airborne:
             if est.stale:
-                height = est.z - self._ground_below()
                 if m.request(Mode.EMERGENCY_LANDING, now, "pose stale in the air"):
-                    self._descent = (now, DescentProfile.plan(height, self.params.faults))
+                    self._descent = (now, None)
                 return
             reason = "low battery" if low else "link lost" if link else self._abort
             if reason and not self._fault_landing:
@@ -195,7 +194,7 @@ class VehicleController:
         end = next((i for i in range(seg, len(traj.steps)) if traj.modes[i + 1] != Mode.LANDING),
                    len(traj.steps) - 1)
         self._landing_end = traj.times[end]
-        self._landing_node_z = traj.nodes[end][2]
+        self._ground_z = traj.nodes[end][2]
 
     def _begin_safe_landing(self, now: float, rel: float, est: Estimate, reason: str) -> None:
         assert self.trajectory is not None
@@ -203,26 +202,29 @@ class VehicleController:
         self._active = Trajectory(steps, self.params.trajectory, yaw0=est.yaw)
         self._fault_landing = True
         self._landing_end = steps[-1].t
-        self._landing_node_z = steps[-1].pos[2]
+        self._ground_z = steps[-1].pos[2]
         self.machine.request(Mode.LANDING, now, reason)
-
-    def _ground_below(self) -> float:
-        return self._landing_node_z if self.machine.mode == Mode.LANDING else 0.0
 
     # ---- controllers ----------------------------------------------------------------------
 
     def _control(self, now: float, est: Estimate, ref: RefSample | None, before: Mode) -> Setpoint:
         mode = self.machine.mode
-        if before in GROUNDED and mode in AIRBORNE:
-            self.lqr.reset()
-            return WheelSetpoint(left=0.0, right=0.0)  # wheels off for the takeoff
-        if mode == Mode.EMERGENCY_LANDING:
-            return self._emergency(now)
-        if mode in AIRBORNE and ref is not None:
+        if mode in AIRBORNE and mode != Mode.EMERGENCY_LANDING and ref is not None:
+            if before in GROUNDED:
+                self._ground_z = est.z
+                self.lqr.reset()
+                self.estimator.set_input((0.0, 0.0, 0.0), now)
+                return WheelSetpoint(left=0.0, right=0.0)  # wheels off for the takeoff
             if mode == Mode.LANDING and self._touched_down(est, ref):
                 self._after_touchdown(now, ref.t)
+                self.estimator.set_input((0.0, 0.0, 0.0), now)
                 return StopSetpoint()
-            return self.lqr.command(est, ref, integrate=est.z - self._ground_below() > self.params.liftoff_height)
+            aloft = est.z - self._ground_z > self.params.liftoff_height
+            sp = self.lqr.command(est, ref, integrate=aloft)
+            self.estimator.set_input(self.lqr.expected_accel if aloft else (0.0, 0.0, 0.0), now)
+            return sp
+        if mode == Mode.EMERGENCY_LANDING:
+            return self._emergency(now, est)
         if mode == Mode.DRIVING and ref is not None and not est.stale:
             assert self._active is not None
             goal = self._active.sample(ref.t + self.pursuit.lookahead(ref))
@@ -231,7 +233,7 @@ class VehicleController:
 
     def _touched_down(self, est: Estimate, ref: RefSample) -> bool:
         h = self.params.touchdown_height
-        return est.z - self._landing_node_z < h and ref.z - self._landing_node_z < h
+        return est.z - self._ground_z < h and ref.z - self._ground_z < h
 
     def _after_touchdown(self, now: float, rel: float) -> None:
         if self._fault_landing:
@@ -242,15 +244,23 @@ class VehicleController:
         nxt = traj.modes[traj.segment(max(rel, self._landing_end))]
         self.machine.request(Mode.DRIVING if nxt == Mode.LANDING else nxt, now, "touchdown")
 
-    def _emergency(self, now: float) -> Setpoint:
-        """Level, open-loop descent; the thrust keeps the bias the flight integrators learned."""
+    def _emergency(self, now: float, est: Estimate) -> Setpoint:
+        """Level descent on the dead-reckoned state (the estimator integrates the accelerations
+        commanded here); the thrust keeps the bias the flight integrators learned. Motors off
+        after the predicted descent time again plus a margin (see `FaultParams`)."""
+        faults = self.params.faults
         assert self._descent is not None
-        start, profile = self._descent
-        accel = profile.accel_at(now - start)
-        if accel is None:
+        start, cut = self._descent
+        if cut is None and est.z <= self._ground_z:  # predicted touchdown
+            cut = now + faults.descent_slack * (now - start) + faults.descent_margin_s
+            self._descent = (start, cut)
+        if cut is not None and now >= cut:
             self.machine.request(Mode.DONE, now, "emergency descent complete")
             return StopSetpoint()
-        thrust = self.model.mass * (G + self.lqr.accel_bias() + accel)
+        accel = faults.descent_accel_cmd(est.vz)
+        d = self.lqr.model.drag_rate  # the thrust also makes up for the drag of the descent
+        self.estimator.set_input((-d * est.vx, -d * est.vy, accel), now)
+        thrust = self.model.mass * (G + self.lqr.accel_bias() + accel + d * est.vz)
         return to_flight_setpoint(0.0, 0.0, 0.0, thrust_command(thrust))
 
     # ---- accounting and state -------------------------------------------------------------

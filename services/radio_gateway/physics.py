@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 from common.messages import FlightSetpoint, Setpoint, SimTruth, StopSetpoint, WheelSetpoint
 from common.model import G, VehicleModel
-from common.thrust import TAU_ROLL_PITCH, TAU_YAW_RATE, WheelBase, from_flight_setpoint, thrust_newtons
+from common.thrust import DRAG, TAU_ROLL_PITCH, TAU_YAW_RATE, WheelBase, from_flight_setpoint, thrust_newtons
 
 WATCHDOG_LEVEL_S = 0.5
 """Crazyflie firmware COMMANDER_WDT_TIMEOUT_STABILIZE: level the attitude, keep the thrust."""
@@ -56,15 +56,14 @@ class PhysicsParams:
     """Simulator constants. The defaults are the nominal vehicle the controllers are designed on;
     tests perturb them (`thrust_scale`, lags, `mass_scale`) to check robustness.
 
-    tau_motor: thrust lag (s, assumed); drag: linear drag (kg/s, of the order of Förster 2015's
-    identified rotor drag at hover); r_internal: battery internal resistance (ohm, assumed);
+    tau_motor: thrust lag (s, assumed); drag: linear drag (kg/s, `common.thrust.DRAG`); r_internal: battery internal resistance (ohm, assumed);
     max_substep: integration step (s)."""
 
     wheels: WheelBase = WheelBase()
     tau_roll_pitch: float = TAU_ROLL_PITCH
     tau_yaw_rate: float = TAU_YAW_RATE
     tau_motor: float = 0.03
-    drag: float = 0.02
+    drag: float = DRAG
     thrust_scale: float = 1.0
     mass_scale: float = 1.0
     r_internal: float = 0.15

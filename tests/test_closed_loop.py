@@ -1,0 +1,204 @@
+"""Closed loop without zenoh: VehicleController + simulated flying car + noisy 100 Hz mocap along a
+town-like path (park, drive, take off, fly, land, drive, park), and the fault reactions.
+
+Acceptance (issue 4): RMS tracking error <= 3 cm on the ground and <= 5 cm in the air, every node
+reached within 0.5 s of its plan time, the mode sequence of the path's edge kinds, battery drain
+within 10 % of eq. 4-5's prediction.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import pytest
+
+from common.messages import PlanStep, Pose, Telemetry
+from common.model import VehicleModel
+from services.executor.closed_loop import Mocap, MocapNoise, Record, plan_for, reference_steps, run
+from services.executor.modes import AIRBORNE, Mode
+from services.executor.vehicle_controller import VehicleController
+from services.radio_gateway.physics import PhysicsParams, SimFlyingCar
+
+MODEL = VehicleModel()
+STEPS = reference_steps(MODEL)
+T0 = 0.5  # mission start on the simulator's clock
+TAKEOFF = next(s.t for s in STEPS if s.edge == "takeoff")  # arrival at the air node, plan time
+# the simulated vehicle is not the nominal one the controllers were designed on
+PERTURBED = PhysicsParams(thrust_scale=0.95, mass_scale=1.04, tau_roll_pitch=0.12, tau_yaw_rate=0.18,
+                          tau_motor=0.04)
+NOISE = MocapNoise(pos_std=0.001, outlier_rate=0.005, dropouts=((T0 + 6.0, T0 + 6.15), (T0 + 17.0, T0 + 17.15)))
+
+
+Hook = Callable[[VehicleController, float], None]
+
+
+def fly_plan(steps: Sequence[PlanStep] = STEPS, params: PhysicsParams = PERTURBED, noise: MocapNoise = NOISE,
+             until: float | None = None, charge_used_ah: float = 0.0, hook: Hook | None = None,
+             telemetry_every: int = 10) -> tuple[VehicleController, SimFlyingCar, list[Record]]:
+    """Fly `steps` from T0; `hook(controller, now)` runs before every tick (fault injection)."""
+    sim = SimFlyingCar("cf1", MODEL, params, pos=steps[0].pos, yaw=0.0, charge_used_ah=charge_used_ah)
+    ctrl = VehicleController("cf1", MODEL, owner="test")
+    ctrl.on_pose(Pose(vid="cf1", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=sim.yaw))
+    ctrl.load(plan_for("cf1", steps, MODEL, t0=T0))
+    records = run(ctrl, sim, until if until is not None else T0 + steps[-1].t + 2.0, Mocap(noise, seed=7),
+                  telemetry_every=telemetry_every, on_tick=None if hook is None else lambda now: hook(ctrl, now))
+    return ctrl, sim, records
+
+
+def abort_at(when: float) -> Hook:
+    def hook(ctrl: VehicleController, now: float) -> None:
+        if now >= when:
+            ctrl.abort("abort")
+    return hook
+
+
+def rms(values: list[float]) -> float:
+    return math.sqrt(sum(v * v for v in values) / len(values))
+
+
+def position(r: Record) -> tuple[float, float, float]:
+    return (r.truth.x, r.truth.y, r.truth.z)
+
+
+def predicted_charge(steps: Sequence[PlanStep]) -> float:
+    """Eq. 4-5 over the plan: each traversal at its mode's power, each wait at idle or hover power."""
+    total = 0.0
+    for a, b in zip(steps, steps[1:], strict=False):
+        if a.node == b.node:
+            total += MODEL.wait_charge(b.t - a.t, airborne=b.kind == "air")
+        else:
+            total += MODEL.edge_charge(b.edge, b.t - a.t)  # type: ignore[arg-type]
+    return total
+
+
+@pytest.fixture(scope="module")
+def mission() -> tuple[VehicleController, SimFlyingCar, list[Record]]:
+    return fly_plan()
+
+
+def test_tracking_error_on_the_ground_and_in_the_air(mission) -> None:
+    ctrl, _, records = mission
+    ground = [math.dist(position(r)[:2], (r.ref.x, r.ref.y)) for r in records if r.mode == Mode.DRIVING]
+    air = [math.dist(position(r), (r.ref.x, r.ref.y, r.ref.z)) for r in records if r.mode in AIRBORNE]
+    assert len(ground) > 1500 and len(air) > 900
+    assert rms(ground) <= 0.03
+    assert rms(air) <= 0.05
+    assert ctrl.estimator.rejected > 0  # the injected outliers were gated out ...
+    assert ctrl.machine.refused == 0  # ... and nothing asked for a transition outside the table
+
+
+def test_every_node_is_reached_within_half_a_second(mission) -> None:
+    _, _, records = mission
+    for i, step in enumerate(STEPS):
+        t_plan = T0 + step.t
+        near = [r.t for r in records if math.dist(position(r), step.pos) <= 0.03]
+        assert near, f"{step.node} never reached"
+        assert min(abs(t - t_plan) for t in near) <= 0.5, step.node
+        passing = 0 < i < len(STEPS) - 1 and STEPS[i - 1].node != step.node != STEPS[i + 1].node
+        if passing:  # driven or flown through: the closest approach itself is on time
+            window = [r for r in records
+                      if T0 + 0.5 * (STEPS[i - 1].t + step.t) <= r.t <= T0 + 0.5 * (step.t + STEPS[i + 1].t)]
+            closest = min(window, key=lambda r: math.dist(position(r), step.pos))
+            assert abs(closest.t - t_plan) <= 0.5, step.node
+
+
+def test_mode_sequence_follows_the_edge_kinds(mission) -> None:
+    ctrl, sim, _ = mission
+    assert ctrl.machine.sequence() == [Mode.PARKED, Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING,
+                                       Mode.DRIVING, Mode.DONE]
+    takeoff = next(tr for tr in ctrl.machine.history if tr.dst == Mode.TAKING_OFF)
+    assert takeoff.t == pytest.approx(T0 + STEPS[5].t, abs=0.02)
+    assert not sim.airborne and math.dist((sim.x, sim.y, sim.z), STEPS[-1].pos) < 0.03
+
+
+def test_battery_drain_matches_eq_4_5(mission) -> None:
+    ctrl, _, records = mission
+    end = next(r for r in records if r.t >= T0 + STEPS[-1].t)
+    start = next(r for r in records if r.t >= T0)
+    used = end.truth.charge_used_ah - start.truth.charge_used_ah
+    assert used == pytest.approx(predicted_charge(STEPS), rel=0.10)
+    assert ctrl.charge_used_ah == pytest.approx(end.truth.charge_used_ah, rel=0.10)
+
+
+def test_state_reports_progress_and_arrival(mission) -> None:
+    ctrl, sim, _ = mission
+    _, state = ctrl.tick(sim.t)
+    assert state.mode == "done" and state.arrived and state.pose_ok
+    assert state.step == state.steps == len(STEPS)
+    assert state.mission == "sim" and state.owner == "test"
+
+
+def test_pose_lost_in_the_air_lands_blind_and_gently() -> None:
+    lost = MocapNoise(dropouts=((T0 + TAKEOFF + 2.0, 1e9),))
+    ctrl, sim, records = fly_plan(noise=lost, until=T0 + TAKEOFF + 8.0)
+    assert ctrl.machine.sequence()[-3:] == [Mode.FLYING, Mode.EMERGENCY_LANDING, Mode.DONE]
+    descending = [r for r in records if r.mode == Mode.EMERGENCY_LANDING]
+    assert max(abs(r.truth.roll) + abs(r.truth.pitch) for r in descending[20:]) < math.radians(2)
+    assert not sim.airborne and not sim.truth().motors
+    assert sim.last_impact_speed < 0.6
+
+
+def test_low_battery_in_the_air_lands_at_the_nearest_ground_node() -> None:
+    # nearly empty: fine on the ground, the voltage sags below 3.3 V under flight load
+    ctrl, sim, _ = fly_plan(charge_used_ah=0.93 * MODEL.capacity_ah, until=T0 + TAKEOFF + 10.0)
+    reasons = {tr.dst: tr.reason for tr in ctrl.machine.history}
+    assert reasons[Mode.LANDING] == "low battery" and reasons[Mode.DONE] == "landed after fault"
+    assert Mode.FLYING not in reasons or ctrl.machine.sequence().index(Mode.LANDING) > 0
+    ground_nodes = [s.pos for s in STEPS if s.kind != "air"]
+    assert min(math.dist((sim.x, sim.y, sim.z), p) for p in ground_nodes) < 0.03
+    assert not sim.airborne and not sim.truth().motors
+
+
+def test_abort_lands_a_flying_vehicle_and_stops_a_driving_one() -> None:
+    in_air = T0 + TAKEOFF + 2.0
+    ctrl, sim, _ = fly_plan(until=in_air + 6.0, hook=abort_at(in_air))
+    assert [tr.reason for tr in ctrl.machine.history][-2:] == ["abort", "landed after fault"]
+    assert min(math.dist((sim.x, sim.y, sim.z), s.pos) for s in STEPS if s.kind != "air") < 0.03
+    on_road = T0 + 5.0
+    ctrl, sim, records = fly_plan(until=on_road + 2.0, hook=abort_at(on_road))
+    assert ctrl.mode == Mode.DONE
+    assert records[-1].truth.x == pytest.approx(records[-60].truth.x, abs=0.002)  # stopped
+
+
+def test_lost_link_on_the_ground_holds_then_resumes() -> None:
+    lost = (T0 + 4.0, T0 + 5.0)
+
+    def link(ctrl: VehicleController, now: float) -> None:
+        ok = not lost[0] <= now < lost[1]
+        ctrl.on_telemetry(Telemetry(vid="cf1", t=now, gateway="sim", vbat=4.0, link_quality=1.0,
+                                                sent=0, acked=0, dropped=0, cmd_rate_hz=100.0, link_ok=ok), now)
+
+    ctrl, sim, records = fly_plan(until=T0 + 12.0, hook=link, telemetry_every=0)
+    assert ctrl.machine.sequence()[:4] == [Mode.PARKED, Mode.DRIVING, Mode.HOLDING, Mode.DRIVING]
+    held = [r for r in records if r.mode == Mode.HOLDING]
+    assert held[0].t == pytest.approx(lost[0], abs=0.02) and held[-1].t == pytest.approx(lost[1], abs=0.02)
+    assert math.dist(position(held[-1]), position(held[10])) < 0.005  # stood still
+    assert math.dist(position(records[-1])[:2], (records[-1].ref.x, records[-1].ref.y)) < 0.02  # caught up
+
+
+def test_stale_pose_on_the_ground_gives_up_after_the_longest_hold() -> None:
+    ctrl, sim, _ = fly_plan(noise=MocapNoise(dropouts=((T0 + 4.0, 1e9),)), until=T0 + 9.0)
+    assert ctrl.machine.sequence() == [Mode.PARKED, Mode.DRIVING, Mode.HOLDING, Mode.DONE]
+    assert ctrl.machine.history[-1].reason == "held too long, plan given up"
+
+
+def test_a_plan_the_vehicle_cannot_follow_is_refused_not_crashed() -> None:
+    """Starting 'in the air' while parked on the ground: every tick asks for FLYING, which the table
+    refuses; the vehicle stays parked with motors off."""
+    steps = [PlanStep(node="a", t=0.0, pos=(0.0, 0.0, 0.5), kind="air"),
+             PlanStep(node="b", t=3.0, pos=(0.9, 0.0, 0.5), kind="air", edge="fly")]
+    ctrl, sim, _ = fly_plan(steps, until=T0 + 2.0)
+    assert ctrl.mode == Mode.PARKED and ctrl.machine.refused > 100
+    assert sim.z == 0.0 and not sim.truth().motors
+
+
+def test_before_the_mission_starts_the_vehicle_stays_parked() -> None:
+    ctrl = VehicleController("cf1", MODEL)
+    ctrl.load(plan_for("cf1", STEPS, MODEL, t0=0.0))  # not started
+    cmd, state = ctrl.tick(10.0)
+    assert cmd.setpoint.__class__.__name__ == "StopSetpoint" and cmd.vid == "cf1" and cmd.seq == 1
+    assert state.mode == "parked" and not state.pose_ok
+    ctrl.start(10.0)
+    with pytest.raises(ValueError):
+        ctrl.load(plan_for("cf2", STEPS, MODEL))
