@@ -9,13 +9,19 @@ close the space their parked bodies touch, for all time (revised prioritized pla
 maps with open endpoints (MovingAI grids, §VII-style benchmarks) a lower-priority vehicle's start is
 not reserved; it must leave before a higher-priority path passes.
 
-The first order is the task order; when a vehicle cannot be placed, the next order puts it first and
-shuffles the rest (seeded), until a plan is found, the vehicle fails even at the top priority, or the
-time limit passes. Every plan returned is conflict-free by construction.
+A goal may be another vehicle's start. Orders plan the vehicle leaving a spot before the one that
+will park there where they can (a stable topological sort); otherwise (a cycle of such goals, or a
+restart that promotes a vehicle) the vehicle planned first ignores the body still parked on its goal,
+which must then get away before it arrives.
+
+The first order is the task order (so sorted); when a vehicle cannot be placed, the next order puts
+it first and shuffles the rest (seeded, then sorted), until a plan is found, the vehicle fails even
+at the top priority, or the time limit passes. Every plan returned is conflict-free by construction.
 """
 
 from __future__ import annotations
 
+import itertools
 import random
 import time
 from dataclasses import dataclass
@@ -23,9 +29,11 @@ from dataclasses import dataclass
 from common.planfile import PathEntry, Task
 from services.planner.graph import FleetGraph
 from services.planner.result import PlanResult
-from services.planner.safe_intervals import Reservations
+from services.planner.safe_intervals import Footprints, Reservations
 from services.planner.sipp_heuristic import CostToGo
 from services.planner.sipp_search import SearchGraph, SearchTimeout, TimedPath, sipp
+
+FEW_VEHICLES = 6  # up to this many vehicles, restarts never repeat a priority order
 
 
 @dataclass(frozen=True)
@@ -46,19 +54,35 @@ def plan_sipp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: 
         return _failed(hopeless, t0, orders=0)
     sg = SearchGraph.of(graph, mu)
     park_starts = not graph.open_endpoints
-    order = list(tasks)
+    blockers = _blockers(graph, ends)
+    order: list[str] | None = _leavers_first(list(tasks), blockers)
     rng = random.Random(seed)
+    tried: set[tuple[str, ...]] = set()
     orders = 0
-    while True:
+    while order is not None:
+        tried.add(tuple(order))
         orders += 1
-        outcome = _plan_order(graph, sg, ctg, ends, order, park_starts, deadline)
+        outcome = _plan_order(graph, sg, ctg, ends, blockers, order, park_starts, deadline)
         if isinstance(outcome, dict):
             return _solved(graph, list(tasks), outcome, t0, orders)
         if outcome.vid == order[0] or time.perf_counter() > deadline:
             return _failed(outcome, t0, orders)
-        rest = [v for v in order if v != outcome.vid]
-        rng.shuffle(rest)
-        order = [outcome.vid, *rest]
+        order = _next_order(order, outcome.vid, blockers, rng, tried)
+    return _failed(_Failure(outcome.vid, outcome.reason + "; every priority order failed"), t0, orders)
+
+
+def _next_order(
+    order: list[str], failed: str, blockers: dict[str, list[str]], rng: random.Random, tried: set[tuple[str, ...]]
+) -> list[str] | None:
+    """A restart: `failed` first, the rest shuffled then sorted. With few vehicles, where the sort maps
+    many shuffles to one order, an order not tried yet instead of a repeat; None when all were tried."""
+    rest = [v for v in order if v != failed]
+    rng.shuffle(rest)
+    nxt = [failed, *_leavers_first(rest, blockers)]
+    if len(order) > FEW_VEHICLES or tuple(nxt) not in tried:
+        return nxt
+    untried = [list(p) for p in itertools.permutations(order) if p not in tried]
+    return rng.choice(untried) if untried else None
 
 
 def _check_reachable(
@@ -79,11 +103,41 @@ def _check_reachable(
     return None
 
 
+def _blockers(graph: FleetGraph, ends: dict[str, tuple[int, int]]) -> dict[str, list[str]]:
+    """For each vehicle, the others whose bodies parked at their starts touch its goal."""
+    rest_nodes = Footprints.of(graph).rest_nodes
+    parked: dict[int, list[str]] = {}
+    for vid, (start, _) in ends.items():
+        for node in rest_nodes[start]:
+            parked.setdefault(node, []).append(vid)
+    return {vid: [b for b in parked.get(goal, []) if b != vid] for vid, (_, goal) in ends.items()}
+
+
+def _leavers_first(order: list[str], blockers: dict[str, list[str]]) -> list[str]:
+    """`order`, changed only so that a vehicle comes after those parked on its goal (cycles kept)."""
+    out: list[str] = []
+    state: dict[str, bool] = {}  # False: being placed, True: placed
+
+    def place(vid: str) -> None:
+        if vid in state:
+            return
+        state[vid] = False
+        for b in blockers[vid]:
+            place(b)
+        state[vid] = True
+        out.append(vid)
+
+    for vid in order:
+        place(vid)
+    return out
+
+
 def _plan_order(
     graph: FleetGraph,
     sg: SearchGraph,
     ctg: CostToGo,
     ends: dict[str, tuple[int, int]],
+    blockers: dict[str, list[str]],
     order: list[str],
     park_starts: bool,
     deadline: float,
@@ -97,15 +151,19 @@ def _plan_order(
     paths: dict[str, TimedPath] = {}
     for vid in order:
         start, goal = ends[vid]
+        # its own parked body, and the bodies still parked on its goal (they must leave before it comes)
+        lifted = [ends[b][0] for b in blockers[vid] if b not in paths] if park_starts else []
         if park_starts:
             res.park(start, -1)
+        for node in lifted:
+            res.park(node, -1)
         where = f"{graph.ids[start]!r} -> {graph.ids[goal]!r}"
-        if res.node_closed[goal]:
-            return _Failure(vid, f"goal of {where} touches a parked vehicle that has not left yet")
         try:
             path = sipp(sg, res, start, goal, ctg.h[goal], ctg.q[goal], usable, deadline)
         except SearchTimeout:
             return _Failure(vid, f"time limit reached while planning {where} ({len(paths)} vehicles placed)")
+        for node in lifted:
+            res.park(node, +1)
         if path is None:
             return _Failure(vid, f"no collision-free path {where} within the battery ({len(paths)} vehicles placed)")
         _reserve(res, path)
