@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import random
 
+import numpy as np
 import pytest
 
 from common.messages import Pose
@@ -103,3 +104,17 @@ def test_out_of_order_and_duplicate_poses_are_dropped() -> None:
     track(est, 0.0, 1.0)
     assert not est.update(Pose(vid="cf1", t=0.5, x=0.0, y=0.0, z=0.0, yaw=0.0))
     assert not est.update(Pose(vid="cf1", t=est.t or 0.0, x=0.0, y=0.0, z=0.0, yaw=0.0))
+
+
+def test_measured_quantities_stay_uncoupled_so_the_innovation_covariance_is_diagonal() -> None:
+    """The estimator inverts S = H P H' + R as a diagonal matrix; that holds only while P never
+    couples x, y, z and yaw. Run it through motion, inputs, an outlier and a dropout and check."""
+    est = PoseEstimator()
+    track(est, 0.0, 1.0, yaw_rate=0.5)
+    est.set_input((0.3, -0.2, 0.1), 1.0)
+    track(est, 1.0, 1.5, yaw_rate=0.5)
+    est.update(Pose(vid="cf1", t=1.5, x=5.0, y=0.0, z=0.0, yaw=0.0))
+    track(est, 1.8, 2.0, yaw_rate=0.5)
+    kf = est.kf
+    s = kf.H @ kf.P @ kf.H.T + kf.R
+    assert np.count_nonzero(s - np.diag(np.diagonal(s))) == 0

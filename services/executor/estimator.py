@@ -59,6 +59,13 @@ class Estimate:
     stale: bool
 
 
+def _inverse_of_diagonal(s: np.ndarray) -> np.ndarray:
+    """Inverse of the innovation covariance S = H P H' + R, which is diagonal here: the four
+    measured quantities (x, y, z, yaw) belong to independent blocks of F, Q, R and the initial P,
+    so P never couples them (a test checks it). 5x cheaper than numpy.linalg.inv on a 4x4."""
+    return np.diag(1.0 / np.diagonal(s))
+
+
 class PoseEstimator:
     """Kalman filter over mocap poses of one vehicle, with the commanded acceleration as input."""
 
@@ -68,6 +75,7 @@ class PoseEstimator:
         kf.H = np.zeros((4, 8))
         kf.H[0, 0] = kf.H[1, 1] = kf.H[2, 2] = kf.H[3, 6] = 1.0
         kf.R = np.diag([params.pos_std**2] * 3 + [params.yaw_std**2])
+        kf.inv = _inverse_of_diagonal
         self.kf = kf
         self.t: float | None = None
         self.accepted = 0
@@ -75,8 +83,10 @@ class PoseEstimator:
         self._rejected_run = 0
         self._models: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._accel = (0.0, 0.0, 0.0)
+        self._u: np.ndarray | None = None  # the same as filterpy's control input (None: zero)
         self._dr_t = 0.0  # dead reckoning since the last pose: time, position, velocity
         self._dr = [0.0] * 6
+        self._pos_cov: list[tuple[float, float, float]] = []  # per axis: P_pp, P_pv, P_vv at the last pose
 
     def _model(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """F, Q and B for a step of `dt` s, cached per 0.1 ms (poses come at a near-constant rate)."""
@@ -109,6 +119,8 @@ class PoseEstimator:
         assert self.t is not None
         self._dr_t = self.t
         self._dr = self.kf.x[:6, 0].tolist()
+        p = self.kf.P
+        self._pos_cov = [(float(p[i, i]), float(p[i, i + 3]), float(p[i + 3, i + 3])) for i in range(3)]
 
     def _reckon(self, now: float) -> list[float]:
         """Position and velocity dead-reckoned from the last pose to `now` (no change of state)."""
@@ -124,6 +136,7 @@ class PoseEstimator:
         if self.t is not None and now > self._dr_t:
             self._dr, self._dr_t = self._reckon(now), now
         self._accel = accel
+        self._u = np.array([accel]).T if any(accel) else None
 
     def update(self, pose: Pose) -> bool:
         """Fuse one pose; False if it was dropped (out of order) or rejected by the gate."""
@@ -136,15 +149,16 @@ class PoseEstimator:
             return False
         kf = self.kf
         f, q, b = self._model(dt)
-        kf.predict(u=np.array([self._accel]).T, B=b, F=f, Q=q)
+        kf.predict(u=self._u, B=b, F=f, Q=q)
         self.t = pose.t
-        yaw_est = kf.x[6, 0]
-        kf.update(np.array([[pose.x], [pose.y], [pose.z], [yaw_est + wrap_angle(pose.yaw - yaw_est)]]))
+        yaw_est = float(kf.x[6, 0])
+        z = np.array([[pose.x], [pose.y], [pose.z], [yaw_est + wrap_angle(pose.yaw - yaw_est)]])
+        kf.update(z, H=kf.H)  # z is already a column: passing H skips filterpy's reshaping
         accepted = kf.mahalanobis**2 <= self.params.gate
         if accepted:
             self._rejected_run = 0
             self.accepted += 1
-            kf.x[6, 0] = wrap_angle(kf.x[6, 0])
+            kf.x[6, 0] = wrap_angle(float(kf.x[6, 0]))
         else:
             # outlier: back to the prediction (filterpy keeps it in x_prior / P_prior)
             kf.x, kf.P = kf.x_prior.copy(), kf.P_prior.copy()
@@ -161,10 +175,8 @@ class PoseEstimator:
         if self.t is None:
             return math.inf
         dt = max(now - self.t, 0.0)
-        p = self.kf.P
-        qa = self.params.accel_std**2
-        var = max(p[i, i] + 2.0 * dt * p[i, i + 3] + dt * dt * p[i + 3, i + 3] for i in range(3))
-        return math.sqrt(var + qa * dt**4 / 4.0)
+        var = max(pp + 2.0 * dt * pv + dt * dt * vv for pp, pv, vv in self._pos_cov)
+        return math.sqrt(var + self.params.accel_std**2 * dt**4 / 4.0)
 
     def estimate(self, now: float) -> Estimate:
         """The state predicted to `now` (dead reckoning since the last pose), without changing the filter."""
