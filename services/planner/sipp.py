@@ -116,6 +116,7 @@ def _blockers(graph: FleetGraph, ends: dict[str, tuple[int, int]]) -> dict[str, 
 def _leavers_first(order: list[str], blockers: dict[str, list[str]]) -> list[str]:
     """`order`, changed only so that a vehicle comes after those parked on its goal (cycles kept)."""
     out: list[str] = []
+    members = set(order)
     state: dict[str, bool] = {}  # False: being placed, True: placed
 
     def place(vid: str) -> None:
@@ -123,7 +124,8 @@ def _leavers_first(order: list[str], blockers: dict[str, list[str]]) -> list[str
             return
         state[vid] = False
         for b in blockers[vid]:
-            place(b)
+            if b in members:
+                place(b)
         state[vid] = True
         out.append(vid)
 
