@@ -144,7 +144,9 @@ def test_low_battery_in_the_air_lands_at_the_nearest_ground_node() -> None:
     ctrl, sim, _ = fly_plan(charge_used_ah=0.93 * MODEL.capacity_ah, until=T0 + TAKEOFF + 10.0)
     reasons = {tr.dst: tr.reason for tr in ctrl.machine.history}
     assert reasons[Mode.LANDING] == "low battery" and reasons[Mode.DONE] == "landed after fault"
-    assert Mode.FLYING not in reasons or ctrl.machine.sequence().index(Mode.LANDING) > 0
+    landing = next(tr for tr in ctrl.machine.history if tr.dst == Mode.LANDING)
+    planned_landing = next(a.t for a, b in zip(STEPS, STEPS[1:], strict=False) if b.edge == "land")
+    assert landing.src in AIRBORNE and landing.t < T0 + planned_landing  # driving did not trip it
     ground_nodes = [s.pos for s in STEPS if s.kind != "air"]
     assert min(math.dist((sim.x, sim.y, sim.z), p) for p in ground_nodes) < 0.03
     assert not sim.airborne and not sim.truth().motors
@@ -202,3 +204,21 @@ def test_before_the_mission_starts_the_vehicle_stays_parked() -> None:
     ctrl.start(10.0)
     with pytest.raises(ValueError):
         ctrl.load(plan_for("cf2", STEPS, MODEL))
+
+
+def test_telemetry_silence_in_the_air_lands_and_a_plan_is_not_loaded_mid_air() -> None:
+    silent_from = T0 + TAKEOFF + 1.0
+    refused: list[bool] = []
+
+    def hook(ctrl: VehicleController, now: float) -> None:
+        if now < silent_from:
+            ctrl.on_telemetry(Telemetry(vid="cf1", t=now, gateway="sim", vbat=4.0, link_quality=1.0, sent=0,
+                                        acked=0, dropped=0, cmd_rate_hz=100.0), now)
+        elif not refused:
+            refused.append(ctrl.load(plan_for("cf1", STEPS, MODEL, t0=now)))
+
+    ctrl, sim, _ = fly_plan(until=silent_from + 6.0, hook=hook, telemetry_every=0)
+    assert refused == [False] and ctrl.plan is not None and ctrl.plan.t0 == T0
+    reasons = {tr.dst: tr.reason for tr in ctrl.machine.history}
+    assert reasons[Mode.LANDING] == "link lost" and reasons[Mode.DONE] == "landed after fault"
+    assert not sim.airborne and not sim.truth().motors

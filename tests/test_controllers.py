@@ -38,7 +38,7 @@ def estimate(x: float = 0.0, y: float = 0.0, z: float = 0.5, yaw: float = 0.0, v
 
 def ref(x: float = 0.0, y: float = 0.0, z: float = 0.5, yaw: float = 0.0, vx: float = 0.0, vy: float = 0.0,
         mode: Mode = Mode.FLYING) -> RefSample:
-    return RefSample(0.0, x, y, z, vx, vy, 0.0, 0.0, 0.0, 0.0, yaw, 0.0, mode, 0)
+    return RefSample(0.0, x, y, z, vx, vy, 0.0, 0.0, 0.0, 0.0, yaw, 0.0, mode)
 
 
 # ---- thrust model ---------------------------------------------------------------------------

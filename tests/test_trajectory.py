@@ -69,7 +69,7 @@ def test_planned_modes_follow_edge_kinds_and_wait_places() -> None:
                      Mode.FLYING, Mode.FLYING, Mode.LANDING, Mode.DRIVING, Mode.DRIVING, Mode.DRIVING]
     assert traj.sample(-1.0).mode == Mode.PARKED
     assert traj.sample(STEPS[-1].t + 1.0).mode == Mode.DONE
-    assert traj.sample(STEPS[3].t).step == 4  # four entries at or before r2's arrival
+    assert traj.segment(STEPS[3].t) == 4  # progress: four entries at or before r2's arrival
 
 
 def test_yaw_follows_the_road_and_touches_down_facing_the_next_road() -> None:

@@ -34,8 +34,7 @@ def wrap_angle(a: float) -> float:
 @dataclass(frozen=True, slots=True)
 class RefSample:
     """The reference at time `t` (s since mission start): position, velocity, acceleration (m, m/s,
-    m/s^2, world frame), yaw (rad, CCW from +x) and yaw rate, the planned mode and progress
-    (`step`: how many path entries lie at or before `t`)."""
+    m/s^2, world frame), yaw (rad, CCW from +x) and yaw rate, and the planned mode."""
 
     t: float
     x: float
@@ -50,7 +49,6 @@ class RefSample:
     yaw: float
     yaw_rate: float
     mode: Mode
-    step: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -166,7 +164,8 @@ class Trajectory:
         return out
 
     def segment(self, t: float) -> int:
-        """Index into `modes`: 0 before the first entry, k + 1 on segment k, n after the last."""
+        """Index into `modes`: 0 before the first entry, k + 1 on segment k, n after the last; also
+        the progress, the number of path entries at or before `t`."""
         return bisect_right(self.times, t)
 
     def sample(self, t: float) -> RefSample:
@@ -204,7 +203,7 @@ class Trajectory:
         else:
             yaw_rate = 0.0
             yaw = math.atan2(vy, vx) if mode == Mode.DRIVING and vx * vx + vy * vy > 1e-8 else base
-        return RefSample(t, px, py, pz, vx, vy, vz, ax, ay, az, yaw, yaw_rate, mode, seg)
+        return RefSample(t, px, py, pz, vx, vy, vz, ax, ay, az, yaw, yaw_rate, mode)
 
     def samples(self, dt: float = 0.01, lead: float = 0.0, tail: float = 0.0) -> list[RefSample]:
         """Closely spaced samples from `lead` s before the first entry to `tail` s after the last."""

@@ -9,6 +9,7 @@ step times are relative to the mission start `t0`.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 
@@ -30,6 +31,8 @@ from services.executor.lqr import FlightLqr, LqrWeights
 from services.executor.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
 from services.executor.pure_pursuit import PurePursuit, PursuitParams
 from services.executor.trajectory import RefSample, Trajectory, TrajectoryParams
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -85,10 +88,14 @@ class VehicleController:
 
     # ---- inputs ---------------------------------------------------------------------------
 
-    def load(self, plan: VehiclePlan) -> None:
-        """Take a new plan (replacing any other): the vehicle parks until the mission starts."""
+    def load(self, plan: VehiclePlan) -> bool:
+        """Take a new plan (replacing any other): the vehicle parks until the mission starts.
+        Refused (False, logged) while airborne: a plan starts on the ground."""
         if plan.vid != self.vid:
             raise ValueError(f"plan for {plan.vid!r} loaded into the controller of {self.vid!r}")
+        if self.machine.airborne:
+            log.warning("%s: plan %r refused while %s; load it once landed", self.vid, plan.mission, self.mode)
+            return False
         self.plan = plan
         self.model = self.faults.model = plan.model
         self.lqr = FlightLqr(plan.model.mass, self.params.dt, self.params.lqr)
@@ -97,9 +104,8 @@ class VehicleController:
                                      yaw0=None if est.stale else est.yaw)
         self.t0 = plan.t0 or None
         self._reset_mission()
-        if self.machine.mode in AIRBORNE:
-            return  # a new plan does not change how the vehicle gets down; it applies once landed
         self.machine.request(Mode.PARKED, self.estimator.t or 0.0, "plan loaded")
+        return True
 
     def start(self, t0: float) -> None:
         """The mission starts at `t0` (the plan's step times are relative to it)."""
@@ -197,10 +203,15 @@ class VehicleController:
         self._ground_z = traj.nodes[end][2]
 
     def _begin_safe_landing(self, now: float, rel: float, est: Estimate, reason: str) -> None:
+        """Leave the plan for the nearest ground node; a planned landing already under way just
+        ends the mission at its touchdown."""
+        self._fault_landing = True
+        if self.machine.mode == Mode.LANDING:
+            log.info("%s: %s while landing: the mission ends at touchdown", self.vid, reason)
+            return
         assert self.trajectory is not None
         steps = safe_landing_steps((est.x, est.y, est.z), rel, self.trajectory.steps, self.model)
         self._active = Trajectory(steps, self.params.trajectory, yaw0=est.yaw)
-        self._fault_landing = True
         self._landing_end = steps[-1].t
         self._ground_z = steps[-1].pos[2]
         self.machine.request(Mode.LANDING, now, reason)
@@ -284,6 +295,6 @@ class VehicleController:
             vid=self.vid, t=now, owner=self.owner, mode=str(self.machine.mode),
             x=est.x, y=est.y, z=est.z, yaw=est.yaw, vx=est.vx, vy=est.vy, vz=est.vz,
             pose_ok=not est.stale, mission=self.plan.mission if self.plan else "",
-            step=min(ref.step, len(traj.steps)) if ref is not None and traj is not None else 0,
+            step=traj.segment(now - self.t0) if traj is not None and self.t0 is not None else 0,
             steps=len(traj.steps) if traj is not None else 0,
             tracking_error=err, charge_used_ah=self.charge_used_ah, arrived=arrived)
