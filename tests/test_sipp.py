@@ -5,6 +5,7 @@ force the hard cases: a swap through a single lane, crossing air edges, the batt
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import msgspec
 import numpy as np
@@ -22,7 +23,7 @@ from services.planner.sipp import plan_sipp
 from services.planner.sipp_windows import edge_pair_windows
 from services.planner.validate import validate_plan
 
-MOVINGAI = "/work/shared/benchmarks/movingai/random-32-32-10"
+MOVINGAI = str(Path(__file__).resolve().parents[2] / "shared" / "benchmarks" / "movingai" / "random-32-32-10")
 
 
 def plan_valid(graph: FleetGraph, tasks: dict[str, Task], mu: float = 0.5, seed: int = 0) -> PlanResult:
