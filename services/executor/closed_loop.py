@@ -10,11 +10,12 @@ import math
 import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import msgspec
 
 from common.messages import PlanStep, Pose, SimTruth, Telemetry, VehiclePlan
-from common.model import NodeKind, VehicleModel
+from common.model import EdgeKind, NodeKind, VehicleModel
 from common.planfile import PlanModel
 from services.executor.modes import Mode
 from services.executor.trajectory import RefSample
@@ -73,34 +74,26 @@ def plan_for(vid: str, steps: Sequence[PlanStep], model: VehicleModel, t0: float
 
 def reference_steps(model: VehicleModel) -> list[PlanStep]:
     """Park -> road (0.1 m/s, a 90 degree turn, a wait) -> vertical takeoff to 0.5 m (0.2 m/s) ->
-    1.5 m of flight (0.3 m/s) and a hover -> landing -> road -> park, timed by the model's speeds."""
-    legs: list[tuple[str, tuple[float, float, float], NodeKind, str]] = [
-        ("p0", (0.0, 0.0, 0.0), "parking", ""),
-        ("p0", (0.0, 0.0, 0.0), "parking", "wait:1.0"),
-        ("r1", (0.15, 0.15, 0.0), "waypoint", "drive"),
-        ("r2", (0.65, 0.15, 0.0), "waypoint", "drive"),
-        ("r2", (0.65, 0.15, 0.0), "waypoint", "wait:1.0"),
-        ("l1", (0.65, 0.45, 0.0), "land", "drive"),
-        ("a1", (0.65, 0.45, 0.5), "air", "takeoff"),
-        ("a2", (2.15, 0.45, 0.5), "air", "fly"),
-        ("a2", (2.15, 0.45, 0.5), "air", "wait:1.0"),
-        ("l2", (2.15, 0.45, 0.0), "land", "land"),
-        ("r3", (2.15, 0.15, 0.0), "waypoint", "drive"),
-        ("r4", (2.55, 0.15, 0.0), "waypoint", "drive"),
-        ("p1", (2.70, 0.0, 0.0), "parking", "drive"),
+    1.5 m of flight (0.3 m/s) and a hover -> landing -> road -> park, timed by the model's speeds.
+    Each leg is (node, position, node kind, arriving edge kind or "" for a wait, wait in s)."""
+    legs: list[tuple[str, tuple[float, float, float], NodeKind, EdgeKind | Literal[""], float]] = [
+        ("p0", (0.0, 0.0, 0.0), "parking", "", 1.0),
+        ("r1", (0.15, 0.15, 0.0), "waypoint", "drive", 0.0),
+        ("r2", (0.65, 0.15, 0.0), "waypoint", "drive", 0.0),
+        ("r2", (0.65, 0.15, 0.0), "waypoint", "", 1.0),
+        ("l1", (0.65, 0.45, 0.0), "land", "drive", 0.0),
+        ("a1", (0.65, 0.45, 0.5), "air", "takeoff", 0.0),
+        ("a2", (2.15, 0.45, 0.5), "air", "fly", 0.0),
+        ("a2", (2.15, 0.45, 0.5), "air", "", 1.0),
+        ("l2", (2.15, 0.45, 0.0), "land", "land", 0.0),
+        ("r3", (2.15, 0.15, 0.0), "waypoint", "drive", 0.0),
+        ("r4", (2.55, 0.15, 0.0), "waypoint", "drive", 0.0),
+        ("p1", (2.70, 0.0, 0.0), "parking", "drive", 0.0),
     ]
-    steps: list[PlanStep] = []
-    t = 0.0
-    for node, pos, kind, how in legs:
-        if how.startswith("wait:"):
-            t += float(how[5:])
-            edge = ""
-        elif how:
-            t += math.dist(steps[-1].pos, pos) / model.edge_speed(how)  # type: ignore[arg-type]
-            edge = how
-        else:
-            edge = ""
-        steps.append(PlanStep(node=node, t=round(t, 6), pos=pos, kind=kind, edge=edge))  # type: ignore[arg-type]
+    steps = [PlanStep(node="p0", t=0.0, pos=(0.0, 0.0, 0.0), kind="parking")]
+    for node, pos, kind, edge, wait in legs:
+        duration = math.dist(steps[-1].pos, pos) / model.edge_speed(edge) if edge else wait
+        steps.append(PlanStep(node=node, t=round(steps[-1].t + duration, 6), pos=pos, kind=kind, edge=edge))
     return steps
 
 

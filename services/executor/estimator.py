@@ -44,7 +44,7 @@ class EstimatorParams:
 
 @dataclass(frozen=True, slots=True)
 class Estimate:
-    """The state extrapolated to a query time, with its position std (m) and staleness."""
+    """The state predicted to a query time, with its position std (m) and staleness."""
 
     t: float
     x: float

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from common.messages import PlanStep
-from services.executor.modes import Mode, segment_mode
+from services.executor.modes import AIRBORNE, Mode, segment_mode
 
 _EPS = 1e-9
 
@@ -145,15 +145,13 @@ class Trajectory:
         out: list[tuple[float, float, float]] = []
         k = 0
         while k <= n:
-            if self.modes[k] in (Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING) and k > 0:
+            if self.modes[k] in AIRBORNE and k > 0:  # an airborne stretch: segments k .. end - 1
                 end = k
-                while end <= n and self.modes[end] in (Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING):
+                while end <= n and self.modes[end] in AIRBORNE:
                     end += 1
                 after = next((h for h in heading[end:] if h is not None), current)
                 turn = wrap_angle(after - current)
-                t_start = self.times[k - 1]
-                for _ in range(k, end):
-                    out.append((current, t_start, turn))
+                out.extend([(current, self.times[k - 1], turn)] * (end - k))
                 current = wrap_angle(current + turn)
                 k = end
                 continue
