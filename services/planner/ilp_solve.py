@@ -7,7 +7,8 @@
    HiGHS is not needed; otherwise it bounds the cost, so columns no plan that cheap can use are
    dropped, and it is HiGHS's MIP start.
 3. The model (ilp_model), solved by HiGHS single-threaded with a time limit and a relative MIP gap.
-   Presolve is off: on these pruned models HiGHS's presolve took far longer than the solve.
+   With a MIP start presolve is off (on these pruned models it took far longer than the solve);
+   without one the horizon may well be infeasible, and presolve's probing proves that much faster.
 The gap reported is HiGHS's, or, when HiGHS does not finish, the prioritized plan's against the
 horizon's lower bound.
 """
@@ -56,7 +57,8 @@ def _run_highs(cols: Columns, table: ArcTable, fleet: Fleet, horizon: int, n_nod
                time_limit: float, seed: int, mip_rel_gap: float) -> tuple[highspy.Highs, ModelSize]:
     lp, size = build_lp(cols, table, fleet, horizon, n_nodes)
     h = highspy.Highs()
-    for name, value in (("output_flag", False), ("threads", 1), ("presolve", "off"), ("random_seed", seed),
+    presolve = "off" if start is not None else "on"
+    for name, value in (("output_flag", False), ("threads", 1), ("presolve", presolve), ("random_seed", seed),
                         ("time_limit", max(time_limit, 1e-3)), ("mip_rel_gap", mip_rel_gap)):
         h.setOptionValue(name, value)
     h.passModel(lp)
