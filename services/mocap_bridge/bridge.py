@@ -1,0 +1,85 @@
+"""`fleet mocap`: motion capture -> `vehicle/<vid>/pose` (paper 000 §VI-B: "position and yaw estimates
+from a Vicon motion capture system"), 100 Hz by default, stamped with the capture time.
+
+A `motioncapture` system (vicon, optitrack, qualisys, vrpn, or the library's mock) or the simulator's
+ground truth (`sim`) feeds the `BodyTracker`, which maps rigid bodies to vehicles, limits the rate
+and reports a vanished body as `VehicleEvent` "mocap_lost" on `vehicle/<vid>/event` (no poses for it
+until it is back: "mocap_found").
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Mapping
+
+from common.bus import Publisher
+from common.keys import Keys
+from common.messages import Pose, SimTruth, VehicleEvent
+from common.service import Service
+from common.zsession import ZenohConfig
+from services.mocap_bridge.backends import LibBackend, SimBackend
+from services.mocap_bridge.config import MocapConfig, check_mocap
+from services.mocap_bridge.tracker import BodyPose, BodyTracker, Event
+
+log = logging.getLogger(__name__)
+
+
+class MocapBridge(Service):
+    """Publishes the poses of `config`'s backend. `published` counts poses per vehicle."""
+
+    def __init__(self, config: MocapConfig, zconfig: ZenohConfig, instance: str = "mocap",
+                 keys: Keys | None = None) -> None:
+        check_mocap(config, "mocap config")
+        super().__init__("mocap", instance, zconfig, keys)
+        self.config = config
+        self.tracker: BodyTracker | None = None
+        self.published: dict[str, int] = {}
+        self._poses: dict[str, Publisher[Pose]] = {}
+        self._events: dict[str, Publisher[VehicleEvent]] = {}
+
+    async def main(self) -> None:
+        cfg = self.config
+        tracker = self.tracker = BodyTracker(cfg.bodies, cfg.rate_hz, cfg.lost_after_s, time.time(),
+                                             source=cfg.backend)
+        lib: LibBackend | None = None
+        if cfg.backend == "sim":
+            sim = SimBackend(cfg.sim, self._on_frame)
+            self.subscribe(self.keys.all_sim_truth, SimTruth, sim.on_truth)
+        else:
+            options = dict(cfg.options)
+            if cfg.backend == "mock":
+                options.setdefault("frequency", str(round(cfg.rate_hz)))
+            lib = LibBackend(cfg.backend, options, cfg.latency_s, self._on_frame, self._on_backend_error)
+            lib.start(asyncio.get_running_loop())
+        try:
+            while True:  # lost bodies are noticed even when no frame comes at all
+                self._publish_events(tracker.check(time.time()))
+                await asyncio.sleep(min(cfg.lost_after_s / 2.0, 1.0 / cfg.rate_hz))
+        finally:
+            if lib is not None:
+                lib.stop()
+
+    def _on_frame(self, t: float, seen: Mapping[str, BodyPose]) -> None:
+        assert self.tracker is not None
+        poses, events = self.tracker.frame(t, seen, time.time())
+        self._publish_events(events)
+        for pose in poses:
+            pub = self._poses.get(pose.vid)
+            if pub is None:
+                pub = self._poses[pose.vid] = self.publisher(self.keys.vehicle(pose.vid, "pose"), Pose)
+            pub.put(pose)
+            self.published[pose.vid] = self.published.get(pose.vid, 0) + 1
+
+    def _on_backend_error(self, message: str) -> None:
+        if self.counters.inc("backend_error") == 1:
+            log.error("mocap: %s (retrying; further errors only counted)", message)
+
+    def _publish_events(self, events: list[Event]) -> None:
+        for vid, kind, detail in events:
+            log.warning("mocap: %s %s: %s", vid, kind, detail)
+            pub = self._events.get(vid)
+            if pub is None:
+                pub = self._events[vid] = self.publisher(self.keys.vehicle(vid, "event"), VehicleEvent)
+            pub.put(VehicleEvent(vid=vid, t=time.time(), kind=kind, detail=detail))

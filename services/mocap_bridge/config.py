@@ -1,0 +1,86 @@
+"""The mocap bridge's configuration (docs/mocap.md), a YAML file decoded strictly, or the defaults
+(simulated motion capture of every simulated vehicle at 100 Hz).
+
+```yaml
+backend: vicon                  # sim | mock | vicon | optitrack | qualisys | vrpn
+options: {hostname: 10.0.0.5}   # passed to motioncapture.connect (strings)
+rate_hz: 100                    # most poses per second per body
+bodies: {cf_01: cf1, cf_02: cf2}   # rigid-body name -> vehicle id (empty: the body's name is the vid)
+lost_after_s: 0.1               # a body unseen this long is reported lost
+latency_s: 0.0                  # real systems: subtracted from the arrival time for the capture stamp
+sim: {pos_std: 0.001, yaw_std: 0.0087, latency_s: 0.005, dropout_rate_hz: 0.0, dropout_s: 0.2, seed: 0}
+```
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import msgspec
+
+from common.errors import InputError
+from common.keys import check_chunk
+from common.mapfile import decode_yaml, read_text
+
+_Strict = {"frozen": True, "forbid_unknown_fields": True}
+
+Backend = Literal["sim", "mock", "vicon", "optitrack", "qualisys", "vrpn"]
+LIB_BACKENDS: tuple[str, ...] = ("mock", "vicon", "optitrack", "qualisys", "vrpn")
+"""Backends served by the `motioncapture` library (libmotioncapture)."""
+
+
+class SimNoise(msgspec.Struct, **_Strict):
+    """The `sim` backend's imperfections: Gaussian position (m) and yaw (rad) noise, the delay from
+    capture to publication (s), and dropouts: each body starts one at random `dropout_rate_hz`
+    times per second (Poisson), lasting `dropout_s`. Defaults: docs/mocap.md."""
+
+    pos_std: float = 0.001
+    yaw_std: float = 0.0087
+    latency_s: float = 0.005
+    dropout_rate_hz: float = 0.0
+    dropout_s: float = 0.2
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("pos_std", "yaw_std", "latency_s", "dropout_rate_hz", "dropout_s"):
+            if getattr(self, name) < 0:
+                raise msgspec.ValidationError(f"`{name}` must not be negative")
+
+
+class MocapConfig(msgspec.Struct, **_Strict):
+    backend: Backend = "sim"
+    options: dict[str, str] = {}
+    rate_hz: float = 100.0
+    bodies: dict[str, str] = {}
+    lost_after_s: float = 0.1
+    latency_s: float = 0.0
+    sim: SimNoise = SimNoise()
+
+    def __post_init__(self) -> None:
+        if not self.rate_hz > 0:
+            raise msgspec.ValidationError("`rate_hz` must be positive")
+        if not self.lost_after_s > 0:
+            raise msgspec.ValidationError("`lost_after_s` must be positive")
+        if self.latency_s < 0:
+            raise msgspec.ValidationError("`latency_s` must not be negative")
+
+
+def check_mocap(config: MocapConfig, source: str) -> None:
+    """Every mapped vehicle id is a key chunk, and no vehicle is mapped from two bodies."""
+    seen: dict[str, str] = {}
+    for body, vid in config.bodies.items():
+        try:
+            check_chunk(vid, "vehicle id")
+        except ValueError as exc:
+            raise InputError(source, f"bodies.{body}", str(exc)) from None
+        if vid in seen:
+            raise InputError(source, f"bodies.{body}", f"vehicle {vid} already mapped from body {seen[vid]}")
+        seen[vid] = body
+
+
+def load_mocap(path: str | Path) -> MocapConfig:
+    path = Path(path)
+    config: MocapConfig = decode_yaml(read_text(path), MocapConfig, str(path))
+    check_mocap(config, str(path))
+    return config

@@ -1,0 +1,90 @@
+"""Rigid bodies seen by a motion-capture backend -> vehicle poses and lost / found events.
+
+Backend-agnostic: a backend reports frames (capture time, the bodies it sees); the tracker maps
+body names to vehicle ids, limits each vehicle to `rate_hz` poses per second, numbers them, and
+reports a body unseen for `lost_after_s` as lost (`mocap_lost`), once, publishing nothing for it
+until it is seen again (`mocap_found`): a vanished body is never frozen at its last pose.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+
+from common.keys import check_chunk
+from common.messages import Pose
+
+log = logging.getLogger(__name__)
+
+BodyPose = tuple[float, float, float, float]
+"""x, y, z (m), yaw (rad, CCW from +x)."""
+Event = tuple[str, str, str]
+"""(vid, kind, detail)."""
+
+_RATE_TOLERANCE = 0.25
+"""A frame up to this fraction of a period early still counts as the next one (clock jitter)."""
+
+
+def yaw_of(w: float, x: float, y: float, z: float) -> float:
+    """Yaw (rotation about +z, ZYX convention) of a unit quaternion."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+class BodyTracker:
+    """`bodies` maps rigid-body names to vehicle ids; empty means each body is the vehicle of its name."""
+
+    def __init__(self, bodies: Mapping[str, str], rate_hz: float, lost_after_s: float, started: float,
+                 source: str = "mocap") -> None:
+        self.bodies = dict(bodies)
+        self.period = 1.0 / rate_hz
+        self.lost_after_s = lost_after_s
+        self.source = source
+        self.seq: dict[str, int] = {}
+        self.ignored: dict[str, int] = {}
+        self._due: dict[str, float] = {}
+        self._seen: dict[str, float] = dict.fromkeys(self.bodies.values(), started)
+        self._lost: set[str] = set()
+
+    def vid_of(self, body: str) -> str | None:
+        """The vehicle of `body`, or None (counted in `ignored`, logged once) if it is not one of ours."""
+        vid = self.bodies.get(body) if self.bodies else body
+        if vid is not None and not self.bodies:
+            try:
+                check_chunk(vid, "vehicle id")
+            except ValueError:
+                vid = None
+        if vid is None:
+            self.ignored[body] = self.ignored.get(body, 0) + 1
+            if self.ignored[body] == 1:
+                log.info("mocap: rigid body %r is not mapped to a vehicle: ignored", body)
+        return vid
+
+    def frame(self, t: float, seen: Mapping[str, BodyPose], now: float) -> tuple[list[Pose], list[Event]]:
+        """Poses to publish and events for a frame captured at `t`, arriving at `now`."""
+        poses: list[Pose] = []
+        events: list[Event] = []
+        for body, (x, y, z, yaw) in seen.items():
+            vid = self.vid_of(body)
+            if vid is None or not all(math.isfinite(v) for v in (x, y, z, yaw)):
+                continue  # an occluded body some systems report as NaN: not seen
+            self._seen[vid] = now
+            if vid in self._lost:
+                self._lost.discard(vid)
+                events.append((vid, "mocap_found", f"rigid body {body} visible again"))
+            due = self._due.get(vid, -math.inf)
+            if t < due - _RATE_TOLERANCE * self.period:
+                continue
+            self._due[vid] = max(due + self.period, t)
+            self.seq[vid] = self.seq.get(vid, 0) + 1
+            poses.append(Pose(vid=vid, t=t, x=x, y=y, z=z, yaw=yaw, seq=self.seq[vid], source=self.source))
+        return poses, events
+
+    def check(self, now: float) -> list[Event]:
+        """`mocap_lost` for every vehicle unseen for `lost_after_s` (once until it is seen again)."""
+        events: list[Event] = []
+        for vid, at in self._seen.items():
+            if vid not in self._lost and now - at > self.lost_after_s:
+                self._lost.add(vid)
+                events.append((vid, "mocap_lost", f"not seen for {now - at:.2f} s: no poses until it is back"))
+        return events

@@ -1,0 +1,105 @@
+"""One radio's packet schedule (paper 000 §VI-C: one Crazyradio served two Crazyflies reliably, and
+the slower driving commands had to be serialised through a "driving command switch").
+
+Every tick (`tick_hz`) the radio earns ``budget_pps / tick_hz`` packet slots (a token bucket that
+holds at most two ticks' worth) and spends them, as one batch, in this order:
+
+1. the driving command switch: one FIFO of vehicles whose wheel command is due, served at most
+   `drive_hz` packets per second for all drivers together, one packet at a time;
+2. status requests, `status_hz` per vehicle, staggered;
+3. flight: one commander packet per flying (or landing, or stopping) vehicle, round-robin from where
+   the last tick stopped, with the slots left. When the budget is short, every flying vehicle's
+   rate drops equally instead of some starving.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Sequence
+
+from services.radio_gateway.config import GatewayParams
+from services.radio_gateway.linkstats import Event
+from services.radio_gateway.vehicle import VehicleChannel
+
+Packet = tuple[str, bytes]
+"""(vid, raw packet)."""
+
+
+class Scheduler:
+    """Chooses each tick's batch for the vehicles of one radio (the order of `channels` is fixed)."""
+
+    def __init__(self, channels: Sequence[VehicleChannel], budget_pps: float, params: GatewayParams,
+                 now: float) -> None:
+        self.channels = list(channels)
+        self.budget_pps = budget_pps
+        self.params = params
+        self.tokens = 0.0
+        self._max_tokens = 2.0 * max(budget_pps / params.tick_hz, 1.0)
+        self._last = now
+        self._drive_credit = 1.0
+        self.switch: deque[str] = deque()
+        self._status_period = 1.0 / params.status_hz
+        n = max(len(self.channels), 1)
+        self._status_due = {ch.vid: now + i * self._status_period / n for i, ch in enumerate(self.channels)}
+        self._rr = 0
+        self.flight_sent = 0
+        self.flight_skipped = 0
+        """Flight slots wanted but not granted for lack of budget (a measure of overload)."""
+
+    def tick(self, now: float) -> tuple[list[Packet], list[tuple[str, Event]]]:
+        """This tick's batch and the (vid, event)s that choosing it caused."""
+        elapsed = min(max(now - self._last, 0.0), 1.0)
+        self._last = now
+        self.tokens = min(self.tokens + self.budget_pps * elapsed, self._max_tokens)
+        self._drive_credit = min(self._drive_credit + self.params.drive_hz * elapsed, 1.0)
+        batch: list[Packet] = []
+        events: list[tuple[str, Event]] = []
+        self._drive(now, batch)
+        self._status(now, batch)
+        self._flight(now, batch, events)
+        return batch, events
+
+    def _take(self) -> bool:
+        if self.tokens < 1.0:
+            return False
+        self.tokens -= 1.0
+        return True
+
+    def _drive(self, now: float, batch: list[Packet]) -> None:
+        queued = set(self.switch)
+        self.switch.extend(ch.vid for ch in self.channels if ch.vid not in queued and ch.wheel_due(now))
+        by_vid = {ch.vid: ch for ch in self.channels}
+        while self.switch and self._drive_credit >= 1.0 and self.tokens >= 1.0:
+            vid = self.switch.popleft()
+            raw = by_vid[vid].wheel_packet(now)
+            if raw is None:  # no longer due (a flight command took over)
+                continue
+            self.tokens -= 1.0
+            self._drive_credit -= 1.0
+            batch.append((vid, raw))
+
+    def _status(self, now: float, batch: list[Packet]) -> None:
+        for ch in self.channels:
+            due = self._status_due[ch.vid]
+            if now >= due and self._take():
+                batch.append((ch.vid, ch.status_request()))
+                self._status_due[ch.vid] = max(due + self._status_period, now)
+
+    def _flight(self, now: float, batch: list[Packet], events: list[tuple[str, Event]]) -> None:
+        n = len(self.channels)
+        order = [self.channels[(self._rr + k) % n] for k in range(n)]
+        for k, ch in enumerate(order):
+            if not ch.wants_flight_slot:
+                continue
+            if not self._take():
+                self.flight_skipped += sum(c.wants_flight_slot for c in order[k:])
+                self._rr = (self._rr + k) % n
+                return
+            raw, caused = ch.flight_packet(now)
+            events.extend((ch.vid, e) for e in caused)
+            if raw is None:
+                self.tokens += 1.0
+                continue
+            batch.append((ch.vid, raw))
+            self.flight_sent += 1
+        self._rr = (self._rr + 1) % n if n else 0

@@ -1,0 +1,174 @@
+"""What the gateway sends one vehicle, and its safety rules (paper 000 §VI-C).
+
+Modes:
+
+- FLIGHT: the owner's latest flight setpoint, resent every tick it gets a slot (a fresh one replaces
+  it), so the firmware's commander watchdog (0.5 s level, 2 s motors off) never starves. The first
+  flight packet after the motors were off is a zero-thrust setpoint: the firmware keeps the thrust
+  locked until it sees one (crazyflie-firmware crtp_commander_rpyt.c, `thrustLocked`).
+- DRIVE: the latest wheel command, through the driving command switch, when it changes and at
+  least every `wheel_refresh_s` (the wheel watchdog stops after 0.5 s).
+- LANDING: the command went stale (older than `stale_s`) in flight: the gateway's own
+  hover-then-land (`SafeLanding`), then STOPPING. A fresh command takes back over.
+- STOPPING: `stop_repeats` commander stops (motors off) and a zero wheel command, then IDLE.
+  Entered on a StopSetpoint, after a landing, or when a wheel command goes stale.
+- IDLE: nothing to send but status requests.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+from common.messages import FlightSetpoint, Pose, Setpoint, StopSetpoint, WheelSetpoint
+from services.radio_gateway import crtp
+from services.radio_gateway.config import GatewayParams
+from services.radio_gateway.landing import SafeLanding
+from services.radio_gateway.linkstats import Event, LinkStats
+
+_UNLOCK = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=0)
+
+
+class Drive(StrEnum):
+    IDLE = "idle"
+    FLIGHT = "flight"
+    LANDING = "landing"
+    DRIVE = "drive"
+    STOPPING = "stopping"
+
+
+class VehicleChannel:
+    """One vehicle's command state, safety and link statistics on the gateway."""
+
+    def __init__(self, vid: str, params: GatewayParams, now: float) -> None:
+        self.vid = vid
+        self.params = params
+        self.mode = Drive.IDLE
+        self.stats = LinkStats(now, params.link_timeout_s)
+        self.landing: SafeLanding | None = None
+        self.cmd_at = -float("inf")
+        self.took_over = False
+        """The gateway is landing or stopped the vehicle because its command went stale."""
+        self._flight: FlightSetpoint | None = None
+        self._flight_raw = b""
+        self._unlock = False
+        self._stops_left = 0
+        self._wheels = (0.0, 0.0)
+        self._wheels_sent: tuple[float, float] | None = None
+        self._wheels_sent_at = -float("inf")
+        self._wheel_zero = False
+
+    # ---- commands -------------------------------------------------------------------------
+
+    def command(self, setpoint: Setpoint, now: float) -> list[Event]:
+        """Take the owner's setpoint (ValueError, nothing changed, if it cannot go on the wire)."""
+        events: list[Event] = []
+        if isinstance(setpoint, FlightSetpoint):
+            raw = crtp.encode_setpoint(setpoint)
+            if self.mode == Drive.LANDING:
+                events.append(("cmd_resumed", "fresh flight command during the safety landing"))
+            elif self.mode != Drive.FLIGHT:
+                self._unlock = True
+            self._flight, self._flight_raw = setpoint, raw
+            self._enter(Drive.FLIGHT)
+        elif isinstance(setpoint, WheelSetpoint):
+            crtp.encode_wheels(setpoint.left, setpoint.right)
+            if self.mode == Drive.LANDING:
+                events.append(("cmd_resumed", "fresh wheel command during the safety landing"))
+            self._wheels = (setpoint.left, setpoint.right)
+            self._wheel_zero = False
+            self._enter(Drive.DRIVE)
+        elif isinstance(setpoint, StopSetpoint) and self.mode not in (Drive.STOPPING, Drive.IDLE):
+            self._stop()
+        self.cmd_at = now
+        self.took_over = False
+        return events
+
+    def _enter(self, mode: Drive) -> None:
+        self.mode = mode
+        self.landing = None
+
+    def _stop(self) -> None:
+        self._enter(Drive.STOPPING)
+        self._stops_left = self.params.stop_repeats
+        self._wheels = (0.0, 0.0)
+        self._wheel_zero = True
+
+    def stale(self, now: float) -> bool:
+        return now - self.cmd_at > self.params.stale_s
+
+    def on_pose(self, pose: Pose, now: float) -> None:
+        if self.landing is not None:
+            self.landing.on_pose(pose, now)
+
+    def supervise(self, now: float) -> list[Event]:
+        """Safety rules at `now`, before the tick's packets are chosen; the events they cause."""
+        events = self.stats.check(now)
+        age = now - self.cmd_at
+        if self.mode == Drive.FLIGHT and self.stale(now):
+            self.landing = SafeLanding(now, self._flight, self.params.landing, 1.0 / self.params.tick_hz)
+            self.mode = Drive.LANDING
+            self.took_over = True
+            events.append(("stale_cmd_landing", f"no command for {age:.2f} s in flight: hover, then land"))
+        elif self.mode == Drive.DRIVE and self.stale(now):
+            self._stop()
+            self.took_over = True
+            events.append(("stale_cmd_stop", f"no command for {age:.2f} s while driving: wheels stopped"))
+        return events
+
+    # ---- packets --------------------------------------------------------------------------
+
+    @property
+    def wants_flight_slot(self) -> bool:
+        return self.mode in (Drive.FLIGHT, Drive.LANDING) or self._stops_left > 0
+
+    def flight_packet(self, now: float) -> tuple[bytes | None, list[Event]]:
+        """The commander packet for this tick's slot (None: nothing to send) and any events."""
+        if self.mode == Drive.FLIGHT:
+            if self._unlock:
+                self._unlock = False
+                return self._count(crtp.encode_setpoint(_UNLOCK)), []
+            return self._count(self._flight_raw), []
+        if self.mode == Drive.LANDING:
+            assert self.landing is not None
+            sp = self.landing.step(now)
+            if sp is not None:
+                self._flight = sp
+                return self._count(crtp.encode_setpoint(sp)), []
+            how = "under position control" if self.landing.closed_loop else "open loop"
+            self._stop()
+            events = [("landed", f"safety landing complete ({how}): motors off")]
+        else:
+            events = []
+        if self._stops_left > 0:
+            self._stops_left -= 1
+            if self._stops_left == 0 and self.mode == Drive.STOPPING and not self._wheel_zero:
+                self.mode = Drive.IDLE
+            return self._count(crtp.encode_stop()), events
+        return None, events
+
+    def wheel_due(self, now: float) -> bool:
+        """Whether the driving command switch should carry a wheel packet for this vehicle."""
+        if self._wheel_zero:
+            return True
+        if self.mode != Drive.DRIVE:
+            return False
+        return self._wheels != self._wheels_sent or now - self._wheels_sent_at >= self.params.wheel_refresh_s
+
+    def wheel_packet(self, now: float) -> bytes | None:
+        """The latest wheel command (None if no longer due)."""
+        if not self.wheel_due(now):
+            return None
+        self._wheels_sent, self._wheels_sent_at = self._wheels, now
+        if self._wheel_zero:
+            self._wheel_zero = False
+            if self.mode == Drive.STOPPING and self._stops_left == 0:
+                self.mode = Drive.IDLE
+        return self._count(crtp.encode_wheels(*self._wheels))
+
+    def status_request(self) -> bytes:
+        self.stats.sent += 1
+        return crtp.encode_status_request(self.stats.sent)
+
+    def _count(self, raw: bytes) -> bytes:
+        self.stats.sent += 1
+        return raw
