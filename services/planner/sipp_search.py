@@ -96,27 +96,28 @@ def sipp(
     k0 = bisect_right(node_s[start], 0.0) - 1
     if k0 < 0 or node_e[start][k0] < 0.0 or h[start] == INF:
         return None
-    # arrivals: node, interval, time, cost, charge, parent arrival, departure from the parent's node, edge
+    # arrivals: node, state key, end of its safe interval, time, cost, charge, parent arrival,
+    # departure from the parent's node, edge from the parent
     a_node = [start]
-    a_k = [k0]
+    a_key = [k0 * n_nodes + start]
+    a_end = [node_e[start][k0]]
     a_t = [0.0]
     a_c = [0.0]
     a_q = [0.0]
     a_parent = [-1]
     a_dep = [0.0]
     a_edge = [-1]
-    key0 = k0 * n_nodes + start
-    earliest: dict[int, tuple[float, float, int]] = {key0: (0.0, 0.0, 0)}  # (t, c, arrival id)
-    cheapest: dict[int, tuple[float, float, int]] = {key0: (0.0, 0.0, 0)}  # (c, t, arrival id)
+    # per state: [earliest (t, c, arrival id), cheapest (c, t, arrival id)]
+    best: dict[int, list] = {a_key[0]: [0.0, 0.0, 0, 0.0, 0.0, 0]}
     heap: list[tuple[float, float, float, int]] = [(h[start], h[start], 0.0, 0)]
     pops = 0
     while heap:
         _, _, t, aid = heapq.heappop(heap)
-        u, k = a_node[aid], a_k[aid]
-        key = k * n_nodes + u
-        if earliest[key][2] != aid and cheapest[key][2] != aid:
+        rec = best[a_key[aid]]
+        if rec[2] != aid and rec[5] != aid:
             continue  # superseded (Alg. 1 line 18)
-        end_u = node_e[u][k]
+        u = a_node[aid]
+        end_u = a_end[aid]
         if u == goal and end_u == INF:
             return _backtrack(aid, a_node, a_t, a_c, a_q, a_parent, a_dep, a_edge)
         pops += 1
@@ -131,7 +132,8 @@ def sipp(
             if hv == INF:
                 continue
             sv, ev = node_s[v], node_e[v]
-            j = bisect_left(ev, t + d)  # first safe interval of v ending at or after the earliest arrival
+            # first safe interval of v ending at or after the earliest arrival
+            j = 0 if ev[0] >= t + d else bisect_left(ev, t + d)
             n_v = len(sv)
             es, ee = edge_s[e], edge_e[e]
             while j < n_v:
@@ -140,7 +142,8 @@ def sipp(
                     tau = t
                 if tau > end_u:
                     break
-                i = bisect_left(ee, tau)  # first free departure interval ending at or after tau
+                # first free departure interval ending at or after tau
+                i = 0 if ee[0] >= tau else bisect_left(ee, tau)
                 if i == len(ee):
                     break
                 if es[i] > tau:
@@ -157,25 +160,31 @@ def sipp(
                     break  # later departures only wait longer
                 c2 = c + wc * wait + ce
                 skey = j * n_nodes + v
-                best_t = earliest.get(skey)
-                best_c = cheapest.get(skey)
-                new_t = best_t is None or arr < best_t[0] or (arr == best_t[0] and c2 < best_t[1])
-                new_c = best_c is None or c2 < best_c[0] or (c2 == best_c[0] and arr < best_c[1])
-                if new_t or new_c:
+                rec = best.get(skey)
+                if rec is None:
                     nid = len(a_node)
-                    a_node.append(v)
-                    a_k.append(j)
-                    a_t.append(arr)
-                    a_c.append(c2)
-                    a_q.append(q2)
-                    a_parent.append(aid)
-                    a_dep.append(tau)
-                    a_edge.append(e)
+                    best[skey] = [arr, c2, nid, c2, arr, nid]
+                else:
+                    new_t = arr < rec[0] or (arr == rec[0] and c2 < rec[1])
+                    new_c = c2 < rec[3] or (c2 == rec[3] and arr < rec[4])
+                    if not (new_t or new_c):
+                        j += 1
+                        continue
+                    nid = len(a_node)
                     if new_t:
-                        earliest[skey] = (arr, c2, nid)
+                        rec[0:3] = arr, c2, nid
                     if new_c:
-                        cheapest[skey] = (c2, arr, nid)
-                    heapq.heappush(heap, (c2 + hv, hv, arr, nid))
+                        rec[3:6] = c2, arr, nid
+                a_node.append(v)
+                a_key.append(skey)
+                a_end.append(ev[j])
+                a_t.append(arr)
+                a_c.append(c2)
+                a_q.append(q2)
+                a_parent.append(aid)
+                a_dep.append(tau)
+                a_edge.append(e)
+                heapq.heappush(heap, (c2 + hv, hv, arr, nid))
                 j += 1
     return None
 
