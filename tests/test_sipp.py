@@ -242,6 +242,11 @@ def test_edge_pair_windows_are_exact() -> None:
     e, f = (x[:150] for x in np.triu_indices(30, 1))
     lo, hi = edge_pair_windows(pos, edges, dur, e, f, radius, height)
     assert 30 < np.count_nonzero(lo < hi) < 140  # both kinds of pair are exercised
+    both_lo, both_hi = edge_pair_windows(pos, edges, dur, np.r_[e, f], np.r_[f, e], radius, height)
+    touch = lo < hi
+    assert np.array_equal(both_lo[: len(e)], lo) and np.array_equal(both_hi[: len(e)], hi)
+    assert np.array_equal(both_lo[len(e):][touch], -hi[touch]) and np.array_equal(both_hi[len(e):][touch], -lo[touch])
+    assert not np.any(both_lo[len(e):][~touch] < both_hi[len(e):][~touch])
     s = np.linspace(0.0, 1.0, 401)
     for k in range(len(e)):
         a0, a1 = pos[edges[e[k]]]

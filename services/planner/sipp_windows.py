@@ -27,16 +27,24 @@ def edge_pair_windows(
     pos: np.ndarray, edges: np.ndarray, duration: np.ndarray, e: np.ndarray, f: np.ndarray, radius: float, height: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """For each pair (e[k], f[k]): the open window (lo, hi) of tau - t1 in which a body entering f at
-    tau touches one that entered e at t1 (both moving linearly); lo >= hi when they never touch."""
-    lo = np.empty(len(e))
-    hi = np.empty(len(e))
-    for k in range(0, len(e), CHUNK):
+    tau touches one that entered e at t1 (both moving linearly); lo >= hi when they never touch.
+    Swapping the roles negates the window, so a pair listed both ways is computed once."""
+    e, f = np.asarray(e, dtype=np.int64), np.asarray(f, dtype=np.int64)
+    m = len(edges)
+    key = e * m + f
+    uniq, inverse = np.unique(np.where(e <= f, key, f * m + e), return_inverse=True)
+    ue, uf = uniq // m, uniq % m
+    ulo = np.empty(len(uniq))
+    uhi = np.empty(len(uniq))
+    for k in range(0, len(uniq), CHUNK):
         sl = slice(k, k + CHUNK)
-        ee, ff = e[sl], f[sl]
+        ee, ff = ue[sl], uf[sl]
         e0, e1 = pos[edges[ee, 0]], pos[edges[ee, 1]]
         f0, f1 = pos[edges[ff, 0]], pos[edges[ff, 1]]
-        lo[sl], hi[sl] = _windows(e0 - f0, e1 - e0, f1 - f0, duration[ee], duration[ff], 2 * radius, height)
-    return lo, hi
+        ulo[sl], uhi[sl] = _windows(e0 - f0, e1 - e0, f1 - f0, duration[ee], duration[ff], 2 * radius, height)
+    lo, hi = ulo[inverse], uhi[inverse]
+    swapped = e > f
+    return np.where(swapped, -hi, lo), np.where(swapped, -lo, hi)
 
 
 def _windows(p, a, b, de, df, big_r, big_h):
