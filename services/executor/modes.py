@@ -105,6 +105,14 @@ class ModeMachine:
         self.mode = dst
         return True
 
+    def resume(self, mode: Mode, t: float, reason: str) -> None:
+        """Adopt the mode another executor left the vehicle in. A take-over changes who controls
+        the vehicle, not how it moves, so the table does not apply; the history records it."""
+        self._logged.clear()
+        self.history.append(Transition(t, self.mode, mode, reason))
+        log.warning("%s: %s -> %s (%s)", self.vid, self.mode, mode, reason)
+        self.mode = mode
+
     @property
     def airborne(self) -> bool:
         return self.mode in AIRBORNE

@@ -107,6 +107,31 @@ class VehicleController:
         self.machine.request(Mode.PARKED, self.estimator.t or 0.0, "plan loaded")
         return True
 
+    def take_over(self, state: VehicleState, now: float) -> None:
+        """Continue controlling a vehicle another executor was controlling (it died): adopt its
+        mode and charge estimate, and seed the estimator with its last estimate so the first ticks
+        are not blind. A fault landing in progress is restarted towards the nearest safe point."""
+        try:
+            mode = Mode(state.mode)
+        except ValueError:
+            log.warning("%s: unknown mode %r at take-over; assuming parked", self.vid, state.mode)
+            mode = Mode.PARKED
+        self.charge_used_ah = state.charge_used_ah
+        self.estimator.update(Pose(vid=self.vid, t=state.t, x=state.x, y=state.y, z=state.z, yaw=state.yaw,
+                                   source="take-over"))
+        rel = None if self.t0 is None or self._active is None else now - self.t0
+        planned = None if rel is None else self._active.modes[self._active.segment(rel)]
+        fault_landing = mode == Mode.LANDING and planned != Mode.LANDING
+        self.machine.resume(Mode.FLYING if fault_landing else mode, now, f"taken over from {state.owner}")
+        if mode in AIRBORNE:
+            self.lqr.reset()
+        if mode == Mode.EMERGENCY_LANDING:
+            self._descent = (now, None)
+        elif rel is not None and fault_landing:
+            self._begin_safe_landing(now, rel, self.estimator.estimate(now), "landing continued after take-over")
+        elif rel is not None and mode == Mode.LANDING:
+            self._enter_landing(self._active, rel)
+
     def start(self, t0: float) -> None:
         """The mission starts at `t0` (the plan's step times are relative to it)."""
         self.t0 = t0

@@ -1,0 +1,85 @@
+"""Take-over in the closed loop: a second controller continues a vehicle mid-flight, mid-landing and
+on the ground from the last state the first one published (executor failover, issue 6)."""
+
+from __future__ import annotations
+
+import math
+
+import msgspec
+import pytest
+
+from common.messages import Pose
+from common.model import VehicleModel
+from services.executor.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
+from services.executor.modes import AIRBORNE, Mode
+from services.executor.vehicle_controller import VehicleController
+from services.radio_gateway.physics import SimFlyingCar
+
+MODEL = VehicleModel()
+STEPS = reference_steps(MODEL)
+T0 = 0.5
+FLY = next(s.t for s in STEPS if s.edge == "fly")  # plan time of arrival at the end of the flight
+LAND = next(s.t for s in STEPS if s.edge == "land")
+
+
+def handover(at: float, gap: float = 0.05):
+    """Controller A until `at` (mission time), nobody for `gap` s, then B from A's last state."""
+    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    plan = plan_for("cf1", STEPS, MODEL, t0=T0)
+    a = VehicleController("cf1", MODEL, owner="exec-a")
+    a.on_pose(Pose(vid="cf1", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=0.0))
+    a.load(plan)
+    mocap = Mocap(MocapNoise(pos_std=0.001), seed=3)
+    first = run(a, sim, T0 + at, mocap)
+    _, last_state = a.tick(sim.t)
+    sim.step(gap)  # the setpoint of the dead executor is held by the gateway meanwhile
+    b = VehicleController("cf1", MODEL, owner="exec-b")
+    b.load(plan)
+    b.take_over(last_state, sim.t)
+    second = run(b, sim, T0 + STEPS[-1].t + 2.0, mocap)
+    return a, b, sim, first, second
+
+
+@pytest.mark.parametrize("at", [FLY - 2.0, LAND - 0.8])
+def test_take_over_in_the_air_continues_the_plan(at: float) -> None:
+    a, b, sim, first, second = handover(at)
+    assert first[-1].mode in AIRBORNE
+    assert b.machine.history[0].reason == "taken over from exec-a"
+    errors = [math.dist((r.truth.x, r.truth.y, r.truth.z), (r.ref.x, r.ref.y, r.ref.z)) for r in second if r.ref]
+    assert max(errors) < 0.08
+    assert b.mode == Mode.DONE and math.dist((sim.x, sim.y, sim.z), STEPS[-1].pos) < 0.05
+    assert sim.last_impact_speed < 0.7  # a normal landing cuts the motors 2 cm up: ~0.52 m/s
+
+
+def test_take_over_on_the_ground_drives_on() -> None:
+    a, b, sim, first, second = handover(3.0)
+    assert first[-1].mode == Mode.DRIVING
+    assert Mode.TAKING_OFF in [r.mode for r in second]
+    assert b.mode == Mode.DONE and math.dist((sim.x, sim.y, sim.z), STEPS[-1].pos) < 0.05
+
+
+def test_take_over_during_a_fault_landing_lands_at_the_nearest_safe_point() -> None:
+    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    plan = plan_for("cf1", STEPS, MODEL, t0=T0)
+    a = VehicleController("cf1", MODEL, owner="exec-a")
+    a.on_pose(Pose(vid="cf1", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=0.0))
+    a.load(plan)
+    mocap = Mocap(MocapNoise(pos_std=0.001), seed=4)
+    run(a, sim, T0 + FLY - 3.0, mocap)
+    a.abort("test abort")
+    run(a, sim, T0 + FLY - 2.5, mocap)
+    _, state = a.tick(sim.t)
+    assert state.mode == "landing"
+    b = VehicleController("cf1", MODEL, owner="exec-b")
+    b.load(plan)
+    b.take_over(state, sim.t)
+    run(b, sim, T0 + FLY + 10.0, mocap)
+    assert b.mode == Mode.DONE and sim.z < 0.02 and sim.last_impact_speed < 0.7  # a normal landing cuts the motors 2 cm up: ~0.52 m/s
+
+
+def test_unknown_mode_is_taken_as_parked() -> None:
+    b = VehicleController("cf1", MODEL, owner="exec-b")
+    b.load(plan_for("cf1", STEPS, MODEL, t0=T0))
+    _, state = VehicleController("cf1", MODEL).tick(0.0)
+    b.take_over(msgspec.structs.replace(state, mode="warp"), 0.1)
+    assert b.mode == Mode.PARKED
