@@ -123,7 +123,7 @@ class ExecutorService(Service):
             ctl.start(t0)
         prev = self.last_state.get(vid)
         if prev is not None and prev.mission == plan.mission and prev.owner != self.instance:
-            ctl.take_over(prev)
+            ctl.take_over(prev, time.time())
             log.warning("%s: took over %s from %s in mode %s", self.instance, vid, prev.owner, prev.mode)
         if plan.mission in self.aborts:
             ctl.abort(self.aborts[plan.mission])
@@ -137,9 +137,15 @@ class ExecutorService(Service):
                 self.controllers[plan.vid].start(plan.t0)
             self.plans[plan.vid] = plan
             return
+        ctl = self.controllers.get(plan.vid)
+        if ctl is not None:
+            if ctl.load(plan):  # refused while airborne: the old plan stays until it has landed
+                self.plans[plan.vid] = plan
+                t0 = plan.t0 or self.starts.get(plan.mission)
+                if t0:
+                    ctl.start(t0)
+            return
         self.plans[plan.vid] = plan
-        if plan.vid in self.controllers:
-            del self.controllers[plan.vid]
         if owner_of(plan.vid, self.live | {self.instance}) == self.instance:
             self._take(plan.vid)
 
