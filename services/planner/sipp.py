@@ -5,7 +5,8 @@ services/planner/sipp_search.py) avoids the space-time claimed by the ones befor
 (services/planner/safe_intervals.py). On well-formed infrastructure (§V-D: starts and goals on
 parking spots or helipads, paths that do not pass through other spots) the vehicles not planned yet
 close the space their parked bodies touch, for all time (revised prioritized planning, Čáp et al.
-2015), so every later vehicle can still leave its start and no order can fail for want of room. On
+2015): each later vehicle finds its spot and its way out untouched, and can wait there until the way
+is clear (as far as the battery allows). On
 maps with open endpoints (MovingAI grids, §VII-style benchmarks) a lower-priority vehicle's start is
 not reserved; it must leave before a higher-priority path passes.
 
@@ -42,32 +43,45 @@ class _Failure:
     reason: str
 
 
+@dataclass(frozen=True)
+class _Setup:
+    """What every priority order of one planning call shares."""
+
+    graph: FleetGraph
+    sg: SearchGraph
+    ctg: CostToGo
+    ends: dict[str, tuple[int, int]]  # vehicle -> (start, goal) node indices
+    blockers: dict[str, list[str]]
+    park_starts: bool
+    deadline: float
+
+
 def plan_sipp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: float, seed: int) -> PlanResult:
     """Plan every task on `graph` with eq. 3 weight `mu`; PlanResult names the vehicle it could not place."""
     t0 = time.perf_counter()
-    deadline = t0 + time_limit
     ends = {vid: (graph.index[t.start], graph.index[t.goal]) for vid, t in tasks.items()}
     ctg = CostToGo.of(graph, mu)
     ctg.prepare(g for _, g in ends.values())
     hopeless = _check_reachable(graph, tasks, ends, ctg)
     if hopeless:
         return _failed(hopeless, t0, orders=0)
-    sg = SearchGraph.of(graph, mu)
-    park_starts = not graph.open_endpoints
-    blockers = _blockers(graph, ends)
-    order: list[str] | None = _leavers_first(list(tasks), blockers)
+    setup = _Setup(
+        graph=graph, sg=SearchGraph.of(graph, mu), ctg=ctg, ends=ends, blockers=_blockers(graph, ends),
+        park_starts=not graph.open_endpoints, deadline=t0 + time_limit,
+    )
+    order: list[str] | None = _leavers_first(list(tasks), setup.blockers)
     rng = random.Random(seed)
     tried: set[tuple[str, ...]] = set()
     orders = 0
     while order is not None:
         tried.add(tuple(order))
         orders += 1
-        outcome = _plan_order(graph, sg, ctg, ends, blockers, order, park_starts, deadline)
+        outcome = _plan_order(setup, order)
         if isinstance(outcome, dict):
             return _solved(graph, list(tasks), outcome, t0, orders)
-        if outcome.vid == order[0] or time.perf_counter() > deadline:
+        if outcome.vid == order[0] or time.perf_counter() > setup.deadline:
             return _failed(outcome, t0, orders)
-        order = _next_order(order, outcome.vid, blockers, rng, tried)
+        order = _next_order(order, outcome.vid, setup.blockers, rng, tried)
     return _failed(_Failure(outcome.vid, outcome.reason + "; every priority order failed"), t0, orders)
 
 
@@ -114,57 +128,48 @@ def _blockers(graph: FleetGraph, ends: dict[str, tuple[int, int]]) -> dict[str, 
 
 
 def _leavers_first(order: list[str], blockers: dict[str, list[str]]) -> list[str]:
-    """`order`, changed only so that a vehicle comes after those parked on its goal (cycles kept)."""
-    out: list[str] = []
+    """`order`, changed only so that a vehicle comes after those parked on its goal (a depth-first
+    topological sort; a cycle is cut where it is entered)."""
     members = set(order)
-    state: dict[str, bool] = {}  # False: being placed, True: placed
-
-    def place(vid: str) -> None:
-        if vid in state:
-            return
-        state[vid] = False
-        for b in blockers[vid]:
-            if b in members:
-                place(b)
-        state[vid] = True
-        out.append(vid)
-
-    for vid in order:
-        place(vid)
+    seen: set[str] = set()
+    out: list[str] = []
+    for root in order:
+        if root in seen:
+            continue
+        seen.add(root)
+        stack = [(root, iter(blockers[root]))]
+        while stack:
+            vid, todo = stack[-1]
+            nxt = next((b for b in todo if b in members and b not in seen), None)
+            if nxt is None:
+                stack.pop()
+                out.append(vid)
+            else:
+                seen.add(nxt)
+                stack.append((nxt, iter(blockers[nxt])))
     return out
 
 
-def _plan_order(
-    graph: FleetGraph,
-    sg: SearchGraph,
-    ctg: CostToGo,
-    ends: dict[str, tuple[int, int]],
-    blockers: dict[str, list[str]],
-    order: list[str],
-    park_starts: bool,
-    deadline: float,
-) -> dict[str, TimedPath] | _Failure:
+def _plan_order(setup: _Setup, order: list[str]) -> dict[str, TimedPath] | _Failure:
     """One pass of prioritized planning in `order`: every path, or the first vehicle that fails."""
+    graph, ends, park = setup.graph, setup.ends, setup.park_starts
     res = Reservations(graph)
-    if park_starts:
+    if park:
         for vid in order:
             res.park(ends[vid][0], +1)
-    usable = graph.model.usable_ah
     paths: dict[str, TimedPath] = {}
     for vid in order:
         start, goal = ends[vid]
         # its own parked body, and the bodies still parked on its goal (they must leave before it comes)
-        lifted = [ends[b][0] for b in blockers[vid] if b not in paths] if park_starts else []
-        if park_starts:
-            res.park(start, -1)
+        lifted = [start] + [ends[b][0] for b in setup.blockers[vid] if b not in paths] if park else []
         for node in lifted:
             res.park(node, -1)
         where = f"{graph.ids[start]!r} -> {graph.ids[goal]!r}"
         try:
-            path = sipp(sg, res, start, goal, ctg.h[goal], ctg.q[goal], usable, deadline)
+            path = sipp(setup.sg, res, start, goal, setup.ctg.h[goal], setup.ctg.q[goal], graph.model.usable_ah, setup.deadline)
         except SearchTimeout:
             return _Failure(vid, f"time limit reached while planning {where} ({len(paths)} vehicles placed)")
-        for node in lifted:
+        for node in lifted[1:]:
             res.park(node, +1)
         if path is None:
             return _Failure(vid, f"no collision-free path {where} within the battery ({len(paths)} vehicles placed)")
