@@ -20,6 +20,11 @@ _COMMAND_MODULES = (
     "services.planner.cli",
     "services.planner.service",
     "services.mission.cli",
+    "services.mission.demo",
+    "services.executor.service",
+    "services.radio_gateway.cli",
+    "services.mocap_bridge.cli",
+    "services.telemetry.service",
     "common.router",
     "common.deploy_cli",
 )

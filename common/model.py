@@ -45,6 +45,10 @@ class VehicleModel(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     capacity_ah: the usable charge. 0.176 Ah reproduces Table II's 5.0 min of flight at
     7.83 W on a 3.7 V cell (7.83 W * 300 s / 3.7 V / 3600 s/h).
+    margin: clearance (m) that plans keep between bodies on top of contact, for tracking error:
+    planners and the validator work on the envelope (`envelope()`), the body grown by margin/2 on
+    every side. A plan file's radius and height are that envelope; its margin says how much of it is
+    clearance, so the physical body is radius - margin/2 by height - margin.
     """
 
     radius: float = 0.06
@@ -55,6 +59,7 @@ class VehicleModel(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     voltage: float = 3.7
     capacity_ah: float = 0.176
     reserve_ah: float = 0.018
+    margin: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("radius", "height", "mass", "voltage", "capacity_ah"):
@@ -65,6 +70,16 @@ class VehicleModel(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
                 raise msgspec.ValidationError(f"`speed.{kind}` must be positive")
         if not 0 <= self.reserve_ah < self.capacity_ah:
             raise msgspec.ValidationError("`reserve_ah` must be in [0, capacity_ah)")
+        if self.margin < 0:
+            raise msgspec.ValidationError("`margin` must not be negative")
+
+    def envelope(self) -> VehicleModel:
+        """The model planners work on: radius and height grown by the margin (see the class doc)."""
+        return msgspec.structs.replace(self, radius=self.radius + self.margin / 2, height=self.height + self.margin)
+
+    def body(self) -> tuple[float, float]:
+        """The physical (radius, height) of a model that is an envelope (a plan file's model)."""
+        return self.radius - self.margin / 2, self.height - self.margin
 
     @property
     def usable_ah(self) -> float:

@@ -133,7 +133,7 @@ class MissionRunner(Service):
         self.voltage = plan.model.voltage
         for vid, path in plan.paths.items():
             self.reports[vid].planned_s = path[-1].t
-        sep = SeparationMonitor(plan.model.radius, plan.model.height)
+        sep = SeparationMonitor(*plan.model.body())  # physical bodies, not the planning envelope
         self.subscribe(self.keys.all_vehicles("state"), VehicleState, self._on_state)
         self.subscribe(self.keys.all_vehicles("event"), VehicleEvent, self._on_event)
         self.subscribe(self.keys.all_sim_truth, SimTruth, lambda t, _k: sep.update(t))

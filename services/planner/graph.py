@@ -98,7 +98,8 @@ class FleetGraph:
         m = self.model
         return PlanModel(
             radius=m.radius, height=m.height, mass=m.mass, speed=m.speed, power=m.power, voltage=m.voltage,
-            capacity_ah=m.capacity_ah, reserve_ah=m.reserve_ah, w_max=self.scale.w_max, t_max=self.scale.t_max,
+            capacity_ah=m.capacity_ah, reserve_ah=m.reserve_ah, margin=m.margin,
+            w_max=self.scale.w_max, t_max=self.scale.t_max,
         )
 
     def counts(self) -> tuple[dict[str, int], dict[str, int]]:
@@ -128,7 +129,7 @@ class _Builder:
     def __init__(self, spec: MapSpec, source: str) -> None:
         self.spec = spec
         self.source = source
-        self.model = spec.vehicle
+        self.model = spec.vehicle.envelope()  # bodies grown by the tracking margin
         self.ids: list[str] = []
         self.index: dict[str, int] = {}
         self.pos: list[tuple[float, float, float]] = []

@@ -12,8 +12,10 @@ import msgspec
 import yaml
 
 from common.mapfile import AirRegion, Helipad, MapSpec, NoFlyZone, Obstacle, ParkingSpot, RoadNode, Roads
+from common.model import VehicleModel
 
-SPOT_OFFSET = 0.17  # m from the road: more than a body diameter (0.12 m) so parked cars never block it
+SPOT_OFFSET = 0.17  # m from the road: more than an envelope diameter (0.15 m) so parked cars never block it
+VEHICLE = VehicleModel(margin=0.03)  # Table II defaults; 3 cm clearance for tracking error
 
 
 class _Roads:
@@ -79,7 +81,8 @@ def town() -> MapSpec:
             NoFlyZone(name="south", polygon=[(-0.1, -0.1), (4.3, -0.1), (4.3, corridor[0]), (-0.1, corridor[0])]),
             NoFlyZone(name="north", polygon=[(-0.1, corridor[1]), (4.3, corridor[1]), (4.3, 2.2), (-0.1, 2.2)]),
         ],
-        obstacles=[Obstacle(name="building", min=(2.0, 0.95, 0.0), max=(2.2, 1.15, 0.17))],
+        obstacles=[Obstacle(name="building", min=(2.0, 0.95, 0.0), max=(2.2, 1.15, 0.15))],
+        vehicle=VEHICLE,
         time_step=2.0,
     )
 
@@ -124,6 +127,7 @@ def grid125() -> MapSpec:
         parking=r.spots,
         air=AirRegion(bounds=(0.0, 0.0, side, side), layers=[0.4, 0.8], spacing=s),
         no_fly=[NoFlyZone(name="tower", polygon=[(mid - 0.3, mid - 0.3), (mid + 0.3, mid - 0.3), (mid + 0.3, mid + 0.3), (mid - 0.3, mid + 0.3)])],
+        vehicle=VEHICLE,
         time_step=4.0,
     )
 
@@ -153,6 +157,7 @@ def city934() -> MapSpec:
         parking=r.spots,
         air=AirRegion(bounds=(0.0, 0.0, side, side), layers=[0.5, 0.9], spacing=0.25),
         no_fly=[square("hospital", 0.6, 0.6, 0.5), square("school", 3.1, 1.1, 0.5), square("park", 1.6, 3.1, 0.5)],
+        vehicle=VEHICLE,
         time_step=2.0,
     )
 
