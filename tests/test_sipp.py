@@ -263,3 +263,24 @@ def test_edge_pair_windows_are_exact() -> None:
             assert lo[k] > blocked.min() - 3 * step - 0.01 * (de + df) and hi[k] < blocked.max() + 3 * step + 0.01 * (de + df)
         elif lo[k] < hi[k]:
             assert hi[k] - lo[k] < 0.02 * (de + df)  # a contact too brief for the sampling
+
+
+def test_cost_to_go_is_exact_and_enters_spots_only_as_the_goal() -> None:
+    import networkx as nx
+
+    from services.planner.sipp_heuristic import CostToGo
+
+    graph = load_graph("town")
+    cost = graph.edge_cost(0.5)
+    goal = "EP4"
+    g = nx.DiGraph()
+    for e, (u, v) in enumerate(graph.edges.tolist()):
+        if graph.kinds[v] not in ("parking", "helipad") or graph.ids[v] == goal:
+            g.add_edge(graph.ids[u], graph.ids[v], w=cost[e])
+    want = nx.single_source_dijkstra_path_length(g.reverse(), goal, weight="w")
+    ctg = CostToGo.of(graph, 0.5)
+    ctg.prepare([graph.index[goal]])
+    h = ctg.h[graph.index[goal]]
+    for node, i in graph.index.items():
+        assert h[i] == pytest.approx(want.get(node, math.inf), rel=1e-12)
+    assert CostToGo.of(graph, 0.5) is ctg  # cached per graph and mu
