@@ -50,7 +50,9 @@ class HorizonResult:
 
 
 def relative_gap(upper: float, lower: float) -> float:
-    return max(0.0, upper - lower) / max(abs(upper), 1e-12)
+    """(upper - lower) / |upper|, with float noise (below 1e-12 relative) read as zero."""
+    gap = max(0.0, upper - lower) / max(abs(upper), 1e-12)
+    return gap if gap > 1e-12 else 0.0
 
 
 def _run_highs(cols: Columns, table: ArcTable, fleet: Fleet, horizon: int, n_nodes: int, start: np.ndarray | None,
