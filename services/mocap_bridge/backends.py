@@ -63,12 +63,16 @@ class LibBackend:
                     t = time.time() - self.latency_s
                     seen = {name: _body_pose(body) for name, body in system.rigidBodies.items()}
                     self.frames += 1
-                    call_in_loop(loop, self._on_frame, t, seen)
+                    call_in_loop(loop, self._deliver, t, seen)
             except Exception as exc:  # the library raises RuntimeError for everything
                 call_in_loop(loop, self._on_error, f"{self.kind}: {exc}")
                 self._stop.wait(RETRY_S)
 
-    def stop(self) -> None:
+    def _deliver(self, t: float, seen: Mapping[str, BodyPose]) -> None:
+        if not self._stop.is_set():  # frames still queued when the bridge stops are dropped
+            self._on_frame(t, seen)
+
+    def close(self) -> None:
         """Ask the thread to stop (a daemon: a `connect` blocked on an absent system cannot hold the exit)."""
         self._stop.set()
 
@@ -88,6 +92,7 @@ class SimBackend:
         self._rng = random.Random(noise.seed)
         self._dropout_until: dict[str, float] = {}
         self._last_t: dict[str, float] = {}
+        self._closed = False
 
     def on_truth(self, truth: SimTruth, _key: str = "") -> None:
         n = self.noise
@@ -101,4 +106,12 @@ class SimBackend:
         g = self._rng.gauss
         seen = {truth.vid: (truth.x + g(0.0, n.pos_std), truth.y + g(0.0, n.pos_std), truth.z + g(0.0, n.pos_std),
                             math.remainder(truth.yaw + g(0.0, n.yaw_std), 2.0 * math.pi))}
-        asyncio.get_running_loop().call_later(n.latency_s, self._on_frame, truth.t, seen)
+        asyncio.get_running_loop().call_later(n.latency_s, self._deliver, truth.t, seen)
+
+    def _deliver(self, t: float, seen: Mapping[str, BodyPose]) -> None:
+        if not self._closed:
+            self._on_frame(t, seen)
+
+    def close(self) -> None:
+        """Frames still on their way are dropped (the bridge is stopping)."""
+        self._closed = True

@@ -43,23 +43,22 @@ class MocapBridge(Service):
         cfg = self.config
         tracker = self.tracker = BodyTracker(cfg.bodies, cfg.rate_hz, cfg.lost_after_s, time.time(),
                                              source=cfg.backend)
-        lib: LibBackend | None = None
+        backend: LibBackend | SimBackend
         if cfg.backend == "sim":
-            sim = SimBackend(cfg.sim, self._on_frame)
-            self.subscribe(self.keys.all_sim_truth, SimTruth, sim.on_truth)
+            backend = SimBackend(cfg.sim, self._on_frame)
+            self.subscribe(self.keys.all_sim_truth, SimTruth, backend.on_truth)
         else:
             options = dict(cfg.options)
             if cfg.backend == "mock":
                 options.setdefault("frequency", str(round(cfg.rate_hz)))
-            lib = LibBackend(cfg.backend, options, cfg.latency_s, self._on_frame, self._on_backend_error)
-            lib.start(asyncio.get_running_loop())
+            backend = LibBackend(cfg.backend, options, cfg.latency_s, self._on_frame, self._on_backend_error)
+            backend.start(asyncio.get_running_loop())
         try:
             while True:  # lost bodies are noticed even when no frame comes at all
                 self._publish_events(tracker.check(time.time()))
                 await asyncio.sleep(min(cfg.lost_after_s / 2.0, 1.0 / cfg.rate_hz))
         finally:
-            if lib is not None:
-                lib.stop()
+            backend.close()
 
     def _on_frame(self, t: float, seen: Mapping[str, BodyPose]) -> None:
         assert self.tracker is not None

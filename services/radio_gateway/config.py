@@ -67,8 +67,9 @@ class LandingParams(msgspec.Struct, **_Strict):
     """The gateway's safety landing (stale commands while flying).
 
     hover_s: level hover before the descent; speed: descent speed (m/s, the landing speed of
-    `common.model.Speeds`); accel: open-loop descent acceleration (m/s^2); touchdown_height: motors off below this
-    height (m); rest_s: motors off after resting this long on a surface above the ground;
+    `common.model.Speeds`); accel: open-loop descent acceleration (m/s^2); touchdown_height: the
+    descent's reference ends twice this far below the ground (m), and a vehicle resting this far above its
+    reference for rest_s (s) has touched down (the ground, or a helipad): motors off;
     pose_timeout_s: a pose older than this is not trusted (open-loop descent instead);
     blind_height: height assumed for an open-loop descent when no pose was ever seen (m);
     mass: vehicle mass (kg, Table I)."""
@@ -77,7 +78,7 @@ class LandingParams(msgspec.Struct, **_Strict):
     speed: float = 0.2
     accel: float = 1.0
     touchdown_height: float = 0.03
-    rest_s: float = 0.5
+    rest_s: float = 0.3
     pose_timeout_s: float = 0.25
     blind_height: float = 1.0
     mass: float = 0.041

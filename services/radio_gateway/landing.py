@@ -5,23 +5,25 @@ one in the air when its executor goes silent).
 - With poses (`vehicle/<vid>/pose`): the executor's own flight stack, reused: the Kalman filter
   (`PoseEstimator`, fed the accelerations the LQR commands) and the LQR (`FlightLqr`) hold the
   horizontal position and yaw where the landing began, hover `hover_s`, then descend at `speed`
-  to z = 0; motors off below `touchdown_height`, or after resting `rest_s` on something higher
-  (a helipad) with the reference well below.
-- Without a trusted pose: level and open loop, the thrust scaled from the last flight setpoint
-  (the hover thrust the executor had found): accelerate down at `accel` to `speed`, coast, brake
-  to rest at the last known height's ground, motors off. With no pose ever seen the height is
-  unknown: the descent is planned from `blind_height`, without the braking (the vehicle may be
-  lower and already resting), and the motors stop when it would have reached the ground.
+  to twice `touchdown_height` below the ground, so the vehicle settles on it at the descent speed instead
+  of being held just above; motors off once it has rested `rest_s` (slower than 5 cm/s) at least
+  `touchdown_height` above the reference: on the ground, or on something higher (a helipad).
+- Without a trusted pose: level and open loop (`OpenLoopDescent`), the thrust scaled from the last
+  flight setpoint (the hover thrust the executor had found) and making up for the descent's drag:
+  from the vertical speed it had, to `speed` at `accel`, then coast at `speed` onto the ground
+  below the last known height (or `blind_height` if no pose was ever seen), where the coast
+  thrust, below the weight, keeps it; motors off a margin after the predicted touchdown.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
 from common.messages import FlightSetpoint, Pose
 from common.model import G
-from common.thrust import thrust_command, thrust_newtons, to_flight_setpoint
+from common.thrust import DRAG, thrust_command, thrust_newtons, to_flight_setpoint
 from services.executor.estimator import Estimate, PoseEstimator
 from services.executor.lqr import FlightLqr
 from services.executor.modes import Mode
@@ -29,40 +31,56 @@ from services.executor.trajectory import RefSample
 from services.radio_gateway.config import LandingParams
 from services.radio_gateway.physics import FIRMWARE_MIN_THRUST
 
+log = logging.getLogger(__name__)
+
 _LIFTOFF_HEIGHT = 0.01
 """m: below this the LQR integrators stay off (as in the executor)."""
 _REST_SPEED = 0.05
 """m/s: slower than this counts as resting."""
-_REST_GAP = 0.1
-"""m: the reference this far below the vehicle while it rests means it sits on something."""
+_CUT_SLACK = 0.25
+"""Open loop: fraction of the predicted descent time waited past touchdown (the height and the
+hover thrust are estimates) before the motors stop."""
+_CUT_MARGIN_S = 0.3
+"""Open loop: and this much more (s)."""
 
 
 @dataclass(frozen=True, slots=True)
 class OpenLoopDescent:
-    """Vertical acceleration (m/s^2) against time of a level descent of `height` m: down at `accel`
-    to `speed`, coast, and (`brake`) up at `accel` to rest at the ground; None once it is over."""
+    """A level descent of `height` m starting at downward speed `v0`: to `speed` at `accel`, then
+    coast at `speed`; no braking, so a vehicle lower than believed simply rests on the ground (the
+    coast thrust is below its weight). The motors stop at the predicted touchdown plus `_CUT_SLACK`
+    of the descent time plus `_CUT_MARGIN_S`."""
 
     height: float
     speed: float
     accel: float
-    brake: bool
+    v0: float = 0.0
+
+    @property
+    def _ramp(self) -> float:
+        return abs(self.speed - self.v0) / self.accel
+
+    @property
+    def touchdown(self) -> float:
+        """Predicted time (s) to reach the ground."""
+        ramp_d = 0.5 * (self.v0 + self.speed) * self._ramp
+        return self._ramp + max(self.height - ramp_d, 0.0) / self.speed
 
     @property
     def duration(self) -> float:
-        ramp = self.speed / self.accel
-        ramps = 2 if self.brake else 1
-        coast = max(self.height - ramps * 0.5 * self.speed * ramp, 0.0) / self.speed
-        return ramps * ramp + coast
+        return (1.0 + _CUT_SLACK) * self.touchdown + _CUT_MARGIN_S
 
     def accel_at(self, t: float) -> float | None:
-        ramp = self.speed / self.accel
+        """Vertical acceleration (m/s^2) `t` s into the descent; None once the motors must stop."""
         if t >= self.duration:
             return None
-        if t < ramp:
-            return -self.accel
-        if self.brake and t > self.duration - ramp:
-            return self.accel
+        if t < self._ramp:
+            return -self.accel if self.v0 < self.speed else self.accel
         return 0.0
+
+    def speed_at(self, t: float) -> float:
+        """Planned downward speed (m/s) at `t`."""
+        return self.v0 + (self.speed - self.v0) * t / self._ramp if t < self._ramp else self.speed
 
 
 class SafeLanding:
@@ -80,6 +98,7 @@ class SafeLanding:
             self.hover_newtons = thrust_newtons(last.thrust) * tilt
         self.pose_at = -math.inf
         self.last_z: float | None = None
+        self._vertical: tuple[float, float, float] | None = None  # t, z, vz of the last estimate used
         self.closed_loop = False
         self._anchor: tuple[float, float, float, float, float] | None = None  # t, x, y, z, yaw
         self._resting_since: float | None = None
@@ -97,9 +116,13 @@ class SafeLanding:
 
     def step(self, now: float) -> FlightSetpoint | None:
         if self._open_loop is None and now - self.pose_at <= self.params.pose_timeout_s:
-            est = self.estimator.estimate(now)
-            if not est.stale:
-                return self._closed_loop(now, est)
+            try:
+                est = self.estimator.estimate(now)
+                if not est.stale:
+                    return self._closed_loop(now, est)
+            except Exception:  # the borrowed flight stack failed: the open-loop descent still lands
+                log.exception("safety landing: position control failed, descending open loop")
+                return self._descend_open_loop(now)
         if self.closed_loop or now >= self.descent_start:
             return self._descend_open_loop(now)
         return self._level(0.0)  # hovering while the first poses come in
@@ -111,36 +134,46 @@ class SafeLanding:
             self.lqr.reset()
         self.closed_loop = True
         t0, x0, y0, z0, yaw0 = self._anchor
-        z_ref = max(z0 - p.speed * max(now - t0, 0.0), 0.0)
-        vz_ref = -p.speed if 0.0 < z_ref < z0 else 0.0
-        if est.z < p.touchdown_height or self._rests(now, est.z - z_ref, est.vz):
+        floor = -2.0 * p.touchdown_height
+        z_ref = max(z0 - p.speed * max(now - t0, 0.0), floor)
+        vz_ref = -p.speed if floor < z_ref < z0 else 0.0
+        if self._rests(now, est.z - z_ref, est.vz):
             return None
         ref = RefSample(t=now, x=x0, y=y0, z=z_ref, vx=0.0, vy=0.0, vz=vz_ref, ax=0.0, ay=0.0, az=0.0,
-                        yaw=yaw0, yaw_rate=0.0, mode=Mode.LANDING, step=0)
+                        yaw=yaw0, yaw_rate=0.0, mode=Mode.LANDING)
         aloft = est.z > _LIFTOFF_HEIGHT
+        self._vertical = (now, est.z, est.vz)
         sp = self.lqr.command(est, ref, integrate=aloft)
         self.estimator.set_input(self.lqr.expected_accel if aloft else (0.0, 0.0, 0.0), now)
         return sp
 
     def _rests(self, now: float, above_ref: float, vz: float) -> bool:
-        if above_ref > _REST_GAP and abs(vz) < _REST_SPEED:
+        if above_ref >= self.params.touchdown_height and abs(vz) < _REST_SPEED:
             self._resting_since = self._resting_since if self._resting_since is not None else now
             return now - self._resting_since >= self.params.rest_s
         self._resting_since = None
         return False
 
     def _descend_open_loop(self, now: float) -> FlightSetpoint | None:
-        p = self.params
         if self._open_loop is None:
-            if self.closed_loop:
-                height = self.estimator.estimate(now).z
-            else:
-                height = self.last_z if self.last_z is not None else p.blind_height
-            plan = OpenLoopDescent(max(height, 0.0), p.speed, p.accel, brake=self.last_z is not None)
-            self._open_loop = (now, plan)
+            self._open_loop = (now, self._plan_descent(now))
         start, plan = self._open_loop
         accel = plan.accel_at(now - start)
-        return None if accel is None else self._level(accel)
+        # the thrust also makes up for the drag of the planned descent (common.thrust.DRAG)
+        return None if accel is None else self._level(accel - DRAG / self.params.mass * plan.speed_at(now - start))
+
+    def _plan_descent(self, now: float) -> OpenLoopDescent:
+        """From the last position-controlled estimate carried forward, else the last pose, else blind."""
+        p = self.params
+        v0 = 0.0
+        if self._vertical is not None:
+            t, z, vz = self._vertical
+            height, v0 = z + vz * (now - t), max(-vz, 0.0)
+        elif self.last_z is not None:
+            height = self.last_z
+        else:
+            height = p.blind_height
+        return OpenLoopDescent(max(height, 0.0), p.speed, p.accel, v0=v0)
 
     def _level(self, accel: float) -> FlightSetpoint:
         """Level attitude, no yaw rate, the thrust for vertical acceleration `accel` (m/s^2)."""

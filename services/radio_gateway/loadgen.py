@@ -1,6 +1,7 @@
 """A stand-in executor that loads a gateway: it publishes a `Cmd` for each of its vehicles at a fixed
 rate, as an executor does (tests and bench/radio_capacity.py; the real executor is
 services/executor). It runs as service "executor", so its liveliness token makes it an owner.
+`running(...)` runs such a set of services (sim, gateway, mocap, stand-ins) in one event loop.
 
 Flying vehicles get level flight setpoints whose thrust holds `z_ref` by a PD loop on the simulator's
 ground truth (`sim/truth/<vid>`, the stand-in has no mocap); driving vehicles get constant wheel
@@ -10,8 +11,9 @@ speeds. `silence(vid)` stops commanding one vehicle, as a dead executor would.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import time
-from collections.abc import Iterable
+from collections.abc import AsyncIterator, Iterable
 
 from common.bus import Publisher
 from common.keys import Keys
@@ -70,3 +72,19 @@ class LoadCommander(Service):
         z, vz = (truth.z, truth.vz) if truth else (0.0, 0.0)
         accel = _KP * (self.z_ref - z) - _KD * vz
         return to_flight_setpoint(0.0, 0.0, 0.0, thrust_command(self.mass * (G + min(max(accel, -3.0), 3.0))))
+
+
+@contextlib.asynccontextmanager
+async def running(*services: Service) -> AsyncIterator[None]:
+    """Run `services` on this event loop for the body of the `async with`, then stop them all;
+    RuntimeError if any of them failed (exit code 1)."""
+    tasks = [asyncio.create_task(s.run(), name=f"{s.name}/{s.instance}") for s in services]
+    try:
+        yield
+    finally:
+        for s in services:
+            s.stop()
+        codes = await asyncio.gather(*tasks)
+    failed = [f"{s.name}/{s.instance}" for s, code in zip(services, codes, strict=True) if code != 0]
+    if failed:
+        raise RuntimeError(f"services failed: {', '.join(failed)}")

@@ -33,8 +33,8 @@ class Scheduler:
         self.channels = list(channels)
         self.budget_pps = budget_pps
         self.params = params
-        self.tokens = 0.0
         self._max_tokens = 2.0 * max(budget_pps / params.tick_hz, 1.0)
+        self.tokens = self._max_tokens  # an idle radio
         self._last = now
         self._drive_credit = 1.0
         self.switch: deque[str] = deque()

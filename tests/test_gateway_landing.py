@@ -1,0 +1,84 @@
+"""The gateway's safety landing against the simulated flying car, on simulated time: under position
+control (noisy poses), after the poses stop, and blind; each ends on the ground, gently, motors off."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+
+from common.messages import FlightSetpoint, Pose
+from common.thrust import hover_command
+from services.radio_gateway.config import LandingParams
+from services.radio_gateway.landing import OpenLoopDescent, SafeLanding
+from services.radio_gateway.physics import PhysicsParams, SimFlyingCar
+
+DT = 0.01
+HOVER = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=hover_command(0.041))
+
+
+def _hovering(z: float, params: PhysicsParams | None = None) -> SimFlyingCar:
+    car = SimFlyingCar("v1", params=params or PhysicsParams(), pos=(0.3, -0.2, z), yaw=0.4)
+    car.apply(HOVER, car.t)
+    car.thrust = car.mass * 9.81  # settled in hover
+    return car
+
+
+def _land(car: SimFlyingCar, poses_until: float, last: FlightSetpoint | None = HOVER,
+          params: LandingParams | None = None, limit: float = 12.0) -> tuple[SafeLanding, float]:
+    """Run the landing from the car's clock; poses (1 mm noise) are fed while t < poses_until.
+    Returns the landing and the time the motors were stopped."""
+    rng = random.Random(1)
+    landing = SafeLanding(car.t, last, params or LandingParams(), DT)
+    start = car.t
+    while car.t < start + limit:
+        t = car.t
+        if t < poses_until:
+            truth = car.truth()
+            landing.on_pose(Pose(vid="v1", t=t, x=truth.x + rng.gauss(0, 0.001), y=truth.y + rng.gauss(0, 0.001),
+                                 z=truth.z + rng.gauss(0, 0.001), yaw=truth.yaw), t)
+        sp = landing.step(t)
+        if sp is None:
+            car.apply(FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=0), t)
+            car.step(0.5)
+            return landing, t - start
+        car.apply(sp, t)
+        car.step(DT)
+    raise AssertionError("no touchdown")
+
+
+@pytest.mark.parametrize("physics", [PhysicsParams(), PhysicsParams(mass_scale=1.1, thrust_scale=0.95)])
+def test_position_controlled_landing_is_gentle_and_holds_position(physics: PhysicsParams) -> None:
+    car = _hovering(0.6, physics)
+    landing, took = _land(car, poses_until=math.inf)
+    assert landing.closed_loop
+    assert car.z == 0.0 and not car.airborne and car.thrust < 1e-3
+    assert car.last_impact_speed < 0.35
+    assert math.hypot(car.x - 0.3, car.y + 0.2) < 0.05
+    assert took == pytest.approx(0.5 + 0.6 / 0.2, abs=1.0)
+
+
+def test_open_loop_when_the_poses_stop_mid_descent() -> None:
+    car = _hovering(0.8)
+    start = car.t
+    landing, _took = _land(car, poses_until=start + 1.5)
+    assert landing.closed_loop  # it began under position control
+    assert car.z == 0.0 and car.thrust < 1e-3 and car.last_impact_speed < 0.35
+
+
+def test_blind_landing_without_any_pose() -> None:
+    car = _hovering(0.5)
+    landing, took = _land(car, poses_until=-math.inf, params=LandingParams(blind_height=0.8))
+    assert not landing.closed_loop
+    assert car.z == 0.0 and car.thrust < 1e-3 and car.last_impact_speed < 0.35
+    assert took == pytest.approx(0.5 + OpenLoopDescent(0.8, 0.2, 1.0).duration, abs=0.05)
+
+
+def test_open_loop_descent_profile() -> None:
+    d = OpenLoopDescent(height=1.0, speed=0.2, accel=1.0)
+    assert d.accel_at(0.0) == -1.0 and d.accel_at(1.0) == 0.0 and d.speed_at(0.1) == pytest.approx(0.1)
+    assert d.touchdown == pytest.approx(0.2 + (1.0 - 0.02) / 0.2)  # a ramp of 0.02 m, then the coast
+    assert d.accel_at(d.touchdown + 0.1) == 0.0 and d.accel_at(d.duration) is None
+    fast = OpenLoopDescent(height=1.0, speed=0.2, accel=1.0, v0=0.5)  # already falling faster
+    assert fast.accel_at(0.0) == 1.0 and fast.accel_at(0.35) == 0.0 and fast.speed_at(0.15) == pytest.approx(0.35)

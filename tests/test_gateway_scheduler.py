@@ -1,0 +1,119 @@
+"""The gateway's packet schedule and per-vehicle rules, on a simulated clock (no I/O): the budget is
+shared equally between flying vehicles, wheel commands are serialised at the switch's rate, stale
+commands become landings or stops, stops and the thrust unlock go out as the firmware needs."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+from common.messages import FlightSetpoint, StopSetpoint, WheelSetpoint
+from services.radio_gateway import crtp
+from services.radio_gateway.config import GatewayParams
+from services.radio_gateway.scheduler import Scheduler
+from services.radio_gateway.vehicle import Drive, VehicleChannel
+
+HOVER = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=48000)
+TICK = 0.01
+
+
+def _radio(flyers: int, drivers: int, budget: float = 500.0, params: GatewayParams | None = None):
+    params = params or GatewayParams()
+    chans = [VehicleChannel(f"f{i}", params, 0.0) for i in range(flyers)]
+    chans += [VehicleChannel(f"d{i}", params, 0.0) for i in range(drivers)]
+    return chans, Scheduler(chans, budget, params, 0.0)
+
+
+def _run(chans, sched, seconds: float, command=None, t0: float = 0.0):
+    """Tick for `seconds`; `command(ch, now)` gives each channel's setpoint (None: silent) every tick."""
+    sent: dict[str, list[tuple[float, object]]] = {ch.vid: [] for ch in chans}
+    events = []
+    now = t0
+    while now < t0 + seconds - 1e-9:
+        now += TICK
+        for ch in chans:
+            sp = command(ch, now) if command else None
+            if sp is not None:
+                ch.command(sp, now)
+            events += [(ch.vid, e) for e in ch.supervise(now)]
+        batch, caused = sched.tick(now)
+        events += caused
+        for vid, raw in batch:
+            sent[vid].append((now, crtp.decode_uplink(raw)))
+    return sent, events
+
+
+def _kinds(packets) -> Counter:
+    return Counter(type(p).__name__ for _t, p in packets)
+
+
+def test_four_flyers_and_two_drivers_fit_the_default_budget() -> None:
+    chans, sched = _radio(4, 2)
+
+    def command(ch, now):
+        return HOVER if ch.vid.startswith("f") else WheelSetpoint(left=0.05, right=0.05)
+
+    sent, events = _run(chans, sched, 2.0, command)
+    for i in range(4):
+        packets = sent[f"f{i}"]
+        flights = [p for _t, p in packets if isinstance(p, FlightSetpoint)]
+        assert flights[0].thrust == 0 and flights[1] == HOVER  # the firmware's thrust lock is opened first
+        assert _kinds(packets)["FlightSetpoint"] >= 195  # 100 Hz
+        assert 9 <= _kinds(packets)["StatusRequest"] <= 11  # 5 Hz
+        assert max(b[0] - a[0] for a, b in zip(packets, packets[1:], strict=False)) <= TICK + 1e-9
+    for i in range(2):
+        assert 19 <= _kinds(sent[f"d{i}"])["Wheels"] <= 21  # unchanged: refreshed every 0.1 s
+    assert sched.flight_skipped == 0
+    assert events == []
+
+
+def test_an_overloaded_radio_shares_its_budget_equally() -> None:
+    chans, sched = _radio(12, 0)
+    sent, _ = _run(chans, sched, 2.0, lambda ch, now: HOVER)
+    flights = [_kinds(sent[ch.vid])["FlightSetpoint"] for ch in chans]
+    total = sum(len(p) for p in sent.values())
+    assert total <= 500 * 2.0 + 10  # never above the budget (plus the bucket's two ticks)
+    assert min(flights) >= (500 - 12 * 5) * 2.0 / 12 - 2  # ~36 Hz each
+    assert max(flights) - min(flights) <= 2
+    assert sched.flight_skipped > 0
+
+
+def test_the_driving_switch_serialises_wheel_commands_at_its_rate() -> None:
+    chans, sched = _radio(0, 10)
+    sent, _ = _run(chans, sched, 2.0, lambda ch, now: WheelSetpoint(left=now, right=-now))  # always changing
+    wheels = [_kinds(sent[ch.vid])["Wheels"] for ch in chans]
+    assert sum(wheels) <= 50 * 2.0 + 1
+    assert min(wheels) >= 9 and max(wheels) - min(wheels) <= 1
+    by_tick = Counter(t for ch in chans for t, p in sent[ch.vid] if isinstance(p, crtp.Wheels))
+    assert max(by_tick.values()) == 1  # one wheel packet at a time
+
+
+def test_stale_commands_land_a_flyer_and_stop_a_driver() -> None:
+    chans, sched = _radio(1, 1)
+    flyer, driver = chans
+
+    def command(ch, now):
+        if now > 0.5:
+            return None  # the executor goes silent
+        return HOVER if ch is flyer else WheelSetpoint(left=0.1, right=0.1)
+
+    sent, events = _run(chans, sched, 1.0, command)
+    kinds = [e[1][0] for e in events]
+    assert kinds == ["stale_cmd_landing", "stale_cmd_stop"] or kinds == ["stale_cmd_stop", "stale_cmd_landing"]
+    assert flyer.mode == Drive.LANDING and flyer.took_over
+    times = [t for t, p in sent[flyer.vid] if isinstance(p, FlightSetpoint)]
+    assert times[-1] > 0.99 and max(b - a for a, b in zip(times, times[1:], strict=False)) <= TICK + 1e-9
+    after = [p for t, p in sent[driver.vid] if t > 0.6]
+    assert crtp.Wheels(0, 0) in after and sum(isinstance(p, crtp.Stop) for p in after) == 3
+    assert driver.mode == Drive.IDLE and driver.took_over
+    flyer.command(HOVER, 1.0)  # a fresh command takes back over
+    assert flyer.mode == Drive.FLIGHT and not flyer.took_over
+
+
+def test_a_stop_goes_out_three_times_then_only_status() -> None:
+    chans, sched = _radio(1, 0)
+    (ch,) = chans
+    _run(chans, sched, 0.3, lambda c, now: HOVER)
+    sent, _ = _run(chans, sched, 1.0, lambda c, now: StopSetpoint(), t0=0.3)
+    kinds = _kinds(sent[ch.vid])
+    assert kinds["Stop"] == 3 and kinds["Wheels"] == 1 and kinds["FlightSetpoint"] == 0
+    assert ch.mode == Drive.IDLE and not ch.wants_flight_slot
