@@ -14,10 +14,12 @@ extends to T+1 by staying at the goals, which is free), but a longer horizon mak
 3. The first feasible horizon may still be beaten by a longer one (waiting is not free, but a longer
    horizon allows cheaper detours). The sum of the vehicles' individually cheapest routes is a lower
    bound for every horizon; if the plan reaches it (within the MIP gap) it is optimal for all
-   horizons. Otherwise T + 1, T + 2, T + 4 are tried while time remains, stopping at the first that
-   does not improve, and the cheapest plan is kept.
-The reported `mip_gap` is HiGHS's proven gap on the chosen horizon; `stats["lower_bound"]` is the
-horizon-free bound.
+   horizons. Otherwise T + 1, T + 2, T + 4 are tried, stopping at the first that does not improve,
+   and the cheapest plan is kept. Each starts from the best plan so far (carried over, so it can
+   only improve) and gets at most twice the time spent so far (at least 1 s) within the time limit.
+At the time limit the best plan so far is returned with its gap, or, with none, a failure saying so.
+The reported `mip_gap` is the proven gap on the chosen horizon (HiGHS's, or the first plan's against
+the horizon's lower bound when HiGHS stopped first); `stats["lower_bound"]` is the horizon-free bound.
 """
 
 from __future__ import annotations

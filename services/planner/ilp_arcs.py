@@ -92,8 +92,9 @@ def clique_cover(n: int, pairs: np.ndarray, must: np.ndarray) -> list[list[int]]
         clique = [a, b]
         cand = adj[a] & adj[b]
         while cand:
-            best = max(sorted(cand), key=lambda c: sum((min(c, m), max(c, m)) in uncovered for m in clique) * n
-                       + len(adj[c] & cand))
+            # most pairs still to cover with the clique, then most room to grow, then the lowest id
+            best = max(cand, key=lambda c: (sum((min(c, m), max(c, m)) in uncovered for m in clique),
+                                            len(adj[c] & cand), -c))
             clique.append(best)
             cand &= adj[best]
         for i, x in enumerate(clique):

@@ -46,8 +46,8 @@ def _block(keys: np.ndarray, col: np.ndarray, val: np.ndarray, lower: float, upp
 def _shared(keys: np.ndarray, col: np.ndarray, veh: np.ndarray) -> RowBlock:
     """Packing rows `sum <= 1` over entries grouped by key, kept only where two vehicles can meet."""
     uniq, row = np.unique(keys, return_inverse=True)
-    pairs = np.unique(row * (veh.max(initial=0) + 1) + veh)
-    n_veh = np.bincount(pairs // (veh.max(initial=0) + 1), minlength=len(uniq))
+    width = int(veh.max(initial=0)) + 1
+    n_veh = np.bincount(np.unique(row * width + veh) // width, minlength=len(uniq))  # vehicles per row
     keep = n_veh >= 2
     renum = np.cumsum(keep) - 1
     sel = keep[row]
@@ -92,14 +92,14 @@ def clique_rows(cols: Columns, table: ArcTable, horizon: int) -> RowBlock:
 def battery_rows(cols: Columns, fleet: Fleet, horizon: int) -> RowBlock:
     """Eq. 6 per vehicle, unless the horizon is too short to ever exceed the budget."""
     worst = horizon * max(float(fleet.move_charge.max(initial=0.0)), float(fleet.wait_charge.max(initial=0.0)))
-    if worst <= fleet.usable:
-        return _block(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), 0.0, fleet.usable)
-    drawn = cols.charge > 0
+    drawn = (cols.charge > 0) & (worst > fleet.usable)
     return _block(cols.veh[drawn], np.flatnonzero(drawn), cols.charge[drawn], -highspy.kHighsInf, fleet.usable)
 
 
 @dataclass(frozen=True)
 class ModelSize:
+    """Columns, rows and nonzeros of a model, and its rows per block."""
+
     columns: int
     rows: int
     nonzeros: int

@@ -24,6 +24,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from services.planner.graph import FleetGraph
+from services.planner.sipp_cache import per_graph
 
 TOL = 1e-9  # relative slack on budgets (float rounding)
 
@@ -55,39 +56,83 @@ class Fleet:
         )
 
 
+@dataclass(frozen=True)
+class EdgeGroups:
+    """The edges grouped by one endpoint (`nodes`), with the other endpoint of each: the least over
+    a node's incoming (or outgoing) edges becomes one np.minimum.reduceat."""
+
+    order: np.ndarray  # edge ids sorted by the grouping endpoint
+    other: np.ndarray  # the opposite endpoint of each edge in `order`
+    nodes: np.ndarray  # the distinct grouping endpoints
+    starts: np.ndarray  # where each group begins in `order`
+
+    @classmethod
+    def by(cls, key: np.ndarray, other: np.ndarray) -> EdgeGroups:
+        order = np.argsort(key, kind="stable")
+        nodes, starts = np.unique(key[order], return_index=True)
+        return cls(order, other[order], nodes, starts)
+
+    def relax(self, values: np.ndarray, weight: np.ndarray, into: np.ndarray) -> None:
+        """into[:, n] = min(into[:, n], min over the group's edges of values[:, other] + weight)."""
+        if not len(self.order):
+            return
+        best = np.minimum.reduceat(values[:, self.other] + weight[self.order], self.starts, axis=1)
+        into[:, self.nodes] = np.minimum(into[:, self.nodes], best)
+
+
+def edge_groups(graph: FleetGraph) -> tuple[EdgeGroups, EdgeGroups]:
+    """Edges grouped by head (for forward passes) and by tail (backward), once per graph."""
+    tail, head = graph.edges[:, 0], graph.edges[:, 1]
+    return per_graph(graph, "ilp_edge_groups", lambda: (EdgeGroups.by(head, tail), EdgeGroups.by(tail, head)))
+
+
+def _step_forward(f: np.ndarray, into_heads: EdgeGroups, move: np.ndarray, wait: np.ndarray) -> np.ndarray:
+    nxt = f + wait
+    into_heads.relax(f, move, nxt)
+    return nxt
+
+
 def least_forward(graph: FleetGraph, starts: np.ndarray, move: np.ndarray, wait: np.ndarray, steps: int) -> np.ndarray:
     """F (steps+1, V, N): least weight to be at node n at time k, moving (`move` per edge) and
     waiting (`wait` per node and step)."""
-    tail, head = graph.edges[:, 0], graph.edges[:, 1]
+    into_heads, _ = edge_groups(graph)
     f = np.full((steps + 1, len(starts), graph.n_nodes), np.inf)
     f[0, np.arange(len(starts)), starts] = 0.0
     for k in range(steps):
-        nxt = f[k] + wait
-        np.minimum.at(nxt.T, head, (f[k][:, tail] + move).T)
-        f[k + 1] = nxt
+        f[k + 1] = _step_forward(f[k], into_heads, move, wait)
     return f
 
 
 def least_backward(graph: FleetGraph, goals: np.ndarray, move: np.ndarray, steps: int) -> np.ndarray:
     """B (steps+1, V, N): least weight from node n to the goal within r steps (arriving early is
     free, and waiting first never helps)."""
-    tail, head = graph.edges[:, 0], graph.edges[:, 1]
+    _, from_tails = edge_groups(graph)
     b = np.full((steps + 1, len(goals), graph.n_nodes), np.inf)
     b[0, np.arange(len(goals)), goals] = 0.0
     for r in range(steps):
-        nxt = b[r].copy()
-        np.minimum.at(nxt.T, tail, (b[r][:, head] + move).T)
-        b[r + 1] = nxt
+        b[r + 1] = b[r]
+        from_tails.relax(b[r], move, b[r + 1])
     return b
 
 
 def battery_horizons(graph: FleetGraph, fleet: Fleet) -> tuple[np.ndarray, np.ndarray]:
     """Per vehicle the fewest steps to its goal within its battery (-1 if none) and the least charge
-    of any route (Ah). A least-charge route never waits nor repeats a node: N - 1 steps suffice."""
-    f = least_forward(graph, fleet.starts, fleet.move_charge, fleet.wait_charge, max(graph.n_nodes - 1, 1))
-    at_goal = f[:, np.arange(len(fleet.goals)), fleet.goals]  # (steps+1, V)
-    ok = at_goal <= fleet.usable * (1 + TOL)
-    return np.where(ok.any(axis=0), np.argmax(ok, axis=0), -1), at_goal.min(axis=0)
+    to its goal over the steps explored: all N - 1 that a least-charge route (no waits, no repeated
+    node) may need, for a vehicle that never fits."""
+    into_heads, _ = edge_groups(graph)
+    vehicles = np.arange(len(fleet.starts))
+    f = np.full((len(fleet.starts), graph.n_nodes), np.inf)
+    f[vehicles, fleet.starts] = 0.0
+    least = f[vehicles, fleet.goals]
+    fewest = np.where(least <= fleet.usable * (1 + TOL), 0, -1)
+    for k in range(1, graph.n_nodes):
+        if (fewest >= 0).all():
+            break
+        f = _step_forward(f, into_heads, fleet.move_charge, fleet.wait_charge)
+        at_goal = f[vehicles, fleet.goals]
+        fewest = np.where((fewest < 0) & (at_goal <= fleet.usable * (1 + TOL)), k, fewest)
+        least = np.minimum(least, at_goal)
+    return fewest, least
 
 
 MOVE, WAIT, STAY = 0, 1, 2
