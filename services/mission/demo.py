@@ -11,6 +11,9 @@ import asyncio
 import socket
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 from common.compose import Process
@@ -80,37 +83,59 @@ async def wait_for_services(config: ZenohConfig, keys: Keys, counts: dict[str, i
         session.close()
 
 
+@dataclass
+class LocalFleet:
+    router: InProcessRouter
+    keys: Keys
+    run_dir: Path
+    radios: RadiosFile
+
+    def client_config(self) -> ZenohConfig:
+        return self.router.client_config()
+
+
+@contextmanager
+def local_fleet(graph: FleetGraph, tasks: dict[str, Task], run_dir: Path, executors: int = 2, per_radio: int = 2,
+                fleet: str = "demo", viewer: bool = False, web: bool = False) -> Iterator[LocalFleet]:
+    """An in-process router and every service as a process, up and alive; stopped on exit."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    radios = demo_radios(graph, tasks, per_radio)
+    radios_path = run_dir / "radios.yaml"
+    radios_path.write_text(dump_radios(radios))
+    keys = Keys(fleet)
+    with InProcessRouter() as router:
+        procs = fleet_processes(radios_path, radios, executors, run_dir.parent / "recordings", viewer, web)
+        for p in procs:
+            p.env.update({"FLEET_ZENOH_CONNECT": router.endpoint, "FLEET_NAME": keys.fleet})
+        print(f"fleet: router on {router.endpoint}; starting {len(procs)} processes (logs in {run_dir / 'logs'})")
+        start(procs, run_dir, settle_s=0.1)
+        try:
+            counts = {"planner": 1, "executor": executors, "gateway": len(radios.radios), "sim": 1, "mocap": 1,
+                      "telemetry": 1}
+            missing = asyncio.run(wait_for_services(router.client_config(), keys, counts, 60.0))
+            if missing:
+                raise RuntimeError(f"services not up within 60 s: {', '.join(missing)} (see {run_dir / 'logs'})")
+            yield LocalFleet(router, keys, run_dir, radios)
+        finally:
+            stop(run_dir, grace_s=5.0)
+
+
 def run_demo(args: argparse.Namespace) -> int:
     scenario: ScenarioFile = decode_yaml(read_text(Path(args.scenario)), ScenarioFile, str(args.scenario))
     map_name = scenario.map or "town"
     graph = load_graph(map_name)
-    check_tasks(scenario.tasks, graph, str(args.scenario))
+    tasks = dict(scenario.tasks)
+    check_tasks(tasks, graph, str(args.scenario))
     out = Path(args.out)
-    run_dir = out / "run"
-    run_dir.mkdir(parents=True, exist_ok=True)
-    radios = demo_radios(graph, dict(scenario.tasks), args.per_radio)
-    radios_path = run_dir / "radios.yaml"
-    radios_path.write_text(dump_radios(radios))
-    keys = Keys("demo")
-    with InProcessRouter() as router:
-        procs = fleet_processes(radios_path, radios, args.executors, out / "recordings", args.viewer, args.web)
-        for p in procs:
-            p.env.update({"FLEET_ZENOH_CONNECT": router.endpoint, "FLEET_NAME": keys.fleet})
-        print(f"demo: router on {router.endpoint}; starting {len(procs)} processes (logs in {run_dir / 'logs'})")
-        start(procs, run_dir, settle_s=0.1)
-        try:
-            counts = {"planner": 1, "executor": args.executors, "gateway": len(radios.radios), "sim": 1, "mocap": 1,
-                      "telemetry": 1}
-            missing = asyncio.run(wait_for_services(router.client_config(), keys, counts, 60.0))
-            if missing:
-                print(f"demo: services not up within 60 s: {', '.join(missing)} (see {run_dir / 'logs'})")
-                return 1
-            spec = MissionSpec(map=map_name, tasks=dict(scenario.tasks), planner=args.planner, mu=args.mu,
-                               time_limit=args.time_limit)
-            runner = MissionRunner(spec, router.client_config(), keys)
+    spec = MissionSpec(map=map_name, tasks=tasks, planner=args.planner, mu=args.mu, time_limit=args.time_limit)
+    try:
+        with local_fleet(graph, tasks, out / "run", args.executors, args.per_radio, viewer=args.viewer,
+                         web=args.web) as fleet:
+            runner = MissionRunner(spec, fleet.client_config(), fleet.keys)
             asyncio.run(runner.run())
-        finally:
-            stop(run_dir, grace_s=5.0)
+    except RuntimeError as exc:
+        print(f"demo: {exc}")
+        return 1
     result = runner.result
     if result is None:
         print("demo: the mission did not run")

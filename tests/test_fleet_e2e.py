@@ -1,0 +1,68 @@
+"""End to end over real zenoh and processes (issue 6): a 4-vehicle town mission flown by two
+executor processes, one killed mid-flight; every vehicle still arrives without contact, the killed
+executor's vehicles pass to the other within a second and the gateways obey the new owner."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import time
+
+import pytest
+
+from common.planfile import Task
+from services.mission.demo import local_fleet
+from services.mission.runner import MissionRunner, MissionSpec
+from services.planner.loading import load_graph
+
+TASKS = {
+    "cf1": Task(start="WP1", goal="EP4"),   # flies west -> east
+    "cf2": Task(start="EP1", goal="WP6"),   # flies east -> west
+    "cf3": Task(start="WP9", goal="WP2"),   # drives in the west
+    "cf4": Task(start="EP8", goal="EP3"),   # drives in the east
+}
+
+
+def _pid_of(run_dir, instance: str) -> int:
+    procs = json.loads((run_dir / "up.json").read_text())
+    return next(p["pid"] for p in procs if p["instance"] == instance)
+
+
+@pytest.mark.timeout(240)
+def test_executor_killed_mid_flight_its_vehicles_still_arrive(tmp_path) -> None:
+    graph = load_graph("town")
+    spec = MissionSpec(map="town", tasks=TASKS, planner="sipp", time_limit=20)
+    killed: dict[str, object] = {}
+    with local_fleet(graph, TASKS, tmp_path / "run", executors=2, fleet="e2e") as fleet:
+        runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
+
+        async def kill_when_flying() -> None:
+            while True:
+                flying = [s for s in runner.states.values() if s.mode == "flying" and s.mission == spec.mission]
+                if flying:
+                    victim = flying[0]
+                    killed.update(vid=victim.vid, owner=victim.owner, t=time.time())
+                    os.kill(_pid_of(fleet.run_dir, victim.owner), signal.SIGKILL)
+                    return
+                await asyncio.sleep(0.05)
+
+        async def scenario() -> None:
+            mission = asyncio.create_task(runner.run())
+            await asyncio.wait_for(kill_when_flying(), timeout=60)
+            # the vehicle passes to the surviving executor within a second
+            while runner.states[killed["vid"]].owner == killed["owner"]:
+                assert time.time() - killed["t"] < 1.5, "no take-over within 1.5 s"
+                await asyncio.sleep(0.02)
+            killed["handover_s"] = time.time() - killed["t"]
+            assert await mission == 0
+
+        asyncio.run(scenario())
+    result = runner.result
+    assert result is not None, "mission did not run"
+    print(result.summary(), f"\nhand-over after {killed['handover_s']:.2f} s")
+    assert result.ok, result.summary()
+    assert result.contacts == 0
+    assert all(r.arrived for r in result.vehicles.values())
+    assert result.vehicles[killed["vid"]].owner not in ("", killed["owner"])
