@@ -125,10 +125,13 @@ class RadioGateway(Service):
             self.owners[vid] = owner
 
     def _refuse(self, reason: str, vid: str, detail: str) -> None:
+        """Count; log the first of each (reason, vehicle): other radios' vehicles at INFO (normal when
+        several gateways share the fleet), anything else at WARNING."""
         self.counters.inc(f"refused:{reason}:{vid}")
         if (reason, vid) not in self._logged:
             self._logged.add((reason, vid))
-            log.warning("%s: refused cmd for %s: %s (further ones only counted)", self.instance, vid, detail)
+            log.log(logging.INFO if reason == "unassigned" else logging.WARNING,
+                    "%s: refused cmd for %s: %s (further ones only counted)", self.instance, vid, detail)
 
     def _on_cmd(self, cmd: Cmd, key: str) -> None:
         parsed = self.keys.parse_vehicle(key)

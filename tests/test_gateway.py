@@ -1,0 +1,247 @@
+"""The gateway end to end: a real in-process zenoh router, the gateway, simulated Crazyflies over real
+UDP on 127.0.0.1 (cflib's UDP driver), stand-in executors publishing `Cmd` at 100 Hz, and for the
+safety landing the simulated motion capture."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import socket
+import time
+from collections import defaultdict
+from collections.abc import Callable
+
+import msgspec
+import pytest
+import zenoh
+
+from common.bus import subscribe
+from common.keys import Keys
+from common.messages import Cmd, FlightSetpoint, Telemetry, VehicleEvent
+from common.ownership import owner_of
+from common.zsession import ZenohConfig
+from services.mocap_bridge.bridge import MocapBridge
+from services.mocap_bridge.config import MocapConfig
+from services.radio_gateway.config import LinkModel, RadiosFile, RadioSpec, VehicleLink, simulated_radios
+from services.radio_gateway.gateway import RadioGateway
+from services.radio_gateway.loadgen import LoadCommander, running
+from services.radio_gateway.simservice import SimService
+
+KEYS = Keys()
+FLYERS = ["cf0", "cf1", "cf2", "cf3"]
+DRIVERS = ["cf4", "cf5"]
+
+
+class Watch:
+    """Telemetry and events of every vehicle, as any other process sees them."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.telemetry: dict[str, Telemetry] = {}
+        self.events: list[VehicleEvent] = []
+        subscribe(session, KEYS.all_vehicles("telemetry"), Telemetry, lambda m, _k: self.telemetry.__setitem__(m.vid, m))
+        subscribe(session, KEYS.all_vehicles("event"), VehicleEvent, lambda m, _k: self.events.append(m))
+
+    def kinds(self, vid: str) -> list[str]:
+        return [e.kind for e in self.events if e.vid == vid]
+
+
+async def until(predicate: Callable[[], bool], timeout: float, what: str) -> None:
+    try:
+        async with asyncio.timeout(timeout):
+            while not predicate():
+                await asyncio.sleep(0.02)
+    except TimeoutError:
+        raise AssertionError(f"timed out waiting for {what}") from None
+
+
+def _starts(vids: list[str]) -> dict[str, tuple[float, float, float]]:
+    return {vid: (0.4 * i, 0.0, 0.0) for i, vid in enumerate(vids)}
+
+
+async def _setpoint_rates(sim: SimService, vids: list[str], seconds: float) -> dict[str, float]:
+    """Flight setpoints each simulated vehicle received per second, over `seconds`."""
+    before = {vid: sim.vehicles[vid].flight_setpoints for vid in vids}
+    t0 = time.monotonic()
+    await asyncio.sleep(seconds)
+    dt = time.monotonic() - t0
+    return {vid: (sim.vehicles[vid].flight_setpoints - before[vid]) / dt for vid in vids}
+
+
+def _airborne(sim: SimService, vids: list[str], z: float = 0.35) -> Callable[[], bool]:
+    return lambda: all(v in sim.vehicles and sim.vehicles[v].car.z > z for v in vids)
+
+
+def test_four_vehicles_fly_at_50hz_or_more_while_two_drive_on_one_radio(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
+    cfg = ZenohConfig.client(zenoh_router)
+    spec = simulated_radios(_starts(FLYERS + DRIVERS), per_radio=6)
+    sim, gw = SimService(spec, cfg), RadioGateway("r0", spec, cfg)
+    cmd = LoadCommander("e1", cfg, flyers=FLYERS, drivers=DRIVERS)
+    session = zsession()
+
+    async def main() -> None:
+        watch = Watch(session)
+        async with running(sim, gw, cmd):
+            await until(_airborne(sim, FLYERS), 6.0, "the flyers to climb")
+            x0 = {vid: sim.vehicles[vid].car.x for vid in DRIVERS}
+            rates = await _setpoint_rates(sim, FLYERS, 3.0)
+            print("per-vehicle setpoint rates (Hz):", {v: round(r, 1) for v, r in rates.items()})
+            assert min(rates.values()) >= 50.0
+            for vid in FLYERS:
+                cf = sim.vehicles[vid]
+                assert cf.max_flight_gap < 0.1 and cf.watchdog_levels == 0 and abs(cf.car.z - 0.5) < 0.1
+                tel = watch.telemetry[vid]
+                assert tel.link_ok and tel.cmd_rate_hz >= 50.0 and 3.0 < tel.vbat < 4.3 and tel.gateway == "r0"
+                assert tel.sent >= tel.acked > 0 and tel.dropped < 0.05 * tel.sent and tel.owner == "e1"
+            for vid in DRIVERS:
+                cf = sim.vehicles[vid]
+                assert cf.car.x - x0[vid] > 0.1  # 0.05 m/s for 3 s
+                assert cf.car.z == 0.0 and cf.wheel_watchdogs == 0 and watch.telemetry[vid].link_ok
+            assert set(watch.kinds("cf0")) == {"link_up"}
+            assert gw.counters.total("refused:") == 0 and gw.counters.total() == 0
+
+    asyncio.run(main())
+
+
+def test_a_stale_commander_makes_the_vehicle_land_and_a_driver_stop(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
+    cfg = ZenohConfig.client(zenoh_router)
+    spec = simulated_radios(_starts(["cf0", "cf1", "cf2"]), per_radio=3)
+    sim, gw, mocap = SimService(spec, cfg), RadioGateway("r0", spec, cfg), MocapBridge(MocapConfig(), cfg)
+    cmd = LoadCommander("e1", cfg, flyers=["cf0", "cf1"], drivers=["cf2"])
+    session = zsession()
+
+    async def main() -> None:
+        watch = Watch(session)
+        async with running(sim, gw, mocap, cmd):
+            await until(_airborne(sim, ["cf0", "cf1"]), 6.0, "the flyers to climb")
+            cmd.silence("cf0")
+            cmd.silence("cf2")
+            lowest = 0.0
+            landed = lambda: "landed" in watch.kinds("cf0")  # noqa: E731
+            async with asyncio.timeout(8.0):
+                while not landed():
+                    lowest = min(lowest, sim.vehicles["cf0"].car.vz)
+                    await asyncio.sleep(0.01)
+            await asyncio.sleep(0.3)
+            cf0, cf1, cf2 = (sim.vehicles[v] for v in ("cf0", "cf1", "cf2"))
+            truth = cf0.car.truth()
+            assert truth.z == 0.0 and not truth.airborne and not truth.motors
+            assert cf0.car.last_impact_speed < 0.35 and lowest > -0.4  # a gentle landing
+            assert cf0.watchdog_levels == 0  # the gateway never let the firmware watchdog act
+            assert abs(cf1.car.z - 0.5) < 0.1 and cf1.watchdog_levels == 0
+            assert cf2.car.wheel_left == pytest.approx(0.0, abs=1e-3) and cf2.wheel_watchdogs == 0
+            events = {e.kind: e for e in watch.events if e.vid in ("cf0", "cf2")}
+            assert "under position control" in events["landed"].detail
+            assert "stale_cmd_landing" in watch.kinds("cf0") and "stale_cmd_stop" in watch.kinds("cf2")
+            assert watch.telemetry["cf0"].stale_cmd and not watch.telemetry["cf1"].stale_cmd
+
+    asyncio.run(main())
+
+
+def test_refused_commands_are_counted_and_logged_once(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session], caplog: pytest.LogCaptureFixture) -> None:
+    """A vehicle of another radio, a cmd naming another vehicle, a sender that is not the owner, a
+    malformed cmd, a malformed packet from a vehicle: all dropped and counted, nothing crashes."""
+    cfg = ZenohConfig.client(zenoh_router)
+    rogue = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rogue.bind(("127.0.0.1", 0))
+    rogue.settimeout(0.05)
+    base = simulated_radios({"cf0": (0.0, 0.0, 0.0), "x9": (1.0, 0.0, 0.0)}, per_radio=1)
+    spec = RadiosFile(radios={**base.radios, "r9": RadioSpec(
+        vehicles={"rogue": VehicleLink(uri=f"udp://127.0.0.1:{rogue.getsockname()[1]}")})})
+    sim = SimService(spec, cfg, radios=["r0", "r1"])
+    gw, gw9 = RadioGateway("r0", spec, cfg), RadioGateway("r9", spec, cfg)
+    cmd = LoadCommander("e1", cfg, flyers=["cf0", "x9"])
+    session = zsession()
+    caplog.set_level(logging.INFO, logger="services.radio_gateway.gateway")
+
+    async def answer_garbage() -> None:
+        while True:
+            try:
+                _data, addr = await asyncio.to_thread(rogue.recvfrom, 64)
+                rogue.sendto(b"\xde\x01\x81\x00", addr)  # a status cut short
+            except TimeoutError:
+                pass
+
+    async def main() -> None:
+        cmd_key = KEYS.vehicle("cf0", "cmd")
+        async with running(sim, gw, gw9, cmd):
+            garbage = asyncio.create_task(answer_garbage())
+            await until(_airborne(sim, ["cf0"], 0.2), 6.0, "cf0 to climb")
+            hover = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=0)
+            for _ in range(5):
+                session.put(cmd_key, msgspec.msgpack.encode(Cmd(vid="cf7", owner="e1", seq=1, t=0.0, setpoint=hover)))
+                session.put(cmd_key, msgspec.msgpack.encode(Cmd(vid="cf0", owner="intruder", seq=1, t=0.0,
+                                                                setpoint=hover)))
+                session.put(cmd_key, b"\x93not a cmd")
+            await until(lambda: gw9.counters.get("drop:malformed:crtp:rogue", 0) > 0, 3.0, "the rogue's reply")
+            await asyncio.sleep(0.3)
+            garbage.cancel()
+            assert sim.vehicles["x9"].received == 0 and sim.vehicles["cf0"].car.z > 0.2
+            assert gw.counters["refused:unassigned:x9"] > 50
+            assert gw.counters["refused:vid_mismatch:cf0"] == 5 and gw.counters["refused:not_owner:cf0"] == 5
+            assert gw.counters["drop:malformed:Cmd:fleet/default/vehicle/cf0/cmd"] == 5
+            assert not gw9.channels["rogue"].stats.link_ok
+        rogue.close()
+        refusals = [r.getMessage() for r in caplog.records if "r0: refused cmd for x9" in r.getMessage()]
+        assert len(refusals) == 1
+
+    asyncio.run(main())
+
+
+def test_only_the_current_owner_is_obeyed(zenoh_router: str) -> None:
+    cfg = ZenohConfig.client(zenoh_router)
+    spec = simulated_radios({"cf0": (0.0, 0.0, 0.0)}, per_radio=1)
+    sim, gw = SimService(spec, cfg), RadioGateway("r0", spec, cfg)
+    low = LoadCommander("e1", cfg, flyers=["cf0"], z_ref=0.3)
+    high = LoadCommander("e2", cfg, flyers=["cf0"], z_ref=0.7)
+    owner, other = (low, high) if owner_of("cf0", ["e1", "e2"]) == "e1" else (high, low)
+
+    async def main() -> None:
+        async with running(sim, gw, low, high):
+            await until(_airborne(sim, ["cf0"], 0.2), 6.0, "cf0 to climb")
+            car = sim.vehicles["cf0"].car
+            await until(lambda: gw.owners["cf0"] == owner.instance and abs(car.z - owner.z_ref) < 0.03, 8.0,
+                        "the owner's height")
+            await asyncio.sleep(0.5)
+            assert abs(car.z - owner.z_ref) < 0.03
+            assert gw.counters["refused:not_owner:cf0"] > 40
+            owner.stop()  # the owner dies: its vehicle passes to the other executor
+            await until(lambda: abs(car.z - other.z_ref) < 0.03, 8.0, "the new owner's height")
+            assert gw.owners["cf0"] == other.instance and sim.vehicles["cf0"].watchdog_levels == 0
+
+    asyncio.run(main())
+
+
+def test_ten_percent_loss_still_delivers_45hz_without_firmware_watchdog(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
+    cfg = ZenohConfig.client(zenoh_router)
+    spec = simulated_radios(_starts(FLYERS + DRIVERS), per_radio=6, link=LinkModel(loss=0.10, seed=7))
+    sim = SimService(spec, cfg)
+    gw = RadioGateway("r0", spec, cfg, subscribe_each=True)
+    cmd = LoadCommander("e1", cfg, flyers=FLYERS, drivers=DRIVERS)
+    session = zsession()
+
+    async def main() -> None:
+        watch = Watch(session)
+        async with running(sim, gw, cmd):
+            await until(_airborne(sim, FLYERS), 6.0, "the flyers to climb")
+            rates = await _setpoint_rates(sim, FLYERS, 3.0)
+            print("per-vehicle setpoint rates at 10 % loss (Hz):", {v: round(r, 1) for v, r in rates.items()})
+            assert min(rates.values()) >= 45.0
+            gaps = {vid: sim.vehicles[vid].max_flight_gap for vid in FLYERS}
+            assert max(gaps.values()) < 0.1, gaps  # the watchdog levels after 0.5 s
+            for vid in FLYERS + DRIVERS:
+                cf = sim.vehicles[vid]
+                assert cf.watchdog_levels == cf.watchdog_cuts == cf.wheel_watchdogs == 0
+                tel = watch.telemetry[vid]
+                assert tel.link_ok and tel.dropped > 0
+            assert 0.75 < watch.telemetry["cf0"].link_quality < 0.97
+            kinds: dict[str, int] = defaultdict(int)
+            for e in watch.events:
+                kinds[e.kind] += 1
+            assert set(kinds) == {"link_up"}, kinds
+            assert sim.radios["r0"].lost > 0
+
+    asyncio.run(main())
