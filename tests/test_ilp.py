@@ -72,6 +72,16 @@ def test_town_8_vehicles_solved_to_the_gap() -> None:
     assert result.cost >= result.stats["lower_bound"] - 1e-9
 
 
+def test_goals_on_other_vehicles_starts_including_a_cycle() -> None:
+    """Three vehicles rotate through three spots while two others swap between the regions: no
+    vehicle can wait for a free goal, they must move together. A longer horizon is cheaper here
+    than the first feasible one: the horizon extension finds it."""
+    graph = load_graph("town", uniform=True)
+    tasks = tasks_of(cf1=("WP1", "WP2"), cf2=("WP2", "WP3"), cf3=("WP3", "WP1"), cf4=("EP1", "WP4"), cf5=("WP4", "EP1"))
+    result = plan_valid(graph, tasks)
+    assert result.stats["horizon"] > result.stats["first_horizon"]
+
+
 def test_time_limit_returns_the_incumbent_with_its_gap() -> None:
     """A congested town scenario that HiGHS cannot close in 0.3 s: the prioritized first plan (or a
     better incumbent) comes back with an honest gap."""

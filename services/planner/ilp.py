@@ -144,9 +144,9 @@ def plan_ilp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: f
     return PlanResult(
         ok=True, paths=paths, cost=cost, planning_time_s=time.perf_counter() - t0, mip_gap=best.gap,
         stats={
-            "horizon": float(best.horizon), "horizons_tried": float(len(solves)), "columns": float(len(best.columns)),
-            "lower_bound": bound, "build_s": sum(s.build_s for s in solves), "solve_s": sum(s.solve_s for s in solves),
-            "highs_solves": float(sum(s.size is not None for s in solves)), "timed_out": float(best.status == "feasible"),
-            **model,
+            "horizon": float(best.horizon), "first_horizon": float(horizon), "horizons_tried": float(len(solves)),
+            "highs_solves": float(sum(s.size is not None for s in solves)), "columns": float(len(best.columns)),
+            "lower_bound": bound, "timed_out": float(best.status == "feasible"),
+            "build_s": sum(s.build_s for s in solves), "solve_s": sum(s.solve_s for s in solves), **model,
         },
     )

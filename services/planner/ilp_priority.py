@@ -4,7 +4,9 @@ Vehicles are planned one at a time, cheapest-first search over their columns (il
 least eq. 3 cost, avoiding every arc that collides (ilp_arcs `touch`) with an arc claimed by an
 earlier vehicle in the same step. On well-formed maps the vehicles not planned yet claim their
 parked bodies at their start and goal for the whole horizon (revised prioritized planning, Čáp et
-al. 2015), so later vehicles can still leave and arrive. The plan is a MIP start for HiGHS and its
+al. 2015), so later vehicles can still leave and arrive; but a spot that is one vehicle's start and
+another's goal is not claimed (else a cycle of such vehicles could never be planned): whichever is
+planned second must then leave before, or arrive after, the other. The plan is a MIP start for HiGHS and its
 cost an upper bound for pruning (ilp_network.within_cost); it may not exist within a short horizon.
 """
 
@@ -72,15 +74,15 @@ def prioritized(cols: Columns, table: ArcTable, fleet: Fleet, horizon: int, n_no
     keys = cols.veh[by_step] * horizon + cols.step[by_step]
     bounds = np.searchsorted(keys, np.arange(n_veh * horizon + 1))
     claims = Claims(table, horizon)
-    if park:
-        for i in range(n_veh):
-            claims.park(int(fleet.starts[i]), 1)
-            claims.park(int(fleet.goals[i]), 1)
+    shared = set(fleet.starts.tolist()) & set(fleet.goals.tolist())
+    spots = [[int(n) for n in (fleet.starts[i], fleet.goals[i]) if park and n not in shared] for i in range(n_veh)]
+    for own in spots:
+        for node in own:
+            claims.park(node, 1)
     chosen: list[np.ndarray] = []
     for i in order:
-        if park:
-            claims.park(int(fleet.starts[i]), -1)
-            claims.park(int(fleet.goals[i]), -1)
+        for node in spots[i]:
+            claims.park(node, -1)
         path = cheapest_path(cols, by_step, bounds[i * horizon:(i + 1) * horizon + 1], claims,
                              int(fleet.starts[i]), int(fleet.goals[i]), n_nodes)
         if path is None:
