@@ -15,9 +15,11 @@ will park there where they can (a stable topological sort); otherwise (a cycle o
 restart that promotes a vehicle) the vehicle planned first ignores the body still parked on its goal,
 which must then get away before it arrives.
 
-The first order is the task order (so sorted); when a vehicle cannot be placed, the next order puts
-it first and shuffles the rest (seeded, then sorted), until a plan is found, the vehicle fails even
-at the top priority, or the time limit passes. Every plan returned is conflict-free by construction.
+The first order is the task order (so sorted). When a vehicle cannot be placed, the next order
+promotes it to the front and keeps the others' order (on random-32-32-10 with 300 agents this needs
+3 orders where reshuffling the others needs 60); an order tried before is replaced by a seeded
+shuffle of the others. Restarts go on until a plan is found, the vehicle fails even at the top
+priority, or the time limit passes. Every plan returned is conflict-free by construction.
 """
 
 from __future__ import annotations
@@ -88,9 +90,13 @@ def plan_sipp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: 
 def _next_order(
     order: list[str], failed: str, blockers: dict[str, list[str]], rng: random.Random, tried: set[tuple[str, ...]]
 ) -> list[str] | None:
-    """A restart: `failed` first, the rest shuffled then sorted. With few vehicles, where the sort maps
-    many shuffles to one order, an order not tried yet instead of a repeat; None when all were tried."""
+    """A restart: `failed` promoted to the front, the others in their order; if that order was tried,
+    the others shuffled (seeded) then sorted. With few vehicles, where the sort maps many shuffles to
+    one order, an order not tried yet instead of a repeat; None when every order was tried."""
     rest = [v for v in order if v != failed]
+    promoted = [failed, *rest]
+    if tuple(promoted) not in tried:
+        return promoted
     rng.shuffle(rest)
     nxt = [failed, *_leavers_first(rest, blockers)]
     if len(order) > FEW_VEHICLES or tuple(nxt) not in tried:
