@@ -41,8 +41,7 @@ class MocapBridge(Service):
 
     async def main(self) -> None:
         cfg = self.config
-        tracker = self.tracker = BodyTracker(cfg.bodies, cfg.rate_hz, cfg.lost_after_s, time.time(),
-                                             source=cfg.backend)
+        tracker = self.tracker = BodyTracker(cfg.bodies, cfg.rate_hz, cfg.lost_after_s, source=cfg.backend)
         backend: LibBackend | SimBackend
         if cfg.backend == "sim":
             backend = SimBackend(cfg.sim, self._on_frame)

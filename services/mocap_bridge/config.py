@@ -15,7 +15,7 @@ sim: {pos_std: 0.001, yaw_std: 0.0087, latency_s: 0.005, dropout_rate_hz: 0.0, d
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import msgspec
 
@@ -24,6 +24,8 @@ from common.keys import check_chunk
 from common.mapfile import decode_yaml, read_text
 
 _Strict = {"frozen": True, "forbid_unknown_fields": True}
+Positive = Annotated[float, msgspec.Meta(gt=0)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
 Backend = Literal["sim", "mock", "vicon", "optitrack", "qualisys", "vrpn"]
 LIB_BACKENDS: tuple[str, ...] = ("mock", "vicon", "optitrack", "qualisys", "vrpn")
@@ -35,35 +37,22 @@ class SimNoise(msgspec.Struct, **_Strict):
     capture to publication (s), and dropouts: each body starts one at random `dropout_rate_hz`
     times per second (Poisson), lasting `dropout_s`. Defaults: docs/mocap.md."""
 
-    pos_std: float = 0.001
-    yaw_std: float = 0.0087
-    latency_s: float = 0.005
-    dropout_rate_hz: float = 0.0
-    dropout_s: float = 0.2
+    pos_std: NonNegative = 0.001
+    yaw_std: NonNegative = 0.0087
+    latency_s: NonNegative = 0.005
+    dropout_rate_hz: NonNegative = 0.0
+    dropout_s: NonNegative = 0.2
     seed: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("pos_std", "yaw_std", "latency_s", "dropout_rate_hz", "dropout_s"):
-            if getattr(self, name) < 0:
-                raise msgspec.ValidationError(f"`{name}` must not be negative")
 
 
 class MocapConfig(msgspec.Struct, **_Strict):
     backend: Backend = "sim"
     options: dict[str, str] = {}
-    rate_hz: float = 100.0
+    rate_hz: Positive = 100.0
     bodies: dict[str, str] = {}
-    lost_after_s: float = 0.1
-    latency_s: float = 0.0
+    lost_after_s: Positive = 0.1
+    latency_s: NonNegative = 0.0
     sim: SimNoise = SimNoise()
-
-    def __post_init__(self) -> None:
-        if not self.rate_hz > 0:
-            raise msgspec.ValidationError("`rate_hz` must be positive")
-        if not self.lost_after_s > 0:
-            raise msgspec.ValidationError("`lost_after_s` must be positive")
-        if self.latency_s < 0:
-            raise msgspec.ValidationError("`latency_s` must not be negative")
 
 
 def check_mocap(config: MocapConfig, source: str) -> None:

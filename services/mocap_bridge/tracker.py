@@ -3,7 +3,8 @@
 Backend-agnostic: a backend reports frames (capture time, the bodies it sees); the tracker maps
 body names to vehicle ids, limits each vehicle to `rate_hz` poses per second, numbers them, and
 reports a body unseen for `lost_after_s` as lost (`mocap_lost`), once, publishing nothing for it
-until it is seen again (`mocap_found`): a vanished body is never frozen at its last pose.
+until it is seen again (`mocap_found`): a vanished body is never frozen at its last pose. A
+configured body counts from the system's first frame (connecting may take a while).
 """
 
 from __future__ import annotations
@@ -34,8 +35,7 @@ def yaw_of(w: float, x: float, y: float, z: float) -> float:
 class BodyTracker:
     """`bodies` maps rigid-body names to vehicle ids; empty means each body is the vehicle of its name."""
 
-    def __init__(self, bodies: Mapping[str, str], rate_hz: float, lost_after_s: float, started: float,
-                 source: str = "mocap") -> None:
+    def __init__(self, bodies: Mapping[str, str], rate_hz: float, lost_after_s: float, source: str = "mocap") -> None:
         self.bodies = dict(bodies)
         self.period = 1.0 / rate_hz
         self.lost_after_s = lost_after_s
@@ -43,7 +43,7 @@ class BodyTracker:
         self.seq: dict[str, int] = {}
         self.ignored: dict[str, int] = {}
         self._due: dict[str, float] = {}
-        self._seen: dict[str, float] = dict.fromkeys(self.bodies.values(), started)
+        self._seen: dict[str, float] = {}
         self._lost: set[str] = set()
 
     def vid_of(self, body: str) -> str | None:
@@ -64,6 +64,8 @@ class BodyTracker:
         """Poses to publish and events for a frame captured at `t`, arriving at `now`."""
         poses: list[Pose] = []
         events: list[Event] = []
+        if not self._seen:  # the system runs: a configured body must show up from now on
+            self._seen = dict.fromkeys(self.bodies.values(), now)
         for body, (x, y, z, yaw) in seen.items():
             vid = self.vid_of(body)
             if vid is None or not all(math.isfinite(v) for v in (x, y, z, yaw)):

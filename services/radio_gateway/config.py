@@ -20,6 +20,7 @@ from __future__ import annotations
 import socket
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Annotated
 from urllib.parse import urlparse
 
 import msgspec
@@ -32,11 +33,8 @@ from common.mapfile import decode_yaml, read_text
 _Strict = {"frozen": True, "forbid_unknown_fields": True}
 URI_SCHEMES = ("radio", "udp")
 
-
-def _positive(owner: object, *names: str) -> None:
-    for name in names:
-        if not getattr(owner, name) > 0:
-            raise msgspec.ValidationError(f"`{name}` must be positive")
+Positive = Annotated[float, msgspec.Meta(gt=0)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
 
 class LinkModel(msgspec.Struct, **_Strict):
@@ -49,18 +47,11 @@ class LinkModel(msgspec.Struct, **_Strict):
     Only `budget_pps` matters to a real radio; the others are the simulator's model of it.
     """
 
-    budget_pps: float = 500.0
-    latency_s: float = 0.002
-    loss: float = 0.01
-    max_queue_s: float = 0.05
+    budget_pps: Positive = 500.0
+    latency_s: NonNegative = 0.002
+    loss: Annotated[float, msgspec.Meta(ge=0, lt=1)] = 0.01
+    max_queue_s: Positive = 0.05
     seed: int = 0
-
-    def __post_init__(self) -> None:
-        _positive(self, "budget_pps", "max_queue_s")
-        if self.latency_s < 0:
-            raise msgspec.ValidationError("`latency_s` must not be negative")
-        if not 0 <= self.loss < 1:
-            raise msgspec.ValidationError("`loss` must be in [0, 1)")
 
 
 class LandingParams(msgspec.Struct, **_Strict):
@@ -74,19 +65,14 @@ class LandingParams(msgspec.Struct, **_Strict):
     blind_height: height assumed for an open-loop descent when no pose was ever seen (m);
     mass: vehicle mass (kg, Table I)."""
 
-    hover_s: float = 0.5
-    speed: float = 0.2
-    accel: float = 1.0
-    touchdown_height: float = 0.03
-    rest_s: float = 0.3
-    pose_timeout_s: float = 0.25
-    blind_height: float = 1.0
-    mass: float = 0.041
-
-    def __post_init__(self) -> None:
-        _positive(self, "speed", "accel", "touchdown_height", "rest_s", "pose_timeout_s", "blind_height", "mass")
-        if self.hover_s < 0:
-            raise msgspec.ValidationError("`hover_s` must not be negative")
+    hover_s: NonNegative = 0.5
+    speed: Positive = 0.2
+    accel: Positive = 1.0
+    touchdown_height: Positive = 0.03
+    rest_s: Positive = 0.3
+    pose_timeout_s: Positive = 0.25
+    blind_height: Positive = 1.0
+    mass: Positive = 0.041
 
 
 class GatewayParams(msgspec.Struct, **_Strict):
@@ -99,18 +85,14 @@ class GatewayParams(msgspec.Struct, **_Strict):
     older than this is stale; link_timeout_s: no status for this long means the link is lost;
     stop_repeats: how many times a stop is sent."""
 
-    tick_hz: float = 100.0
-    drive_hz: float = 50.0
-    wheel_refresh_s: float = 0.1
-    status_hz: float = 5.0
-    stale_s: float = 0.2
-    link_timeout_s: float = 1.0
-    stop_repeats: int = 3
+    tick_hz: Positive = 100.0
+    drive_hz: Positive = 50.0
+    wheel_refresh_s: Positive = 0.1
+    status_hz: Positive = 5.0
+    stale_s: Positive = 0.2
+    link_timeout_s: Positive = 1.0
+    stop_repeats: Annotated[int, msgspec.Meta(ge=1)] = 3
     landing: LandingParams = LandingParams()
-
-    def __post_init__(self) -> None:
-        _positive(self, "tick_hz", "drive_hz", "wheel_refresh_s", "status_hz", "stale_s", "link_timeout_s",
-                  "stop_repeats")
 
 
 class VehicleLink(msgspec.Struct, **_Strict):
