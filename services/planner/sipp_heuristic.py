@@ -18,6 +18,7 @@ from services.planner.graph import FleetGraph
 from services.planner.sipp_cache import per_graph
 
 SPOT_KINDS = ("parking", "helipad")
+MAX_GOALS = 2048  # tables kept per (graph, mu); the oldest are dropped beyond this
 
 
 def spot_mask(graph: FleetGraph) -> np.ndarray:
@@ -49,9 +50,12 @@ class CostToGo:
 
     def prepare(self, goals: Iterable[int]) -> None:
         """Compute the tables of the goals not cached yet, in one batched Dijkstra per weight."""
-        todo = sorted({g for g in goals if g not in self.h})
+        goals = set(goals)
+        todo = sorted(g for g in goals if g not in self.h)
         if not todo:
             return
+        for old in [g for g in self.h if g not in goals][: max(0, len(self.h) + len(todo) - MAX_GOALS)]:
+            del self.h[old], self.q[old]
         # sources: the goal itself, or for a spot goal the tails of its in-edges (offset by that edge)
         rows: list[tuple[int, int, int]] = []  # (goal, source node, edge into the goal or -1)
         for g in todo:
