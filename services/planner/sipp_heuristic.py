@@ -31,7 +31,10 @@ class CostToGo:
     Lists, not arrays: the search reads single elements."""
 
     def __init__(self, graph: FleetGraph, mu: float) -> None:
-        self.graph = graph
+        # arrays only, no reference to the graph: the per-graph memo must not keep it alive
+        self._n = graph.n_nodes
+        self._edges = graph.edges
+        self._charge = graph.charge
         u, v = graph.edges[:, 0], graph.edges[:, 1]
         self.spot = spot_mask(graph)
         into_spot = self.spot[v]
@@ -60,7 +63,7 @@ class CostToGo:
         rows: list[tuple[int, int, int]] = []  # (goal, source node, edge into the goal or -1)
         for g in todo:
             if self.spot[g]:
-                rows += [(g, int(self.graph.edges[e, 0]), int(e)) for e in np.flatnonzero(self.graph.edges[:, 1] == g)]
+                rows += [(g, int(self._edges[e, 0]), int(e)) for e in np.flatnonzero(self._edges[:, 1] == g)]
             else:
                 rows.append((g, g, -1))
         sources = sorted({s for _, s, _ in rows})
@@ -68,13 +71,13 @@ class CostToGo:
         dist_c = np.atleast_2d(dijkstra(self._rev_cost, indices=sources))
         dist_q = np.atleast_2d(dijkstra(self._rev_charge, indices=sources))
         for g in todo:
-            h = np.full(self.graph.n_nodes, np.inf)
-            q = np.full(self.graph.n_nodes, np.inf)
+            h = np.full(self._n, np.inf)
+            q = np.full(self._n, np.inf)
             for goal, s, e in rows:
                 if goal != g:
                     continue
                 h = np.minimum(h, dist_c[col[s]] + (self._cost[e] if e >= 0 else 0.0))
-                q = np.minimum(q, dist_q[col[s]] + (self.graph.charge[e] if e >= 0 else 0.0))
+                q = np.minimum(q, dist_q[col[s]] + (self._charge[e] if e >= 0 else 0.0))
             h[g] = q[g] = 0.0
             self.h[g] = h.tolist()
             self.q[g] = q.tolist()
