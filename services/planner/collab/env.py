@@ -144,6 +144,22 @@ def env_from_spec(spec: MapSpec, source: str) -> Env:
     )
 
 
+def grid_env(
+    rows: list[str],
+    legend: dict[str, float] | None = None,
+    landmarks: list[LandmarkSpec] | None = None,
+    no_ugv: list[Rect] | None = None,
+    no_metric: list[Rect] | None = None,
+    name: str = "grid",
+) -> Env:
+    """An Env from grid rows (rows[0] is y = 0) at 0.5 m cells: quick maps for code and tests."""
+    spec = MapSpec(
+        format=MAP_FORMAT, name=name, rows=rows, legend=legend or {}, landmarks=landmarks or [],
+        no_ugv=no_ugv or [], no_metric=no_metric or [],
+    )
+    return env_from_spec(spec, name)
+
+
 def load_yaml_map(path: str | Path) -> Env:
     """A `fleet-collab-map/1` YAML file -> Env (strict: unknown keys are InputErrors)."""
     spec = decode_yaml(read_text(Path(path)), MapSpec, str(path))
@@ -165,8 +181,3 @@ def load_movingai_map(path: str | Path, resolution: float = 0.5) -> Env:
         no_ugv=np.zeros(free.shape, dtype=bool),
         no_metric=np.zeros(free.shape, dtype=bool),
     )
-
-
-def spec_to_yaml(spec: MapSpec) -> bytes:
-    """Encode a map spec as YAML (for shipping generated maps as files)."""
-    return msgspec.yaml.encode(spec)

@@ -95,6 +95,7 @@ class Lattice:
         res = s.env.resolution
 
         def add(t: int, cost: float, label: Label) -> None:
+            cost += m.cost_action
             if t != d and (t not in out or cost < out[t][0]):
                 out[t] = (cost, label)
 
@@ -126,7 +127,7 @@ class Lattice:
     def dyn_cost(self, d: int, t: int) -> float:
         _, r, c = self.drone_pose(d)
         _, r2, c2 = self.drone_pose(t)
-        return math.hypot(r2 - r, c2 - c) * self.s.env.resolution * self.m.cost_landmark
+        return math.hypot(r2 - r, c2 - c) * self.s.env.resolution * self.m.cost_landmark + self.m.cost_action
 
     def _relaxed_dyn(self) -> sparse.csr_matrix:
         """Low-dimensional GOTOLANDMARK_DYN edges d -> q: some UGV cell u of the UGV's area is seen
@@ -171,7 +172,7 @@ class Lattice:
         cols = np.concatenate(cols_all).astype(np.int64)
         pr, pc = (rows % nc) // w, (rows % nc) % w
         qr, qc = (cols % nc) // w, (cols % nc) % w
-        cost = np.hypot(qr - pr, qc - pc) * s.env.resolution * self.m.cost_landmark
+        cost = np.hypot(qr - pr, qc - pc) * s.env.resolution * self.m.cost_landmark + self.m.cost_action
         return sparse.csr_matrix((cost, (rows, cols)), shape=(self.nd, self.nd))
 
     def _ld_matrix(self) -> sparse.csr_matrix:

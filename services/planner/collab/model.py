@@ -26,6 +26,8 @@ class TeamModel(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """METRICSTEP lengths in cells (short motions only, 002 §III-B)."""
     ugv_height: float = 0.8
     """Height of the UGV's marker hexagon; the drone flies above it (no drone-UGV collisions)."""
+    cost_action: float = 0.1
+    """Added to every drone controller action: switching controllers takes time."""
     cost_follow: float = 1.0
     cost_landmark: float = 1.0
     cost_metric: float = 5.0

@@ -37,10 +37,10 @@ from services.planner.collab.lattice import ANY_HEADING, Edge, Lattice
 
 @dataclass(frozen=True)
 class PadConfig:
-    eps_plan: float = 2.0
+    eps_plan: float = 1.5
     """First eps of the planning phase; lowered by `eps_step` to 1 while improving."""
-    eps_step: float = 0.5
-    eps_track: float = 2.0
+    eps_step: float = 0.25
+    eps_track: float = 2.5
     tunnel: int = 2
     """Tunnel half-width in cells (002 §IV-B)."""
     region_radius: int = 4

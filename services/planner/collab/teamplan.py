@@ -9,10 +9,13 @@ metres and degrees (heading 0 = +x, counter-clockwise). Frozen msgspec Structs: 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Literal
 
 import msgspec
 
+from common.errors import InputError
+from common.mapfile import _split_msgspec_error, read_text
 from services.planner.collab.lattice import Lattice
 from services.planner.collab.sensing import DIRS
 
@@ -105,6 +108,15 @@ def decode_json(data: bytes | str) -> TeamPlan:
     return msgspec.json.decode(data, type=TeamPlan, strict=True)
 
 
+def read_plan(path: str | Path) -> TeamPlan:
+    """A team plan JSON file; bad input is an InputError naming the file and the field."""
+    try:
+        return decode_json(read_text(Path(path)))
+    except msgspec.DecodeError as exc:
+        field, problem = _split_msgspec_error(exc)
+        raise InputError(str(path), field, problem) from None
+
+
 def encode_msgpack(plan: TeamPlan) -> bytes:
     return msgspec.msgpack.encode(plan)
 
@@ -181,7 +193,7 @@ def build_team_plan(
             b.add_drone(GoToLandmarkStat(env.landmarks[label[1]].id, end), end, step_cost, False)
         elif kind == "METRIC":
             _, heading, n = label
-            turn = lat.m.cost_metric_turn
+            turn = lat.m.cost_metric_turn + lat.m.cost_action
             b.add_drone(MetricTurn(45.0 * heading), _xyz(lat, d), turn, False)
             b.add_drone(MetricStep(n * math.hypot(*DIRS[heading]) * res), end, step_cost - turn, False)
         elif kind == "ALT":
@@ -205,3 +217,37 @@ def build_team_plan(
         planning_time_s=planning_time_s,
         expansions=expansions,
     )
+
+
+Robot = Literal["drone", "ugv"]
+ROBOTS: tuple[Robot, Robot] = ("drone", "ugv")
+
+
+class PlanProgress:
+    """Execution bookkeeping of a TeamPlan's sync points (002 §IV-E), for simulated or real robots:
+    a robot may start its next step only when the other robot has completed `wait_for` steps."""
+
+    def __init__(self, plan: TeamPlan) -> None:
+        self.steps: dict[Robot, tuple[Step, ...]] = {"drone": plan.drone, "ugv": plan.ugv}
+        self.done: dict[Robot, int] = {"drone": 0, "ugv": 0}
+
+    @staticmethod
+    def other(robot: Robot) -> Robot:
+        return "ugv" if robot == "drone" else "drone"
+
+    def next_step(self, robot: Robot) -> Step | None:
+        i = self.done[robot]
+        return self.steps[robot][i] if i < len(self.steps[robot]) else None
+
+    def can_start(self, robot: Robot) -> bool:
+        step = self.next_step(robot)
+        return step is not None and self.done[self.other(robot)] >= step.wait_for
+
+    def complete(self, robot: Robot) -> None:
+        if self.next_step(robot) is None:
+            raise ValueError(f"{robot} has no step left to complete")
+        self.done[robot] += 1
+
+    @property
+    def finished(self) -> bool:
+        return all(self.next_step(r) is None for r in ROBOTS)

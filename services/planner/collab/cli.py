@@ -1,0 +1,155 @@
+"""`fleet collab ...`: plan, simulate and benchmark ground-air team plans (paper 002)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from common.errors import InputError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the `collab` command group to the `fleet` parser's subparsers."""
+    c = sub.add_parser("collab", help="ground-air team planning with collaborative localization (paper 002)")
+    csub = c.add_subparsers(dest="collab_command", required=True, metavar="ACTION")
+
+    p = csub.add_parser("plan", help="plan a team plan (PAD or full-dimensional ARA*) and print it")
+    p.add_argument("--map", default="office-cubicles", help="generated map, maps/collab name, .yaml or MovingAI .map")
+    p.add_argument("--seed", type=int, default=0, help="random start/goal pair (unless --start/--ugv/--goal)")
+    p.add_argument("--start", help="drone start x,y,z in metres")
+    p.add_argument("--ugv", help="UGV start x,y,heading_deg")
+    p.add_argument("--goal", help="drone goal x,y,z")
+    p.add_argument("--planner", choices=["pad", "arastar"], default="pad")
+    p.add_argument("--time-limit", type=float, default=30.0, help="seconds to the first solution")
+    p.add_argument("--improve", type=float, default=1.0, help="seconds to improve after it")
+    p.add_argument("--out", help="write the plan as JSON here")
+    p.add_argument("--json", action="store_true", help="print JSON instead of the listing")
+    p.add_argument("--simulate", action="store_true", help="also execute the plan in simulation")
+    p.set_defaults(handler=cmd_plan)
+
+    p = csub.add_parser("simulate", help="execute a team plan file in simulation, honouring its sync points")
+    p.add_argument("plan", help="team plan JSON")
+    p.add_argument("--map", help="default: the plan's map")
+    p.set_defaults(handler=cmd_simulate)
+
+    p = csub.add_parser("bench", help="PAD vs full-dimensional ARA* on the two office maps (002 Tables I-II)")
+    p.add_argument("--instances", type=int, default=50)
+    p.add_argument("--time-limit", type=float, default=10.0)
+    p.add_argument("--improve", type=float, default=1.0)
+    p.add_argument("--out", default="out/collab_experiment.png")
+    p.add_argument("--json", default="out/collab_experiment.json", help="per-run results ('' for none)")
+    p.set_defaults(handler=cmd_bench)
+
+
+def _floats(text: str, what: str) -> tuple[float, float, float]:
+    try:
+        x, y, z = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError("fleet collab plan", what, f"expected three comma-separated numbers, got {text!r}") from None
+    return x, y, z
+
+
+def _problem(args: argparse.Namespace, planner):
+    from services.planner.collab.instances import sample_problem
+    from services.planner.collab.planner import Problem
+
+    given = [args.start, args.ugv, args.goal]
+    if not any(given):
+        return sample_problem(planner, args.seed)
+    if not all(given):
+        raise InputError("fleet collab plan", "--start/--ugv/--goal", "give all three or none")
+    env = planner.env
+    sx, sy, sz = _floats(args.start, "--start")
+    ux, uy, uh = _floats(args.ugv, "--ugv")
+    gx, gy, gz = _floats(args.goal, "--goal")
+    problem = Problem(
+        drone_start=(env.level_of(sz), *env.cell_of(sx, sy)),
+        ugv_start=(*env.cell_of(ux, uy), round(uh / 45.0) % 8),
+        goal=(env.level_of(gz), *env.cell_of(gx, gy)),
+    )
+    planner.check(problem, "fleet collab plan")
+    return problem
+
+
+def format_plan(plan) -> str:
+    """A readable listing of a team plan: one line per step, sync points as 'after <robot> <n>'."""
+    from services.planner.collab import teamplan as tp
+
+    lines = [f"team plan on {plan.map} ({plan.planner}): cost {plan.cost:.2f} (within {plan.epsilon:.2f} x optimal), "
+             f"{plan.planning_time_s:.2f} s, {plan.expansions} expansions",
+             f"drone start {plan.drone_start}, UGV start {plan.ugv_start}, goal {plan.goal}"]
+    for robot, steps in (("drone", plan.drone), ("ugv", plan.ugv)):
+        lines.append(f"{robot}:")
+        other = tp.PlanProgress.other(robot)
+        for i, step in enumerate(steps):
+            fields = " ".join(f"{k}={_short(v)}" for k, v in _fields(step.action).items())
+            sync = f"  [after {other} {step.wait_for}]" if step.wait_for else ""
+            end = ", ".join(f"{v:.2f}" for v in step.end)
+            lines.append(f"  {i:3d} {type(step.action).__struct_config__.tag:18s} {fields} -> ({end}){sync}")
+    return "\n".join(lines)
+
+
+def _fields(struct) -> dict:
+    return {f: getattr(struct, f) for f in struct.__struct_fields__}
+
+
+def _short(v):
+    if isinstance(v, float):
+        return f"{v:.2f}"
+    if isinstance(v, tuple):
+        return "(" + ", ".join(_short(x) for x in v) + ")"
+    return v
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from services.planner.collab.maps import load_env
+    from services.planner.collab.planner import TeamPlanner
+    from services.planner.collab.teamplan import encode_json
+
+    planner = TeamPlanner(load_env(args.map))
+    problem = _problem(args, planner)
+    out = planner.plan(problem, args.planner, args.time_limit, args.improve)
+    if out.plan is None:
+        why = "time limit reached" if out.timed_out else "no team plan exists"
+        print(f"fleet collab plan: no plan ({why}, {out.expansions} expansions)", file=sys.stderr)
+        return 1
+    if args.out:
+        Path(args.out).write_bytes(encode_json(out.plan))
+    print(encode_json(out.plan).decode() if args.json else format_plan(out.plan))
+    if args.simulate:
+        return _simulate(planner.sensing, out.plan)
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from services.planner.collab.maps import load_env
+    from services.planner.collab.model import TeamModel
+    from services.planner.collab.sensing import Sensing
+    from services.planner.collab.teamplan import read_plan
+
+    plan = read_plan(args.plan)
+    return _simulate(Sensing(load_env(args.map or plan.map), TeamModel()), plan)
+
+
+def _simulate(sensing, plan) -> int:
+    from services.planner.collab.sim import TeamSim
+
+    report = TeamSim(sensing, plan).run()
+    for e in report.events:
+        mark = "ok " if e.ok else "ERR"
+        pose = ", ".join(f"{v:.2f}" for v in e.pose)
+        print(f"{mark} t={e.start_s:6.1f}-{e.end_s:6.1f}s {e.robot:5s} {e.index:3d} {e.action:16s} -> ({pose}) {e.detail}")
+    status = "drone reached the goal" if report.reached_goal else f"FAILED: {report.failure or 'goal not reached'}"
+    print(f"simulation: {status}; makespan {report.makespan_s:.1f} s")
+    return 0 if report.reached_goal else 1
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from services.planner.collab.experiment import run
+
+    if args.instances < 1 or args.time_limit <= 0 or args.improve < 0:
+        raise InputError("fleet collab bench", "--instances/--time-limit/--improve", "must be positive")
+    print(run(args.instances, args.time_limit, args.improve, Path(args.out), Path(args.json) if args.json else None))
+    print(f"\nfigure: {args.out}")
+    return 0

@@ -1,0 +1,153 @@
+"""The experiment of 002 §V-D (Tables I-II): PAD vs full-dimensional ARA* on the two generated
+office maps, seeded start/goal pairs, success within a time limit, planning time, expansions,
+path cost and final epsilon; a table (with the paper's figures beside) and a PNG."""
+
+from __future__ import annotations
+
+import json
+import statistics as st
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from services.planner.collab.instances import sample_problem
+from services.planner.collab.maps import load_env
+from services.planner.collab.planner import Method, Outcome, Problem, TeamPlanner
+
+MAPS = ("office-conference", "office-cubicles")
+METHODS: tuple[Method, ...] = ("pad", "arastar")
+LABELS = {"pad": "PAD MR SLC", "arastar": "Full-D ARA* MR SLC"}
+# 002 Tables I and II: time avg, std, min, max; iterations; expansions; cost; final eps; success %.
+PAPER = {
+    "office-conference": {
+        "pad": (20.05, 22.00, 1.19, 91.58, 1.59, 7348, 24401, 1.36, 100),
+        "arastar": (9.37, 20.32, 0.08, 128.04, None, 1385, 23960, 1.30, 82),
+    },
+    "office-cubicles": {
+        "pad": (12.74, 9.95, 1.19, 40.00, 1.26, 2736, 36112, 1.31, 100),
+        "arastar": (12.33, 22.23, 0.01, 88.65, None, 960, 38083, 1.38, 38),
+    },
+}
+
+
+@dataclass
+class Run:
+    map: str
+    seed: int
+    method: str
+    solved: bool
+    first_solution_s: float | None
+    planning_time_s: float
+    expansions: int
+    iterations: int
+    cost: float
+    eps: float
+
+
+def run_map(name: str, instances: int, time_limit: float, improve_s: float, log=sys.stderr) -> tuple[list[Run], dict]:
+    """Both planners on `instances` seeded problems of map `name`; also one example PAD plan."""
+    t0 = time.perf_counter()
+    planner = TeamPlanner(load_env(name))
+    problems: list[Problem] = [sample_problem(planner, seed) for seed in range(instances)]
+    print(f"[{name}] graph and {instances} problems ready in {time.perf_counter() - t0:.1f} s", file=log, flush=True)
+    runs, example = [], {}
+    for seed, problem in enumerate(problems):
+        for method in METHODS:
+            out: Outcome = planner.plan(problem, method, time_limit, improve_s)
+            solved = out.first_solution_s is not None and out.first_solution_s <= time_limit
+            runs.append(Run(name, seed, method, solved, out.first_solution_s, out.planning_time_s, out.expansions,
+                            out.iterations, out.cost, out.eps))
+            if method == "pad" and solved and not example:
+                example = {"planner": planner, "plan": out.plan}
+        tail = " ".join(f"{r.method}={f'{r.planning_time_s:.2f}s' if r.solved else 'FAIL'}" for r in runs[-2:])
+        print(f"[{name}] seed {seed:2d}: {tail}", file=log, flush=True)
+    return runs, example
+
+
+def _mean(xs: list[float]) -> float:
+    return st.mean(xs) if xs else float("nan")
+
+
+def summarize(runs: list[Run]) -> dict[str, tuple]:
+    """Per method: the paper's columns. Time, iterations, expansions, cost and eps are averaged over
+    the problems both planners solved (as in 002 §V-D); success over all problems."""
+    solved = [{r.seed for r in runs if r.method == m and r.solved} for m in METHODS]
+    both = set.intersection(*solved)
+    out = {}
+    for method in METHODS:
+        mine = [r for r in runs if r.method == method]
+        common = [r for r in mine if r.seed in both]
+        times = [r.planning_time_s for r in common]
+        out[method] = (
+            _mean(times), st.pstdev(times) if times else float("nan"),
+            min(times, default=float("nan")), max(times, default=float("nan")),
+            _mean([r.iterations for r in common]) if method == "pad" else None,
+            _mean([r.expansions for r in common]), _mean([r.cost for r in common]), _mean([r.eps for r in common]),
+            100.0 * sum(r.solved for r in mine) / len(mine),
+        )
+    return out
+
+
+def format_table(name: str, summary: dict[str, tuple], time_limit: float, improve_s: float, instances: int) -> str:
+    head = (f"{'':22s}{'Planning Time (s)':^31s}  {'Iter.':>5s} {'Expans.':>8s} {'Cost':>8s} {'Eps':>5s}  "
+            f"{'Success %':>9s}")
+    sub = f"{'Algorithm':22s}{'Avg':>7s} {'Std':>7s} {'Min':>7s} {'Max':>7s}  {'Avg':>5s} {'Avg':>8s} {'Avg':>8s} {'Avg':>5s}  "
+    lines = [f"{name}: {instances} problems, limit {time_limit:g} s to the first solution + up to {improve_s:g} s to "
+             f"improve; averages over problems both solved", head, sub + f"{f'@{time_limit:g}s':>9s}"]
+
+    def row(label: str, v: tuple, limit: str) -> str:
+        it = "n/a" if v[4] is None else f"{v[4]:.2f}"
+        return (f"{label:22s}{v[0]:7.2f} {v[1]:7.2f} {v[2]:7.2f} {v[3]:7.2f}  {it:>5s} {v[5]:8.0f} {v[6]:8.1f} "
+                f"{v[7]:5.2f}  {v[8]:6.0f}{limit}")
+
+    for method in METHODS:
+        lines.append(row(LABELS[method], summary[method], ""))
+    for method in METHODS:
+        lines.append(row("  paper " + LABELS[method][:14], PAPER[name][method], " @3min"))
+    return "\n".join(lines)
+
+
+def plot(path: Path, results: dict[str, tuple[list[Run], dict]], time_limit: float) -> None:
+    """Per map: the map with an example PAD team plan, and each problem's planning time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from services.planner.collab.plot import draw_map, draw_plan
+
+    fig, axes = plt.subplots(2, len(results), figsize=(7 * len(results), 9), squeeze=False)
+    for j, (name, (runs, example)) in enumerate(results.items()):
+        ax = axes[0][j]
+        if example:
+            draw_map(ax, example["planner"].env)
+            draw_plan(ax, example["plan"])
+        ax.set_title(f"{name}: example PAD team plan")
+        ax = axes[1][j]
+        for method, marker in zip(METHODS, ("o", "x"), strict=True):
+            mine = sorted(runs, key=lambda r: r.seed)
+            mine = [r for r in mine if r.method == method]
+            ts = [r.planning_time_s if r.solved else time_limit for r in mine]
+            ok = sum(r.solved for r in mine)
+            ax.scatter([r.seed for r in mine], ts, marker=marker, label=f"{LABELS[method]} ({100 * ok / len(mine):.0f}% solved)")
+        ax.axhline(time_limit, color="grey", linestyle="--", linewidth=0.8)
+        ax.set_yscale("log")
+        ax.set_xlabel("problem (seed); failures drawn at the time limit")
+        ax.set_ylabel("planning time (s)")
+        ax.legend(loc="lower right")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(instances: int, time_limit: float, improve_s: float, png: Path, json_path: Path | None, maps=MAPS) -> str:
+    """The whole experiment; returns the printed tables."""
+    results = {name: run_map(name, instances, time_limit, improve_s) for name in maps}
+    tables = [format_table(n, summarize(r), time_limit, improve_s, instances) for n, (r, _) in results.items()]
+    plot(png, results, time_limit)
+    if json_path:
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        json_path.write_text(json.dumps([asdict(r) for runs, _ in results.values() for r in runs], indent=1))
+    return "\n\n".join(tables)

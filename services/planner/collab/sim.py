@@ -1,0 +1,175 @@
+"""Simulated execution of a TeamPlan (002 §IV-E) in a simulated world, one action at a time.
+
+The world gives the drone the sensing its controllers need (side IR ranges, landmark and UGV
+sightings, through `Sensing`) and runs each controller with `controllers.phi` from the robots'
+actual poses: a GOTOLANDMARK_DYN flies to its offset from wherever the UGV actually is, so a
+broken sync point shows up as a failed precondition or a wrong end pose. Both robots' sequences
+run concurrently in simulated time, honouring the sync points. An executor can drive it step by
+step: `ready()` lists the robots that may start their next action, `step(robot)` runs it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from services.planner.collab import controllers as ctl
+from services.planner.collab import teamplan as tp
+from services.planner.collab.sensing import DIRS, Sensing
+
+
+@dataclass(frozen=True)
+class StepEvent:
+    robot: tp.Robot
+    index: int
+    action: str
+    start_s: float
+    end_s: float
+    pose: tuple[float, float, float]
+    """Drone (x, y, z) or UGV (x, y, heading_deg) after the step."""
+    ok: bool
+    detail: str = ""
+
+
+@dataclass
+class SimReport:
+    reached_goal: bool
+    failure: str | None
+    makespan_s: float
+    events: list[StepEvent] = field(default_factory=list)
+
+
+class TeamSim:
+    """A TeamPlan executed in the world `sensing` describes (by default the planning map)."""
+
+    def __init__(self, sensing: Sensing, plan: tp.TeamPlan) -> None:
+        self.s = sensing
+        self.env = sensing.env
+        self.plan = plan
+        self.progress = tp.PlanProgress(plan)
+        x, y, z = plan.drone_start
+        self.drone = ctl.DronePose(self.env.level_of(z), *self.env.cell_of(x, y))
+        ux, uy, heading = plan.ugv_start
+        self.ugv = ctl.UgvPose(*self.env.cell_of(ux, uy), round(heading / 45.0) % 8)
+        self.clock: dict[tp.Robot, float] = {"drone": 0.0, "ugv": 0.0}
+        self.finish_times: dict[tp.Robot, list[float]] = {"drone": [], "ugv": []}
+        self.events: list[StepEvent] = []
+        self.failure: str | None = None
+
+    # ---- stepping -----------------------------------------------------------------------------
+    def ready(self) -> list[tp.Robot]:
+        """Robots whose next step may start now (its sync point is satisfied)."""
+        if self.failure:
+            return []
+        return [r for r in tp.ROBOTS if self.progress.can_start(r)]
+
+    def start_time(self, robot: tp.Robot) -> float:
+        """When `robot`'s next step starts: its own clock, or the end of the step it waits for."""
+        step = self.progress.next_step(robot)
+        other = tp.PlanProgress.other(robot)
+        wait = self.finish_times[other][step.wait_for - 1] if step and step.wait_for else 0.0
+        return max(self.clock[robot], wait)
+
+    def step(self, robot: tp.Robot) -> StepEvent:
+        """Run `robot`'s next action to completion in the world."""
+        if robot not in self.ready():
+            raise ValueError(f"{robot} cannot start a step now")
+        index = self.progress.done[robot]
+        step = self.progress.next_step(robot)
+        assert step is not None
+        t0 = self.start_time(robot)
+        detail, duration = self._run_drone(step) if robot == "drone" else self._run_ugv(step)
+        pose = self.drone_xyz() if robot == "drone" else self.ugv_xyh()
+        if not detail and math.dist(pose[:2], step.end[:2]) > self.env.resolution / 2:
+            detail = f"ended at {_fmt(pose)}, expected {_fmt(step.end)}"
+        ok = not detail
+        self.clock[robot] = t0 + duration
+        event = StepEvent(robot, index, type(step.action).__name__, t0, t0 + duration, pose, ok, detail)
+        self.events.append(event)
+        if ok:
+            self.progress.complete(robot)
+            self.finish_times[robot].append(self.clock[robot])
+        else:
+            self.failure = f"{robot} step {index} ({event.action}): {detail}"
+        return event
+
+    def run(self) -> SimReport:
+        """Run both sequences to the end (earliest-starting ready robot first) and report."""
+        while not self.failure and not self.progress.finished:
+            ready = self.ready()
+            if not ready:
+                self.failure = "deadlock: each robot waits for the other"
+                break
+            self.step(min(ready, key=self.start_time))
+        return self.report()
+
+    def report(self) -> SimReport:
+        at_goal = math.dist(self.drone_xyz(), self.plan.goal) <= self.env.resolution / 2
+        return SimReport(
+            reached_goal=self.failure is None and self.progress.finished and at_goal,
+            failure=self.failure,
+            makespan_s=max(self.clock.values()),
+            events=self.events,
+        )
+
+    # ---- poses --------------------------------------------------------------------------------
+    def drone_xyz(self) -> tuple[float, float, float]:
+        return (*self.env.center(self.drone.row, self.drone.col), self.env.z_levels[self.drone.level])
+
+    def ugv_xyh(self) -> tuple[float, float, float]:
+        return (*self.env.center(self.ugv.row, self.ugv.col), 45.0 * self.ugv.heading)
+
+    # ---- controllers ----------------------------------------------------------------------------
+    def _run_drone(self, step: tp.Step) -> tuple[str, float]:
+        """Execute one drone action; returns (failure detail or "", duration)."""
+        a, env, m = step.action, self.env, self.s.model
+        before = self.drone
+        trigger = None
+        if isinstance(a, tp.WallFollowing):
+            c: ctl.DroneController = ctl.WallFollow(a.side, round(a.heading_deg / 45.0) % 8)
+            trigger = a.trigger
+        elif isinstance(a, tp.GoToLandmarkStat):
+            ids = [lm.id for lm in env.landmarks]
+            if a.landmark not in ids:
+                return f"unknown landmark {a.landmark}", 0.0
+            c = ctl.GoToLandmarkStat(ids.index(a.landmark), env.cell_of(a.target[0], a.target[1]))
+        elif isinstance(a, tp.GoToLandmarkDyn):
+            ux, uy, _ = self.ugv_xyh()
+            c = ctl.GoToLandmarkDyn(env.cell_of(ux + a.offset[0], uy + a.offset[1]))
+        elif isinstance(a, tp.MetricTurn):
+            c = ctl.MetricTurn(round(a.heading_deg / 45.0) % 8)
+        elif isinstance(a, tp.MetricStep):
+            c = ctl.MetricStep(round(a.distance_m / (env.resolution * math.hypot(*DIRS[before.heading]))))
+        elif isinstance(a, tp.Altitude):
+            c = ctl.Altitude(env.level_of(a.z))
+        else:
+            return f"{type(a).__name__} is not a drone action", 0.0
+        after = ctl.phi(self.s, before, c, trigger, self.ugv)
+        if after is None:
+            return f"{type(a).__name__} not available at {_fmt(self.drone_xyz())}", 0.0
+        self.drone = after
+        dz = abs(env.z_levels[after.level] - env.z_levels[before.level])
+        dist = math.hypot(after.row - before.row, after.col - before.col) * env.resolution + dz
+        return "", dist / m.drone_speed + (1.0 if isinstance(a, tp.MetricTurn) else 0.0)
+
+    def _run_ugv(self, step: tp.Step) -> tuple[str, float]:
+        a, m = step.action, self.s.model
+        if not isinstance(a, tp.MetricMotion):
+            return f"{type(a).__name__} is not a UGV action", 0.0
+        turns = round(a.turn_deg / 45.0)
+        pose = self.ugv
+        for _ in range(abs(turns)):
+            pose = ctl.phi_ugv(self.s, pose, ctl.UgvTurn(1 if turns > 0 else -1))
+        n = round(a.distance_m / (self.env.resolution * math.hypot(*DIRS[pose.heading])))
+        for _ in range(n):
+            nxt = ctl.phi_ugv(self.s, pose, ctl.UgvForward())
+            if nxt is None:
+                self.ugv = pose
+                return f"UGV blocked at {_fmt(self.ugv_xyh())}", 0.0
+            pose = nxt
+        self.ugv = pose
+        return "", abs(a.turn_deg) / m.ugv_turn_rate + a.distance_m / m.ugv_speed
+
+
+def _fmt(v: tuple[float, ...]) -> str:
+    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
