@@ -15,7 +15,10 @@ from common.cli import main as fleet_main
 from common.mapfile import MAPS_DIR, MapSpec, ParkingSpot, RoadNode, Roads, load_map
 from common.planfile import Task, read_plan
 from services.planner.graph import FleetGraph, build_graph
-from services.planner.ilp import plan_ilp
+from services.planner.ilp import decode, plan_ilp
+from services.planner.ilp_arcs import arc_table
+from services.planner.ilp_network import Fleet, carry_over, vehicle_columns
+from services.planner.ilp_solve import HorizonResult, solve_horizon
 from services.planner.loading import Problem, load_graph
 from services.planner.planners import run_planner
 from services.planner.result import PlanResult, to_plan
@@ -199,6 +202,23 @@ def test_ilp_costs_no_more_than_sipp_on_grid125() -> None:
             compared += 1
             assert costs["ilp"] <= costs["sipp"] * (1 + 1e-6), f"seed {seed}"
     assert compared >= 4
+
+
+def test_a_plan_carries_over_to_a_longer_horizon_at_the_same_cost() -> None:
+    """A plan for T steps is one for T + k (staying at the goals is free): the horizon extension
+    starts from it, so it can only improve."""
+    graph = load_graph("grid125", uniform=True)
+    tasks = random_tasks(graph, 4, 3)
+    vids = list(tasks)
+    fleet = Fleet.of(graph, [tasks[v].start for v in vids], [tasks[v].goal for v in vids], 0.5)
+    orders = [list(range(len(vids)))]
+    short = solve_horizon(graph, arc_table(graph), fleet, 12, 10.0, 0, orders)
+    longer = vehicle_columns(graph, fleet, 15)
+    carried = carry_over(short.columns, short.chosen, longer, 15, fleet.goals, graph.n_nodes, graph.n_edges)
+    assert carried is not None and len(carried) == 15 * len(vids)
+    assert longer.cost[carried].sum() == pytest.approx(short.objective)
+    as_long = HorizonResult(15, "optimal", longer, carried, short.objective, 0.0, None, 0.0, 0.0)
+    assert decode(graph, fleet, vids, as_long) == decode(graph, fleet, vids, short)
 
 
 def test_fleet_plan_cli_writes_a_valid_ilp_plan(tmp_path) -> None:

@@ -33,7 +33,7 @@ from scipy.sparse.csgraph import dijkstra
 from common.planfile import PathEntry, Task
 from services.planner.graph import FleetGraph
 from services.planner.ilp_arcs import arc_table
-from services.planner.ilp_network import STAY, Fleet, battery_horizons
+from services.planner.ilp_network import STAY, Fleet, battery_horizons, time_step
 from services.planner.ilp_solve import MIP_REL_GAP, HorizonResult, relative_gap, solve_horizon
 from services.planner.result import PlanResult
 
@@ -59,7 +59,7 @@ def cheapest_routes(graph: FleetGraph, fleet: Fleet) -> tuple[np.ndarray, np.nda
 
 def decode(graph: FleetGraph, fleet: Fleet, vids: list[str], res: HorizonResult) -> tuple[dict[str, list[PathEntry]], float]:
     """Paths (an entry per step, waits included, ending at the arrival) and their eq. 3 cost."""
-    cols, dt = res.columns, float(graph.dt or 0.0)
+    cols, dt = res.columns, fleet.dt
     chosen = res.chosen[cols.kind[res.chosen] != STAY]
     chosen = chosen[np.lexsort((cols.step[chosen], cols.veh[chosen]))]
     paths: dict[str, list[PathEntry]] = {}
@@ -90,10 +90,14 @@ def plan_ilp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: f
     t0 = time.perf_counter()
     deadline = t0 + time_limit
     vids = list(tasks)
-    fleet = Fleet.of(graph, [tasks[v].start for v in vids], [tasks[v].goal for v in vids], mu)
 
     def failure(error: str, vid: str = "") -> PlanResult:
         return PlanResult(ok=False, error=error, failed_vehicle=vid, planning_time_s=time.perf_counter() - t0)
+
+    if time_step(graph) is None:
+        return failure(f"the ILP plans on a graph where every edge takes one time step (§V-E); {graph.name!r} "
+                       "has edges of different durations: use its uniform-time-step graph")
+    fleet = Fleet.of(graph, [tasks[v].start for v in vids], [tasks[v].goal for v in vids], mu)
 
     fewest, least_charge = battery_horizons(graph, fleet)
     for i in np.flatnonzero(fewest < 0):
@@ -121,7 +125,7 @@ def plan_ilp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: f
     grow = 1
     while best.status == "infeasible":
         if horizon >= cap or time.perf_counter() >= deadline:
-            return failure(f"no collision-free plan within {horizon} steps of {graph.dt:g} s "
+            return failure(f"no collision-free plan within {horizon} steps of {fleet.dt:g} s "
                            f"({len(solves)} horizons tried in {time.perf_counter() - t0:.2f} s)")
         horizon = min(horizon + grow, cap)
         grow *= 2

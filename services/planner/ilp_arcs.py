@@ -23,6 +23,7 @@ import numpy as np
 
 from common.geometry import contact_intervals
 from services.planner.graph import FleetGraph
+from services.planner.ilp_network import time_step
 from services.planner.sipp_cache import per_graph
 
 
@@ -128,7 +129,7 @@ def build_arc_table(graph: FleetGraph) -> ArcTable:
 
 
 def arc_table(graph: FleetGraph) -> ArcTable:
-    """The arc table of a uniform-time-step graph, computed once per graph."""
-    if graph.dt is None:
-        raise ValueError(f"graph {graph.name!r} is not a uniform-time-step graph (build it with dt)")
+    """The arc table of a graph whose edges all take one time step, computed once per graph."""
+    if time_step(graph) is None:
+        raise ValueError(f"graph {graph.name!r} has edges of different durations: build it with a time step dt")
     return per_graph(graph, "ilp_arcs", lambda: build_arc_table(graph))

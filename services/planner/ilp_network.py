@@ -29,10 +29,21 @@ from services.planner.sipp_cache import per_graph
 TOL = 1e-9  # relative slack on budgets (float rounding)
 
 
+def time_step(graph: FleetGraph) -> float | None:
+    """The graph's time step: its `dt`, or the common duration of all its edges (MovingAI grids),
+    or None when edges take different times (the ILP needs one step per edge, §V-E)."""
+    if graph.dt is not None:
+        return graph.dt
+    if graph.n_edges and np.allclose(graph.duration, graph.duration[0], rtol=1e-9, atol=0.0):
+        return float(graph.duration[0])
+    return None
+
+
 @dataclass(frozen=True)
 class Fleet:
     """The vehicles as node indices, and what one step of each arc type costs and draws."""
 
+    dt: float  # s per step
     starts: np.ndarray  # (V,)
     goals: np.ndarray  # (V,)
     move_cost: np.ndarray  # (E,) eq. 3 per traversal
@@ -43,15 +54,17 @@ class Fleet:
 
     @classmethod
     def of(cls, graph: FleetGraph, starts: list[str], goals: list[str], mu: float) -> Fleet:
-        if graph.dt is None:
-            raise ValueError(f"graph {graph.name!r} is not a uniform-time-step graph (build it with dt)")
+        dt = time_step(graph)
+        if dt is None:
+            raise ValueError(f"graph {graph.name!r} has edges of different durations: build it with a time step dt")
         return cls(
+            dt=dt,
             starts=np.array([graph.index[s] for s in starts], dtype=np.int64),
             goals=np.array([graph.index[g] for g in goals], dtype=np.int64),
             move_cost=graph.edge_cost(mu),
-            wait_cost=graph.wait_cost_rate(mu) * graph.dt,
+            wait_cost=graph.wait_cost_rate(mu) * dt,
             move_charge=graph.charge,
-            wait_charge=graph.wait_charge_rate() * graph.dt,
+            wait_charge=graph.wait_charge_rate() * dt,
             usable=graph.model.usable_ah,
         )
 
@@ -224,9 +237,10 @@ def within_cost(graph: FleetGraph, fleet: Fleet, cols: Columns, horizon: int, up
 
 
 def _keys(cols: Columns, horizon: int, n_nodes: int, n_edges: int) -> np.ndarray:
-    """A unique key per column: (vehicle, step, arc type, leaves g*)."""
+    """A unique key per column: (vehicle, step, arc type, kind, leaves g*): a wait at the goal, the
+    finish arc and a stay share the arc type."""
     from_star = (cols.tail == n_nodes).astype(np.int64)
-    return ((cols.veh * horizon + cols.step) * (n_edges + n_nodes) + cols.ptype) * 2 + from_star
+    return (((cols.veh * horizon + cols.step) * (n_edges + n_nodes) + cols.ptype) * 3 + cols.kind) * 2 + from_star
 
 
 def carry_over(old: Columns, chosen: np.ndarray, new: Columns, new_horizon: int, goals: np.ndarray,

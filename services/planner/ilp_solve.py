@@ -2,15 +2,17 @@
 
 1. The vehicles' columns within their battery (ilp_network).
 2. A first plan in the same network: the cheapest of a few prioritized plans (ilp_priority) and the
-   previous horizon's plan carried over. If its cost meets the horizon's lower
-   bound (the vehicles' least costs, ignoring each other) within the MIP gap, it is optimal and
-   HiGHS is not needed; otherwise it bounds the cost, so columns no plan that cheap can use are
-   dropped, and it is HiGHS's MIP start.
+   previous horizon's plan carried over. If its cost meets the horizon's lower bound (the vehicles'
+   least costs, ignoring each other) within the MIP gap, it is optimal and HiGHS is not needed;
+   otherwise it bounds the cost: columns no plan that cheap can use are dropped, and HiGHS gets its
+   cost as the objective bound (a cutoff: handing it over as a MIP start instead cost HiGHS up to
+   seconds of processing on large models).
 3. The model (ilp_model), solved by HiGHS single-threaded with a time limit and a relative MIP gap.
-   With a MIP start presolve is off (on these pruned models it took far longer than the solve);
+   With a first plan presolve is off (on these pruned models it took far longer than the solve);
    without one the horizon may well be infeasible, and presolve's probing proves that much faster.
-The gap reported is HiGHS's, or, when HiGHS does not finish, the prioritized plan's against the
-horizon's lower bound.
+The result is the cheaper of HiGHS's plan and the first plan; its gap is against the larger of
+HiGHS's dual bound and the horizon's lower bound. HiGHS does not always stop at its time limit
+during its setup on models of 10^5 columns, so a call may overrun it by seconds there.
 """
 
 from __future__ import annotations
@@ -55,17 +57,19 @@ def relative_gap(upper: float, lower: float) -> float:
     return gap if gap > 1e-12 else 0.0
 
 
-def _run_highs(cols: Columns, table: ArcTable, fleet: Fleet, horizon: int, n_nodes: int, start: np.ndarray | None,
+def _run_highs(cols: Columns, table: ArcTable, fleet: Fleet, horizon: int, n_nodes: int, cutoff: float | None,
                time_limit: float, seed: int, mip_rel_gap: float) -> tuple[highspy.Highs, ModelSize]:
     lp, size = build_lp(cols, table, fleet, horizon, n_nodes)
     h = highspy.Highs()
-    presolve = "off" if start is not None else "on"
-    for name, value in (("output_flag", False), ("threads", 1), ("presolve", presolve), ("random_seed", seed),
-                        ("time_limit", max(time_limit, 1e-3)), ("mip_rel_gap", mip_rel_gap)):
+    options: list[tuple[str, object]] = [
+        ("output_flag", False), ("threads", 1), ("random_seed", seed), ("time_limit", max(time_limit, 1e-3)),
+        ("mip_rel_gap", mip_rel_gap), ("presolve", "on" if cutoff is None else "off"),
+    ]
+    if cutoff is not None:
+        options.append(("objective_bound", cutoff * (1 + 1e-9) + 1e-12))
+    for name, value in options:
         h.setOptionValue(name, value)
     h.passModel(lp)
-    if start is not None:
-        h.setSolution(len(start), start.astype(np.int32), np.ones(len(start)))
     h.run()
     return h, size
 
@@ -108,22 +112,24 @@ def solve_horizon(
         start = np.searchsorted(np.flatnonzero(keep), start)
         cols = cols.subset(keep)
     t1 = time.perf_counter()
-    h, size = _run_highs(cols, table, fleet, horizon, graph.n_nodes, start,
+    h, size = _run_highs(cols, table, fleet, horizon, graph.n_nodes, upper if start is not None else None,
                          time_limit - (t1 - t0), seed, mip_rel_gap)
     t2 = time.perf_counter()
     status, info = h.getModelStatus(), h.getInfo()
-    found = info.primal_solution_status == highspy.SolutionStatus.kSolutionStatusFeasible
-    if status in (highspy.HighsModelStatus.kInfeasible, highspy.HighsModelStatus.kUnboundedOrInfeasible):
+    infeasible = status in (highspy.HighsModelStatus.kInfeasible, highspy.HighsModelStatus.kUnboundedOrInfeasible)
+    if infeasible and start is None:
         return HorizonResult(horizon, "infeasible", cols, np.zeros(0, np.int64), np.inf, np.inf, size, t1 - t0, t2 - t1)
-    if status not in (highspy.HighsModelStatus.kOptimal, highspy.HighsModelStatus.kTimeLimit):
+    if not infeasible and status not in (highspy.HighsModelStatus.kOptimal, highspy.HighsModelStatus.kTimeLimit):
         raise RuntimeError(f"HiGHS stopped with {h.modelStatusToString(status)} on horizon {horizon}")
-    kind: Status = "optimal" if status == highspy.HighsModelStatus.kOptimal else "feasible"
-    if found:
-        chosen = np.flatnonzero(np.asarray(h.getSolution().col_value) > 0.5)
-        objective = float(cols.cost[chosen].sum())
-        gap = relative_gap(objective, max(float(info.mip_dual_bound), bound))
-    elif start is not None:
-        chosen, objective, gap = start, upper, relative_gap(upper, bound)
-    else:
-        return HorizonResult(horizon, "timeout", cols, np.zeros(0, np.int64), np.inf, np.inf, size, t1 - t0, t2 - t1)
-    return HorizonResult(horizon, kind, cols, chosen, objective, gap, size, t1 - t0, t2 - t1)
+    chosen, objective = (start, upper) if start is not None else (np.zeros(0, np.int64), np.inf)
+    if info.primal_solution_status == highspy.SolutionStatus.kSolutionStatusFeasible:
+        found = np.flatnonzero(np.asarray(h.getSolution().col_value) > 0.5)
+        if cols.cost[found].sum() < objective:
+            chosen, objective = found, float(cols.cost[found].sum())
+    if not len(chosen):
+        return HorizonResult(horizon, "timeout", cols, chosen, np.inf, np.inf, size, t1 - t0, t2 - t1)
+    # infeasible with a cutoff: HiGHS proved nothing is cheaper than the first plan
+    dual = objective if infeasible else float(info.mip_dual_bound)
+    kind: Status = "feasible" if status == highspy.HighsModelStatus.kTimeLimit else "optimal"
+    return HorizonResult(horizon, kind, cols, chosen, objective, relative_gap(objective, max(dual, bound)), size,
+                         t1 - t0, t2 - t1)
