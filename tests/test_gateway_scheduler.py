@@ -6,9 +6,12 @@ from __future__ import annotations
 
 from collections import Counter
 
+import pytest
+
 from common.messages import FlightSetpoint, StopSetpoint, WheelSetpoint
 from services.radio_gateway import crtp
 from services.radio_gateway.config import GatewayParams
+from services.radio_gateway.linkstats import LinkStats
 from services.radio_gateway.scheduler import Scheduler
 from services.radio_gateway.vehicle import Drive, VehicleChannel
 
@@ -117,3 +120,18 @@ def test_a_stop_goes_out_three_times_then_only_status() -> None:
     kinds = _kinds(sent[ch.vid])
     assert kinds["Stop"] == 3 and kinds["Wheels"] == 1 and kinds["FlightSetpoint"] == 0
     assert ch.mode == Drive.IDLE and not ch.wants_flight_slot
+
+
+def test_link_stats_from_status_replies() -> None:
+    stats = LinkStats(started=0.0, timeout_s=1.0)
+    assert not stats.reporting(0.5) and stats.reporting(1.1)  # silent past the timeout: report it lost
+    assert stats.on_status(crtp.Status(100, 90, 80, 3900, 0, 0, 0), 1.0) == [("link_up", "status after 0 packets sent")]
+    events = stats.on_status(crtp.Status(200, 185, 170, 3890, 0, 0, crtp.FLAG_WATCHDOG_LEVEL), 1.5)
+    assert [e[0] for e in events] == ["firmware_watchdog"]
+    assert (stats.acked, stats.dropped, stats.vbat) == (185, 15, 3.89)
+    assert stats.cmd_rate_hz == pytest.approx(180.0) and stats.link_quality == pytest.approx(0.95)
+    assert stats.on_status(crtp.Status(150, 140, 130, 3900, 0, 0, 0), 1.6) == []  # older than the last
+    assert stats.on_status(crtp.Status(300, 301, 0, 3900, 0, 0, 0), 1.6) == []  # impossible
+    assert stats.stale_replies == 2 and stats.dropped == 15
+    assert stats.check(2.0) == [] and [e[0] for e in stats.check(2.6)] == ["link_lost"] and stats.check(3.0) == []
+    assert stats.link_quality == 0.0

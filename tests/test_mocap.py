@@ -68,6 +68,7 @@ def test_mock_backend_feeds_mapped_poses_at_the_configured_rate(
         assert [q.seq for q in v1] == list(range(v1[0].seq, v1[0].seq + len(v1)))
         assert all(b.t > a.t for a, b in zip(v1, v1[1:], strict=False)) and abs(v1[-1].t - t1) < 0.1
         assert bridge.counters.total() == 0 and not seen.events
+        assert bridge.published["v1"] >= len(v1)
 
     asyncio.run(main())
 

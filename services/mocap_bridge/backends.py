@@ -46,7 +46,6 @@ class LibBackend:
         self._on_error = on_error
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self.frames = 0
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         self._thread = threading.Thread(target=self._run, args=(loop,), name=f"mocap {self.kind}", daemon=True)
@@ -62,7 +61,6 @@ class LibBackend:
                     system.waitForNextFrame()
                     t = time.time() - self.latency_s
                     seen = {name: _body_pose(body) for name, body in system.rigidBodies.items()}
-                    self.frames += 1
                     call_in_loop(loop, self._deliver, t, seen)
             except Exception as exc:  # the library raises RuntimeError for everything
                 call_in_loop(loop, self._on_error, f"{self.kind}: {exc}")

@@ -55,7 +55,6 @@ class RadioGateway(Service):
         now = time.time()
         self.channels = {vid: VehicleChannel(vid, self.params, now) for vid in self.spec.vehicles}
         self.scheduler = Scheduler(list(self.channels.values()), self.spec.link.budget_pps, self.params, now)
-        self.executors: frozenset[str] = frozenset()
         self.owners: dict[str, str | None] = dict.fromkeys(self.channels)
         self._logged: set[tuple[str, str]] = set()
         self._links: dict[str, CrtpLink] = {}
@@ -78,7 +77,7 @@ class RadioGateway(Service):
         on_packet = lambda vid, raw: call_in_loop(loop, self._on_packet, vid, raw)  # noqa: E731
         on_error = lambda vid, msg: call_in_loop(loop, self._on_link_error, vid, msg)  # noqa: E731
         self._links = {vid: CrtpLink(vid, link.uri, on_packet, on_error) for vid, link in self.spec.vehicles.items()}
-        sender = RadioSender(self.radio, on_error)
+        sender = RadioSender(self.radio, on_error, self.counters)
         try:
             await self._run(sender)
         finally:
@@ -117,7 +116,6 @@ class RadioGateway(Service):
     # ---- inputs ---------------------------------------------------------------------------
 
     def _set_executors(self, live: frozenset[str]) -> None:
-        self.executors = live
         for vid in self.channels:
             owner = owner_of(vid, live)
             if owner != self.owners[vid]:

@@ -20,6 +20,8 @@ from collections.abc import Callable, Sequence
 import cflib.crtp
 from cflib.crtp.crtpstack import CRTPPacket
 
+from common.bus import Counters
+
 log = logging.getLogger(__name__)
 
 PacketCallback = Callable[[str, bytes], None]
@@ -30,6 +32,7 @@ ErrorCallback = Callable[[str, str], None]
 REOPEN_S = 1.0
 """Seconds between attempts to open a link that failed to open (no dongle, bad URI)."""
 _RECEIVE_WAIT_S = 0.2
+_LINK_PORT = 0x0F
 _init_lock = threading.Lock()
 
 
@@ -99,7 +102,8 @@ class CrtpLink:
                 self._on_error(self.vid, f"receive failed: {exc}")
                 self._closed.wait(_RECEIVE_WAIT_S)
                 continue
-            if pk is not None:
+            # the radio's empty acknowledgements come back as link-control packets: not worth a hand-over
+            if pk is not None and pk.header >> 4 != _LINK_PORT:
                 self._on_packet(self.vid, bytes((pk.header,)) + bytes(pk.data))
 
     def close(self) -> None:
@@ -119,14 +123,14 @@ Batch = Sequence[tuple[CrtpLink, bytes]]
 
 class RadioSender:
     """Sends each tick's batch in order on its own thread. If the radio falls behind by more than
-    `max_pending` batches, the oldest waiting batch is dropped (counted in `dropped_batches`): a
-    late setpoint is worth less than the next one."""
+    `max_pending` batches, the oldest waiting batch is dropped (counted as ``radio_behind`` in
+    `counters`): a late setpoint is worth less than the next one."""
 
-    def __init__(self, name: str, on_error: ErrorCallback, max_pending: int = 2) -> None:
+    def __init__(self, name: str, on_error: ErrorCallback, counters: Counters, max_pending: int = 2) -> None:
         self._queue: queue.Queue[Batch | None] = queue.Queue()
         self._max_pending = max_pending
         self._on_error = on_error
-        self.dropped_batches = 0
+        self._counters = counters
         self._thread = threading.Thread(target=self._run, name=f"radio-tx {name}", daemon=True)
         self._thread.start()
 
@@ -134,7 +138,7 @@ class RadioSender:
         while self._queue.qsize() >= self._max_pending:
             try:
                 self._queue.get_nowait()
-                self.dropped_batches += 1
+                self._counters.inc("radio_behind")
             except queue.Empty:
                 break
         self._queue.put(batch)

@@ -17,7 +17,7 @@ from collections.abc import AsyncIterator, Iterable
 
 from common.bus import Publisher
 from common.keys import Keys
-from common.messages import Cmd, SimTruth, WheelSetpoint
+from common.messages import Cmd, FlightSetpoint, SimTruth, WheelSetpoint
 from common.model import G
 from common.service import Service
 from common.thrust import thrust_command, to_flight_setpoint
@@ -42,7 +42,6 @@ class LoadCommander(Service):
         self.mass = mass
         self.truth: dict[str, SimTruth] = {}
         self.silenced: set[str] = set()
-        self.published = 0
 
     def silence(self, vid: str) -> None:
         """Stop commanding `vid` (its commands go stale at the gateway)."""
@@ -63,11 +62,10 @@ class LoadCommander(Service):
                     continue
                 setpoint = self._hover(vid) if vid in self.flyers else self.wheels
                 pub.put(Cmd(vid=vid, owner=self.instance, seq=seq, t=now, setpoint=setpoint, mode="load"))
-                self.published += 1
             due += self.period
             await asyncio.sleep(max(due - loop.time(), 0.0))
 
-    def _hover(self, vid: str):
+    def _hover(self, vid: str) -> FlightSetpoint:
         truth = self.truth.get(vid)
         z, vz = (truth.z, truth.vz) if truth else (0.0, 0.0)
         accel = _KP * (self.z_ref - z) - _KD * vz

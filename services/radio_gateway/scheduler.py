@@ -42,7 +42,7 @@ class Scheduler:
         n = max(len(self.channels), 1)
         self._status_due = {ch.vid: now + i * self._status_period / n for i, ch in enumerate(self.channels)}
         self._rr = 0
-        self.flight_sent = 0
+        self._by_vid = {ch.vid: ch for ch in self.channels}
         self.flight_skipped = 0
         """Flight slots wanted but not granted for lack of budget (a measure of overload)."""
 
@@ -68,10 +68,9 @@ class Scheduler:
     def _drive(self, now: float, batch: list[Packet]) -> None:
         queued = set(self.switch)
         self.switch.extend(ch.vid for ch in self.channels if ch.vid not in queued and ch.wheel_due(now))
-        by_vid = {ch.vid: ch for ch in self.channels}
         while self.switch and self._drive_credit >= 1.0 and self.tokens >= 1.0:
             vid = self.switch.popleft()
-            raw = by_vid[vid].wheel_packet(now)
+            raw = self._by_vid[vid].wheel_packet(now)
             if raw is None:  # no longer due (a flight command took over)
                 continue
             self.tokens -= 1.0
@@ -101,5 +100,4 @@ class Scheduler:
                 self.tokens += 1.0
                 continue
             batch.append((ch.vid, raw))
-            self.flight_sent += 1
         self._rr = (self._rr + 1) % n if n else 0
