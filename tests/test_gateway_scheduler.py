@@ -135,3 +135,15 @@ def test_link_stats_from_status_replies() -> None:
     assert stats.stale_replies == 2 and stats.dropped == 15
     assert stats.check(2.0) == [] and [e[0] for e in stats.check(2.6)] == ["link_lost"] and stats.check(3.0) == []
     assert stats.link_quality == 0.0
+
+
+def test_a_stop_followed_at_once_by_driving_still_stops_the_motors() -> None:
+    """The executor's touchdown: StopSetpoint, then wheel commands from the next tick on."""
+    chans, sched = _radio(1, 0)
+    (ch,) = chans
+    _run(chans, sched, 0.3, lambda c, now: HOVER)
+    sent, _ = _run(chans, sched, 0.5, lambda c, now: StopSetpoint() if now < 0.315 else WheelSetpoint(left=0.1, right=0.1),
+                   t0=0.3)
+    kinds = _kinds(sent[ch.vid])
+    assert kinds["Stop"] == 3 and kinds["FlightSetpoint"] == 0 and kinds["Wheels"] >= 5
+    assert ch.mode == Drive.DRIVE and not ch.wants_flight_slot

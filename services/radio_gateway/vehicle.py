@@ -69,6 +69,7 @@ class VehicleChannel:
             elif self.mode != Drive.FLIGHT:
                 self._unlock = True
             self._flight, self._flight_raw = setpoint, raw
+            self._stops_left = 0  # flying again: pending stops are void (other modes finish them)
             self._enter(Drive.FLIGHT)
         elif isinstance(setpoint, WheelSetpoint):
             crtp.encode_wheels(setpoint.left, setpoint.right)
