@@ -51,7 +51,7 @@ def arastar(
     t0 = time.perf_counter()
     deadline = t0 + time_limit
     g: dict[int, float] = {start: 0.0}
-    parent: dict[int, int] = {}
+    parent: dict[int, tuple[int, float]] = {}
     hval: dict[int, float] = {start: h(start)}
     open_g: dict[int, float] = {start: 0.0}
     closed: set[int] = set()
@@ -85,7 +85,7 @@ def arastar(
                 ng = gs + c
                 if ng < g.get(t, math.inf):
                     g[t] = ng
-                    parent[t] = s
+                    parent[t] = (s, c)
                     if t not in hval:
                         hval[t] = h(t)
                     if is_goal(t) and ng < g_goal:
@@ -102,8 +102,7 @@ def arastar(
         if best_goal >= 0 and g_goal < cost and (finished or path is not None):
             # a path found by an unfinished first iteration has no bound yet; later ones improve
             # on a published path, whose bound they inherit
-            path = _trace(parent, start, best_goal)
-            cost = g_goal
+            path, cost = _trace(parent, start, best_goal)
         if not finished:
             timed_out = path is None
             break
@@ -150,8 +149,12 @@ def weighted_astar(
     return arastar(start, succ, h, is_goal, eps0=eps, eps_final=eps, time_limit=time_limit, max_expansions=max_expansions)
 
 
-def _trace(parent: dict[int, int], start: int, goal: int) -> list[int]:
-    out = [goal]
+def _trace(parent: dict[int, tuple[int, float]], start: int, goal: int) -> tuple[list[int], float]:
+    """The path to `goal` along parent pointers and its cost, which is at most g(goal): a parent
+    whose g dropped after it was expanded now leads back along its cheaper path."""
+    out, cost = [goal], 0.0
     while out[-1] != start:
-        out.append(parent[out[-1]])
-    return out[::-1]
+        prev, c = parent[out[-1]]
+        out.append(prev)
+        cost += c
+    return out[::-1], cost

@@ -91,6 +91,11 @@ class HybridGraph:
         d = self.lat.team_drone(y)
         return self.lat.nd + y if self.inside[d] else d
 
+    def is_team_path(self, path: list[int]) -> bool:
+        """All states high-dimensional with a known UGV pose: then the hybrid path is a team path."""
+        nd, unres = self.lat.nd, self.lat.unresolved
+        return all(x >= nd and (u := self.lat.team_decode(x - nd)[1]) != unres and u % 9 != ANY_HEADING for x in path)
+
     def supports(self, d: int) -> dict[int, list[int]]:
         """GOTOLANDMARK_DYN targets of drone state d -> UGV cells supporting them."""
         out = self._supports.get(d)
@@ -279,7 +284,11 @@ def pad(
             break  # timed out, or no team path exists (G_ad is a relaxation)
         drones = [graph.drone(x) for x in plan.path]
         tunnel = Tunnel(lat, drones, _dyn_edges(lat, graph, plan.path), goal, cfg.tunnel)
-        track = weighted_astar(start, tunnel.succ, tunnel.h, tunnel.is_goal, cfg.track_eps, max(0.0, deadline - time.perf_counter()))
+        if graph.is_team_path(plan.path):  # nothing left to track: pi_ad is a team path
+            track = SearchResult([x - lat.nd for x in plan.path], plan.cost, 1.0, 0, 1, 0.0, 0.0, False)
+        else:
+            left = max(0.0, deadline - time.perf_counter())
+            track = weighted_astar(start, tunnel.succ, tunnel.h, tunnel.is_goal, cfg.track_eps, left)
         expansions += track.expansions
         if first is None:
             iterations += 1

@@ -1,0 +1,54 @@
+"""`fleet collab ...` (services/planner/collab/cli.py): plan, simulate, and bad input as InputError."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from common.errors import InputError
+from services.planner.collab.cli import register
+from services.planner.collab.teamplan import read_plan
+
+
+def run(*argv: str) -> int:
+    parser = argparse.ArgumentParser(prog="fleet")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.handler(args)
+
+
+ROOM = ("--map", "demo-room", "--start", "1.25,1.25,1.0", "--ugv", "0.75,1.25,0", "--goal", "5.75,3.75,2.0")
+
+
+def test_plan_prints_writes_and_simulates_a_team_plan(tmp_path, capsys):
+    out = tmp_path / "plan.json"
+    assert run("collab", "plan", *ROOM, "--out", str(out), "--simulate", "--time-limit", "20") == 0
+    text = capsys.readouterr().out
+    assert "GOTOLANDMARK_DYN" in text and "[after ugv" in text and "drone reached the goal" in text
+    plan = read_plan(out)
+    assert plan.map == "demo-room" and plan.planner == "pad"
+    assert run("collab", "simulate", str(out)) == 0
+    assert "drone reached the goal" in capsys.readouterr().out
+
+
+def test_plan_with_a_seeded_problem_as_json(capsys):
+    assert run("collab", "plan", "--map", "demo-room", "--seed", "1", "--planner", "arastar", "--json") == 0
+    assert '"format":"fleet-collab-plan/1"' in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "argv,field",
+    [
+        (("collab", "plan", "--map", "nowhere"), "map"),
+        (("collab", "plan", "--map", "demo-room", "--start", "1,1,1"), "--start/--ugv/--goal"),
+        (("collab", "plan", *ROOM[:-1], "0,0,1"), "goal"),  # inside the outer wall
+        (("collab", "plan", *ROOM[:4], "--ugv", "1.25,1.25,zero", *ROOM[6:]), "--ugv"),
+        (("collab", "simulate", "/nonexistent/plan.json"), ""),
+        (("collab", "bench", "--instances", "0"), "--instances"),
+    ],
+)
+def test_bad_input_raises_input_error(argv, field):
+    with pytest.raises(InputError) as err:
+        run(*argv)
+    assert err.value.field.startswith(field)
