@@ -20,7 +20,7 @@ import statistics
 import time
 from dataclasses import dataclass
 
-from bench.common import bench_parser, format_table, new_figure, save_figure
+from bench.tables import bench_parser, format_table, new_figure, save_figure
 from services.planner.loading import Problem, load_graph
 from services.planner.planners import run_planner
 from services.planner.scenario import random_tasks

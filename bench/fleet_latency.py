@@ -20,7 +20,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from bench.common import bench_parser, format_table, new_figure, save_figure
+from bench.tables import bench_parser, format_table, new_figure, save_figure
 from common.bus import Publisher, subscribe
 from common.keys import Keys
 from common.liveliness import watch_alive

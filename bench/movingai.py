@@ -13,7 +13,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from bench.common import bench_parser, format_table, new_figure, save_figure
+from bench.tables import bench_parser, format_table, new_figure, save_figure
 from services.planner.movingai import load_movingai, load_scen
 from services.planner.result import to_plan
 from services.planner.sipp import plan_sipp

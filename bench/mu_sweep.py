@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.common import bench_parser, format_table, new_figure, save_figure
+from bench.tables import bench_parser, format_table, new_figure, save_figure
 from common.mapfile import MAPS_DIR
 from services.planner.loading import Problem, load_graph
 from services.planner.planners import run_planner

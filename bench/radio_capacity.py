@@ -19,7 +19,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench.common import bench_parser, format_table, new_figure
+from bench.tables import bench_parser, format_table, new_figure
 from common.keys import Keys
 from common.zsession import InProcessRouter
 from services.radio_gateway.config import GatewayParams, LinkModel, simulated_radios

@@ -15,7 +15,7 @@ import random
 import statistics
 import time
 
-from bench.common import bench_parser, format_table, new_figure, save_figure
+from bench.tables import bench_parser, format_table, new_figure, save_figure
 from common.planfile import Task
 from services.planner.graph import FleetGraph
 from services.planner.loading import load_graph

@@ -1,7 +1,6 @@
 """Shared helpers of the benchmark scripts: arguments, plain-text tables, PNG figures.
 
-Run the benchmarks from the repository root as modules (`python -m bench.NAME`): run as files, this
-module would shadow the project's own `common` package.
+Run the benchmarks from the repository root as modules: `python -m bench.NAME`.
 """
 
 from __future__ import annotations

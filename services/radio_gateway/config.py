@@ -17,6 +17,7 @@ Decoded strictly (`common.mapfile.decode_yaml`); every problem is an `InputError
 
 from __future__ import annotations
 
+import os
 import socket
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -26,6 +27,7 @@ from urllib.parse import urlparse
 import msgspec
 import yaml
 
+from common.compose import interpolate
 from common.errors import InputError
 from common.keys import check_chunk
 from common.mapfile import decode_yaml, read_text
@@ -169,9 +171,11 @@ def check_radios(spec: RadiosFile, source: str) -> None:
 
 
 def load_radios(path: str | Path) -> RadiosFile:
-    """Read and check a radios file."""
+    """Read and check a radios file. `${VAR:-default}` is taken from the environment as compose does
+    (deploy/radios-town.yaml names the simulator's host as ${SIM_HOST:-sim})."""
     path = Path(path)
-    spec: RadiosFile = decode_yaml(read_text(path), RadiosFile, str(path))
+    text = interpolate(read_text(path), dict(os.environ))
+    spec: RadiosFile = decode_yaml(text, RadiosFile, str(path))
     check_radios(spec, str(path))
     return spec
 

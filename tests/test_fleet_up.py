@@ -1,0 +1,40 @@
+"""compose.yaml exercised as local processes (issue 6): `fleet up`, the 8-vehicle town mission with
+`fleet mission run`, `fleet down` stopping every service cleanly."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from common.zsession import free_tcp_endpoint
+
+REPO = Path(__file__).resolve().parents[1]
+FLEET = [sys.executable, "-m", "common.cli"]
+
+
+@pytest.mark.timeout(300)
+def test_fleet_up_mission_down(tmp_path) -> None:
+    port = free_tcp_endpoint().rsplit(":", 1)[1]
+    run_dir = tmp_path / "run"
+    sets = ["--set", f"FLEET_ROUTER_PORT={port}", "--set", "FLEET_NAME=uptest",
+            "--set", f"FLEET_RECORDINGS={tmp_path / 'recordings'}"]
+    up = subprocess.run([*FLEET, "up", "compose.yaml", "--run-dir", str(run_dir), *sets], cwd=REPO,
+                        capture_output=True, text=True, timeout=60)
+    try:
+        assert up.returncode == 0, up.stdout + up.stderr
+        assert up.stdout.count("started") == 11  # router, planner, 2 executors, sim, 4 gateways, mocap, telemetry
+        mission = subprocess.run(
+            [*FLEET, "mission", "run", "maps/scenarios/town_8.yaml", "--connect", f"tcp/127.0.0.1:{port}",
+             "--fleet", "uptest"], cwd=REPO, capture_output=True, text=True, timeout=200)
+    finally:
+        down = subprocess.run([*FLEET, "down", "--run-dir", str(run_dir)], cwd=REPO, capture_output=True, text=True,
+                              timeout=120)
+    print(mission.stdout[-3000:])
+    assert mission.returncode == 0, mission.stdout[-3000:] + mission.stderr[-3000:]
+    assert "OK (every vehicle arrived)" in mission.stdout and "contacts: 0" in mission.stdout
+    assert down.returncode == 0, down.stdout
+    assert down.stdout.count("stopped") == 11, down.stdout
+    assert list((tmp_path / "recordings").glob("*.rrd")), "telemetry wrote no recording"
