@@ -58,10 +58,20 @@ class VehicleReport:
     planned_s: float = 0.0
     energy_j: float = 0.0
     max_tracking_error: float = 0.0
+    sq_error: dict[str, float] = field(default_factory=lambda: {"ground": 0.0, "air": 0.0})
+    samples: dict[str, int] = field(default_factory=lambda: {"ground": 0, "air": 0})
     mode: str = "?"
     step: int = 0
     steps: int = 0
     owner: str = ""
+
+    def rms_error(self, where: str) -> float:
+        """RMS tracking error on the ground or in the air, from the executors' states (m)."""
+        n = self.samples[where]
+        return (self.sq_error[where] / n) ** 0.5 if n else 0.0
+
+
+AIRBORNE_MODES = frozenset({"taking_off", "flying", "landing", "emergency_landing"})
 
 
 @dataclass
@@ -79,11 +89,12 @@ class MissionResult:
 
     def summary(self) -> str:
         lines = [f"mission {self.mission}: {'OK' if self.ok else 'FAILED'} ({self.reason}) in {self.duration_s:.1f} s"]
-        lines.append(f"{'vehicle':<8} {'arrived':>7} {'time s':>7} {'plan s':>7} {'energy J':>9} {'max err m':>9}  mode")
+        lines.append(f"{'vehicle':<8} {'arrived':>7} {'time s':>7} {'plan s':>7} {'energy J':>9} {'max err m':>9} "
+                     f"{'rms ground':>10} {'rms air':>8}  mode")
         for r in self.vehicles.values():
             t = f"{r.arrival_s:.1f}" if r.arrival_s is not None else "-"
             lines.append(f"{r.vid:<8} {str(r.arrived):>7} {t:>7} {r.planned_s:>7.1f} {r.energy_j:>9.1f} "
-                         f"{r.max_tracking_error:>9.3f}  {r.mode}")
+                         f"{r.max_tracking_error:>9.3f} {r.rms_error('ground'):>10.3f} {r.rms_error('air'):>8.3f}  {r.mode}")
         gap = "none closer than 1 m" if self.min_gap == float("inf") else f"{self.min_gap * 100:.1f} cm ({self.min_pair[0]}-{self.min_pair[1]})"
         lines.append(f"smallest separation between bodies (ground truth, beyond contact): {gap}; contacts: {self.contacts}")
         lines.extend(f"event: {e}" for e in self.events[:20])
@@ -213,6 +224,10 @@ class MissionRunner(Service):
             return
         r.energy_j = state.charge_used_ah * 3600.0 * self.voltage  # eq. 4-5 backwards
         r.max_tracking_error = max(r.max_tracking_error, state.tracking_error)
+        if state.mode in AIRBORNE_MODES or state.mode in ("driving",):
+            where = "air" if state.mode in AIRBORNE_MODES else "ground"
+            r.sq_error[where] += state.tracking_error**2
+            r.samples[where] += 1
         if state.arrived and not r.arrived:
             r.arrived, r.arrival_s = True, state.t - self.t0
 
