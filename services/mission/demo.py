@@ -27,7 +27,7 @@ from services.mission.runner import MissionRunner, MissionSpec
 from services.planner.graph import FleetGraph
 from services.planner.loading import load_graph
 from services.planner.scenario import ScenarioFile, check_tasks
-from services.radio_gateway.config import RadiosFile, RadioSpec, VehicleLink, dump_radios
+from services.radio_gateway.config import LinkModel, RadiosFile, RadioSpec, VehicleLink, dump_radios
 
 DEMO_SCENARIO = MAPS_DIR / "scenarios" / "town_8.yaml"
 
@@ -38,14 +38,15 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def demo_radios(graph: FleetGraph, tasks: dict[str, Task], per_radio: int = 2) -> RadiosFile:
+def demo_radios(graph: FleetGraph, tasks: dict[str, Task], per_radio: int = 2,
+                link: LinkModel | None = None) -> RadiosFile:
     """Simulated Crazyflies on their start spots, `per_radio` to a radio (the paper found 2 reliable)."""
     radios: dict[str, dict[str, VehicleLink]] = {}
     for i, (vid, task) in enumerate(tasks.items()):
         x, y, z = (float(v) for v in graph.pos[graph.index[task.start]])
         radios.setdefault(f"radio{i // per_radio}", {})[vid] = VehicleLink(
             uri=f"udp://127.0.0.1:{free_udp_port()}", start=(x, y, z), yaw=0.0)
-    return RadiosFile(radios={name: RadioSpec(vehicles=v) for name, v in radios.items()})
+    return RadiosFile(radios={name: RadioSpec(vehicles=v, link=link or LinkModel()) for name, v in radios.items()})
 
 
 def fleet_processes(radios_path: Path, radios: RadiosFile, executors: int, rrd_dir: Path,
@@ -96,10 +97,11 @@ class LocalFleet:
 
 @contextmanager
 def local_fleet(graph: FleetGraph, tasks: dict[str, Task], run_dir: Path, executors: int = 2, per_radio: int = 2,
-                fleet: str = "demo", viewer: bool = False, web: bool = False) -> Iterator[LocalFleet]:
+                fleet: str = "demo", viewer: bool = False, web: bool = False,
+                link: LinkModel | None = None) -> Iterator[LocalFleet]:
     """An in-process router and every service as a process, up and alive; stopped on exit."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    radios = demo_radios(graph, tasks, per_radio)
+    radios = demo_radios(graph, tasks, per_radio, link)
     radios_path = run_dir / "radios.yaml"
     radios_path.write_text(dump_radios(radios))
     keys = Keys(fleet)
