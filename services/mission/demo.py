@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import math
 import socket
 import sys
 import time
@@ -45,8 +46,18 @@ def demo_radios(graph: FleetGraph, tasks: dict[str, Task], per_radio: int = 2,
     for i, (vid, task) in enumerate(tasks.items()):
         x, y, z = (float(v) for v in graph.pos[graph.index[task.start]])
         radios.setdefault(f"radio{i // per_radio}", {})[vid] = VehicleLink(
-            uri=f"udp://127.0.0.1:{free_udp_port()}", start=(x, y, z), yaw=0.0)
+            uri=f"udp://127.0.0.1:{free_udp_port()}", start=(x, y, z), yaw=parked_yaw(graph, task.start))
     return RadiosFile(radios={name: RadioSpec(vehicles=v, link=link or LinkModel()) for name, v in radios.items()})
+
+
+def parked_yaw(graph: FleetGraph, spot: str) -> float:
+    """A parked car faces the road it leaves by (its spot's access edge)."""
+    i = graph.index[spot]
+    out = graph.out_edges[i]
+    if not len(out):
+        return 0.0
+    dx, dy, _ = graph.pos[graph.edges[out[0], 1]] - graph.pos[i]
+    return float(math.atan2(dy, dx))
 
 
 def fleet_processes(radios_path: Path, radios: RadiosFile, executors: int, rrd_dir: Path,
