@@ -37,4 +37,10 @@ def test_fleet_up_mission_down(tmp_path) -> None:
     assert "OK (every vehicle arrived)" in mission.stdout and "contacts: 0" in mission.stdout
     assert down.returncode == 0, down.stdout
     assert down.stdout.count("stopped") == 11, down.stdout
-    assert list((tmp_path / "recordings").glob("*.rrd")), "telemetry wrote no recording"
+    recordings = list((tmp_path / "recordings").glob("*.rrd"))
+    assert recordings, "telemetry wrote no recording"
+    printed = subprocess.run([str(Path(sys.executable).parent / "rerun"), "rrd", "print", str(recordings[0])],
+                             capture_output=True, text=True, timeout=60).stdout
+    for entity in ("/map/nodes", "/map/edges/fly", "/map/no_fly/north", "/plan/cf1", "/vehicles/cf1/body",
+                   "/vehicles/cf1/battery_v", "/vehicles/cf1/link_quality", "/truth/cf1"):
+        assert entity in printed, f"{entity} missing from the rerun recording"
