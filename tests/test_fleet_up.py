@@ -9,7 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from common.compose import interpolate
 from common.zsession import free_tcp_endpoint
+from services.mission.demo import free_udp_port
 
 REPO = Path(__file__).resolve().parents[1]
 FLEET = [sys.executable, "-m", "common.cli"]
@@ -19,8 +21,12 @@ FLEET = [sys.executable, "-m", "common.cli"]
 def test_fleet_up_mission_down(tmp_path) -> None:
     port = free_tcp_endpoint().rsplit(":", 1)[1]
     run_dir = tmp_path / "run"
+    radios = (REPO / "deploy" / "radios-town.yaml").read_text()
+    for k in range(8):  # the shipped file's fixed UDP ports may be taken on a shared machine
+        radios = radios.replace(f":{19850 + k}\n", f":{free_udp_port()}\n")
+    (tmp_path / "radios.yaml").write_text(interpolate(radios, {"SIM_HOST": "127.0.0.1"}))
     sets = ["--set", f"FLEET_ROUTER_PORT={port}", "--set", "FLEET_NAME=uptest",
-            "--set", f"FLEET_RECORDINGS={tmp_path / 'recordings'}"]
+            "--set", f"FLEET_RECORDINGS={tmp_path / 'recordings'}", "--set", f"FLEET_RADIOS={tmp_path / 'radios.yaml'}"]
     up = subprocess.run([*FLEET, "up", "compose.yaml", "--run-dir", str(run_dir), *sets], cwd=REPO,
                         capture_output=True, text=True, timeout=60)
     try:
