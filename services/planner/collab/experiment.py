@@ -58,11 +58,18 @@ def run_map(name: str, instances: int, time_limit: float, improve_s: float, log=
             solved = out.first_solution_s is not None and out.first_solution_s <= time_limit
             runs.append(Run(name, seed, method, solved, out.first_solution_s, out.planning_time_s, out.expansions,
                             out.iterations, out.cost, out.eps))
-            if method == "pad" and solved and not example:
+            if method == "pad" and solved and _variety(out.plan) > _variety(example.get("plan")):
                 example = {"planner": planner, "plan": out.plan}
         tail = " ".join(f"{r.method}={f'{r.planning_time_s:.2f}s' if r.solved else 'FAIL'}" for r in runs[-2:])
         print(f"[{name}] seed {seed:2d}: {tail}", file=log, flush=True)
     return runs, example
+
+
+def _variety(plan) -> tuple[int, int]:
+    """Example plans for the figure: most kinds of controllers, then fewest steps."""
+    if plan is None:
+        return (-1, 0)
+    return (len({type(s.action) for s in plan.drone}), -len(plan.drone) - len(plan.ugv))
 
 
 def _mean(xs: list[float]) -> float:
@@ -108,6 +115,17 @@ def format_table(name: str, summary: dict[str, tuple], time_limit: float, improv
     return "\n".join(lines)
 
 
+def format_limits(name: str, runs: list[Run], time_limit: float) -> str:
+    """Success within shorter limits, from the same runs' first-solution times."""
+    limits = [t for t in (0.5, 1.0, 2.0, 3.0, 5.0) if t < time_limit] + [time_limit]
+    cells = []
+    for method in METHODS:
+        mine = [r for r in runs if r.method == method]
+        pct = [100.0 * sum(r.solved and r.first_solution_s <= t for r in mine) / len(mine) for t in limits]
+        cells.append(f"{LABELS[method]}: " + " ".join(f"{p:.0f}%" for p in pct))
+    return f"{name}: success within {', '.join(f'{t:g}' for t in limits)} s -- " + "; ".join(cells)
+
+
 def plot(path: Path, results: dict[str, tuple[list[Run], dict]], time_limit: float) -> None:
     """Per map: the map with an example PAD team plan, and each problem's planning time."""
     import matplotlib
@@ -125,16 +143,21 @@ def plot(path: Path, results: dict[str, tuple[list[Run], dict]], time_limit: flo
             draw_plan(ax, example["plan"])
         ax.set_title(f"{name}: example PAD team plan")
         ax = axes[1][j]
-        for method, marker in zip(METHODS, ("o", "x"), strict=True):
-            mine = sorted(runs, key=lambda r: r.seed)
-            mine = [r for r in mine if r.method == method]
-            ts = [r.planning_time_s if r.solved else time_limit for r in mine]
-            ok = sum(r.solved for r in mine)
-            ax.scatter([r.seed for r in mine], ts, marker=marker, label=f"{LABELS[method]} ({100 * ok / len(mine):.0f}% solved)")
+        fail_y = 2.0 * time_limit
+        for method, marker, color in zip(METHODS, ("o", "x"), ("tab:blue", "tab:orange"), strict=True):
+            mine = [r for r in runs if r.method == method]
+            ok = [r for r in mine if r.solved]
+            bad = [r for r in mine if not r.solved]
+            label = f"{LABELS[method]} ({100 * len(ok) / len(mine):.0f}% solved)"
+            ax.scatter([r.seed for r in ok], [r.planning_time_s for r in ok], marker=marker, color=color, label=label)
+            if bad:
+                ax.scatter([r.seed for r in bad], [fail_y] * len(bad), marker="v", color=color, edgecolor="red", s=60)
         ax.axhline(time_limit, color="grey", linestyle="--", linewidth=0.8)
+        ax.text(0, fail_y * 1.15, f"not solved within {time_limit:g} s", color="red", fontsize=8)
         ax.set_yscale("log")
-        ax.set_xlabel("problem (seed); failures drawn at the time limit")
-        ax.set_ylabel("planning time (s)")
+        ax.set_ylim(top=fail_y * 1.6)
+        ax.set_xlabel("problem (seed)")
+        ax.set_ylabel("planning time: first solution + improvement (s)")
         ax.legend(loc="lower right")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -145,7 +168,10 @@ def plot(path: Path, results: dict[str, tuple[list[Run], dict]], time_limit: flo
 def run(instances: int, time_limit: float, improve_s: float, png: Path, json_path: Path | None, maps=MAPS) -> str:
     """The whole experiment; returns the printed tables."""
     results = {name: run_map(name, instances, time_limit, improve_s) for name in maps}
-    tables = [format_table(n, summarize(r), time_limit, improve_s, instances) for n, (r, _) in results.items()]
+    tables = [
+        format_table(n, summarize(r), time_limit, improve_s, instances) + "\n" + format_limits(n, r, time_limit)
+        for n, (r, _) in results.items()
+    ]
     plot(png, results, time_limit)
     if json_path:
         json_path.parent.mkdir(parents=True, exist_ok=True)

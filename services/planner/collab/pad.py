@@ -46,7 +46,8 @@ class PadConfig:
     region_radius: int = 4
     region_growth: int = 4
     track_eps: float = 1.5
-    """Inflation of the tracking search (its cost is checked against eps_track anyway)."""
+    """Inflation of the tracking search (its cost is checked against eps_track anyway); the last
+    improvement round tracks with 1."""
 
 
 @dataclass
@@ -272,7 +273,7 @@ def pad(
     best: tuple[list[int], float, float] | None = None
     expansions = iterations = 0
     first: float | None = None
-    eps_plan = cfg.eps_plan
+    eps_plan, track_eps = cfg.eps_plan, cfg.track_eps
     while True:
         graph = HybridGraph(lat, regions, goal, hl)
         left = deadline - time.perf_counter()
@@ -288,7 +289,7 @@ def pad(
             track = SearchResult([x - lat.nd for x in plan.path], plan.cost, 1.0, 0, 1, 0.0, 0.0, False)
         else:
             left = max(0.0, deadline - time.perf_counter())
-            track = weighted_astar(start, tunnel.succ, tunnel.h, tunnel.is_goal, cfg.track_eps, left)
+            track = weighted_astar(start, tunnel.succ, tunnel.h, tunnel.is_goal, track_eps, left)
         expansions += track.expansions
         if first is None:
             iterations += 1
@@ -300,9 +301,13 @@ def pad(
             if first is None:
                 first = time.perf_counter() - t0
                 deadline = t0 + first + improve_s
-            if eps_plan <= 1.0 or best[2] <= 1.0:
+            # improve (002 §V-D): lower eps_plan to 1, then track without inflation
+            if best[2] <= 1.0 or (eps_plan <= 1.0 and track_eps <= 1.0):
                 break
-            eps_plan = max(1.0, eps_plan - cfg.eps_step)
+            if eps_plan > 1.0:
+                eps_plan = max(1.0, eps_plan - cfg.eps_step)
+            else:
+                track_eps = 1.0
             continue
         if track.timed_out:
             break

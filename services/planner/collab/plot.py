@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from matplotlib.lines import Line2D
 
 from services.planner.collab.env import Env
 from services.planner.collab.teamplan import GoToLandmarkDyn, TeamPlan
@@ -48,3 +49,7 @@ def draw_plan(ax, plan: TeamPlan) -> None:
     ax.plot(ux[0], uy[0], "s", color="magenta", markersize=7)
     for px, py in (plan.drone_start[:2], plan.goal[:2]):
         ax.plot(px, py, "o", markersize=14, markerfacecolor="none", markeredgecolor="b", markeredgewidth=2)
+    used = {type(s.action).__name__ for s in plan.drone}
+    handles = [Line2D([], [], color=c, linewidth=2, label=n) for n, c in CONTROLLER_COLORS.items() if n in used]
+    handles.append(Line2D([], [], color="magenta", linewidth=1.5, label="UGV"))
+    ax.legend(handles=handles, loc="upper right", fontsize=7, framealpha=0.9)
