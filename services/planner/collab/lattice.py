@@ -2,8 +2,9 @@
 
 Drone states (the low-dimensional space, 002 §IV-D) are integers d = (level * H + row) * W + col.
 UGV states are u = cell * 9 + heading, heading 8 meaning "not yet known" (used only by PAD's
-hybrid graph); team states (the high-dimensional space) are d * nu + u. Edge costs are
-proportional to the distance each vehicle travels (002 §IV-D); a team transition moves one robot.
+hybrid graph); team states (the high-dimensional space) are (d * nu + u) * 2 + mode (see
+`team_succ`). Edge costs are proportional to the distance each vehicle travels (002 §IV-D); a
+team transition moves one robot.
 
 The low-dimensional graph holds every drone controller that does not need the UGV plus a
 relaxation of GOTOLANDMARK_DYN: an edge d -> q exists when some UGV cell of the UGV's reachable

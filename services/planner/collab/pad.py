@@ -4,7 +4,7 @@ Low-dimensional states are the drone's (x, y, z); high-dimensional states are te
 x, y, z; UGV x, y, heading). Each iteration:
 
 1. Planning phase: weighted A* (eps_plan) on the hybrid graph G_ad, low-dimensional everywhere
-   except inside high-dimensional regions (balls around drone positions, all altitudes).
+   except inside high-dimensional regions (balls and bands of grid cells, all altitudes).
 2. Tracking phase: a search of the full team graph restricted to a tunnel (drone within
    `tunnel` cells of the hybrid path). If it finds pi_t with c(pi_t) <= eps_track * c(pi_ad), pi_t
    is the answer; otherwise a region is added (or grown) where tracking got stuck or where its cost
@@ -53,7 +53,7 @@ class PadConfig:
 @dataclass
 class PadResult:
     path: list[int] | None
-    """Team states (d * nu + u) of the tracked path."""
+    """Team states (`Lattice.team_id`) of the tracked path."""
     cost: float
     eps: float
     """Proven bound: eps_plan * c(pi_t) / c(pi_ad) <= eps_plan * eps_track."""
@@ -64,7 +64,7 @@ class PadResult:
     elapsed_s: float
     timed_out: bool
     regions: list[tuple[int, int, int]]
-    """(row, col, radius) of the high-dimensional regions."""
+    """(row, col, radius) of the high-dimensional balls (bands are not listed)."""
 
 
 class HybridGraph:

@@ -167,7 +167,7 @@ def _ugv_pose(lat: Lattice, u: int) -> Vec3:
 def build_team_plan(
     lat: Lattice, path: list[int], planner: str, cost: float, eps: float, planning_time_s: float, expansions: int
 ) -> TeamPlan:
-    """A team path (states d * nu + u) -> TeamPlan, relabelling each transition with the cheapest
+    """A team path (`Lattice.team_id` states) -> TeamPlan, relabelling each transition with the cheapest
     controller that makes it (002 §III-A: several controller/trigger pairs may join two states)."""
     env, res = lat.s.env, lat.s.env.resolution
     b = _Builder()
