@@ -19,6 +19,7 @@ from common.planfile import PlanFileError
 _COMMAND_MODULES = (
     "services.planner.cli",
     "services.planner.service",
+    "services.planner.collab.cli",
     "services.mission.cli",
     "services.mission.demo",
     "services.executor.service",
