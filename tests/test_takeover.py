@@ -22,14 +22,19 @@ FLY = next(s.t for s in STEPS if s.edge == "fly")  # plan time of arrival at the
 LAND = next(s.t for s in STEPS if s.edge == "land")
 
 
-def handover(at: float, gap: float = 0.05):
-    """Controller A until `at` (mission time), nobody for `gap` s, then B from A's last state."""
+def first_owner(seed: int):
+    """The simulated car, its plan, its first controller and the motion capture."""
     sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
     plan = plan_for("cf1", STEPS, MODEL, t0=T0)
     a = VehicleController("cf1", MODEL, owner="exec-a")
     a.on_pose(Pose(vid="cf1", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=0.0))
     a.load(plan)
-    mocap = Mocap(MocapNoise(pos_std=0.001), seed=3)
+    return sim, plan, a, Mocap(MocapNoise(pos_std=0.001), seed=seed)
+
+
+def handover(at: float, gap: float = 0.05):
+    """Controller A until `at` (mission time), nobody for `gap` s, then B from A's last state."""
+    sim, plan, a, mocap = first_owner(3)
     first = run(a, sim, T0 + at, mocap)
     _, last_state = a.tick(sim.t)
     sim.step(gap)  # the setpoint of the dead executor is held by the gateway meanwhile
@@ -59,12 +64,7 @@ def test_take_over_on_the_ground_drives_on() -> None:
 
 
 def test_take_over_during_a_fault_landing_lands_at_the_nearest_safe_point() -> None:
-    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
-    plan = plan_for("cf1", STEPS, MODEL, t0=T0)
-    a = VehicleController("cf1", MODEL, owner="exec-a")
-    a.on_pose(Pose(vid="cf1", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=0.0))
-    a.load(plan)
-    mocap = Mocap(MocapNoise(pos_std=0.001), seed=4)
+    sim, plan, a, mocap = first_owner(4)
     run(a, sim, T0 + FLY - 3.0, mocap)
     a.abort("test abort")
     run(a, sim, T0 + FLY - 2.5, mocap)

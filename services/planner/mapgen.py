@@ -87,6 +87,11 @@ def town() -> MapSpec:
     )
 
 
+def square(name: str, x: float, y: float, w: float) -> NoFlyZone:
+    """A no-fly zone over the square from (x, y) with side w, up to the sky."""
+    return NoFlyZone(name=name, polygon=[(x, y), (x + w, y), (x + w, y + w), (x, y + w)])
+
+
 def _grid(r: _Roads, n: int, spacing: float, spots: Callable[[int, int], list[tuple[float, float]]]) -> None:
     ids = [[r.add(f"g{i}_{j}", i * spacing, j * spacing) for j in range(n)] for i in range(n)]
     for i in range(n):
@@ -126,7 +131,7 @@ def grid125() -> MapSpec:
         roads=r.roads(),
         parking=r.spots,
         air=AirRegion(bounds=(0.0, 0.0, side, side), layers=[0.4, 0.8], spacing=s),
-        no_fly=[NoFlyZone(name="tower", polygon=[(mid - 0.3, mid - 0.3), (mid + 0.3, mid - 0.3), (mid + 0.3, mid + 0.3), (mid - 0.3, mid + 0.3)])],
+        no_fly=[square("tower", mid - 0.3, mid - 0.3, 0.6)],
         vehicle=VEHICLE,
         time_step=4.0,
     )
@@ -145,9 +150,6 @@ def city934() -> MapSpec:
     r = _Roads()
     _grid(r, n, s, spots)
     side = (n - 1) * s
-
-    def square(name: str, x: float, y: float, w: float) -> NoFlyZone:
-        return NoFlyZone(name=name, polygon=[(x, y), (x + w, y), (x + w, y + w), (x, y + w)])
 
     return MapSpec(
         name="city934",
