@@ -89,7 +89,8 @@ def town() -> MapSpec:
 
 def square(name: str, x: float, y: float, w: float) -> NoFlyZone:
     """A no-fly zone over the square from (x, y) with side w, up to the sky."""
-    return NoFlyZone(name=name, polygon=[(x, y), (x + w, y), (x + w, y + w), (x, y + w)])
+    x2, y2 = round(x + w, 6), round(y + w, 6)
+    return NoFlyZone(name=name, polygon=[(x, y), (x2, y), (x2, y2), (x, y2)])
 
 
 def _grid(r: _Roads, n: int, spacing: float, spots: Callable[[int, int], list[tuple[float, float]]]) -> None:
