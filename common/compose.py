@@ -5,7 +5,8 @@ the service's `command` (a leading `fleet` becomes this Python's `-m common.cli`
 `deploy.replicas` copies (each with FLEET_INSTANCE=<service>-<n>), in `depends_on` order. A service
 whose image is not ours (the zenoh router) declares its local stand-in under `x-fleet-local`.
 `${VAR:-default}` is interpolated as compose does; `fleet up` sets the *_HOST variables to 127.0.0.1
-so that container host names resolve to this machine.
+so that container host names resolve to this machine, and SECRETS_DIR (the containers' /run/secrets)
+to FLEET_SECRETS, the host directory of the role credentials: given, or made in <run dir>/secrets.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from pathlib import Path
 
 import msgspec
 
+from common.credentials import ensure_credentials
 from common.errors import InputError
 from common.mapfile import decode_yaml, read_text
 
@@ -89,10 +91,22 @@ def _order(services: dict[str, ComposeService], source: str) -> list[str]:
     return done
 
 
-def load_compose(path: str | Path, overrides: dict[str, str] | None = None) -> list[Process]:
-    """Parse compose.yaml into processes, in start order."""
-    source = str(path)
+def local_env(overrides: dict[str, str] | None, run_dir: Path | None) -> dict[str, str]:
+    """Variables for interpolating compose.yaml here: the environment, the local hosts, the secrets
+    directory (FLEET_SECRETS, or credentials made in run_dir/secrets), then `overrides`."""
     env = {**os.environ, **LOCAL_HOSTS, **(overrides or {})}
+    if "FLEET_SECRETS" not in env and run_dir is not None:
+        env["FLEET_SECRETS"] = str(ensure_credentials(run_dir / "secrets").dir.resolve())
+    if "FLEET_SECRETS" in env:
+        env = {"SECRETS_DIR": env["FLEET_SECRETS"], **env}
+    return env
+
+
+def load_compose(path: str | Path, overrides: dict[str, str] | None = None,
+                 run_dir: Path | None = None) -> list[Process]:
+    """Parse compose.yaml into processes, in start order (`run_dir`: where `fleet up` keeps its state)."""
+    source = str(path)
+    env = local_env(overrides, run_dir)
     text = interpolate(read_text(Path(path)), env)
     spec: ComposeFile = decode_yaml(text, ComposeFile, source)
     procs: list[Process] = []

@@ -3,7 +3,8 @@
 Each service command takes `--connect`, `--listen`, `--mode`, `--fleet` and `--instance`; defaults come
 from FLEET_ZENOH_CONNECT (comma-separated endpoints), FLEET_NAME and FLEET_INSTANCE (set per replica by
 compose and `fleet up`). Credentials come from FLEET_ZENOH_USER / FLEET_ZENOH_PASSWORD or
-FLEET_ZENOH_PASSWORD_FILE, never from the repository.
+FLEET_ZENOH_PASSWORD_FILE (a compose secret), never from the repository; FLEET_ZENOH_TLS_ROOT_CA names
+the CA certificate that a `tls/...` router endpoint must be signed by (docs/security.md).
 """
 
 from __future__ import annotations
@@ -38,22 +39,31 @@ def _split(value: str) -> tuple[str, ...]:
 
 
 def credentials() -> tuple[str | None, str | None]:
-    """User and password from the environment (the password may come from a file)."""
-    user = os.environ.get("FLEET_ZENOH_USER")
-    password = os.environ.get("FLEET_ZENOH_PASSWORD")
+    """User and password from the environment (the password may come from a file); both or neither."""
+    user = os.environ.get("FLEET_ZENOH_USER") or None
+    password = os.environ.get("FLEET_ZENOH_PASSWORD") or None
     password_file = os.environ.get("FLEET_ZENOH_PASSWORD_FILE")
     if password_file:
         try:
             password = Path(password_file).read_text().strip()
         except OSError as exc:
             raise InputError(password_file, "FLEET_ZENOH_PASSWORD_FILE", f"cannot read ({exc.strerror})") from None
+    if (user is None) != (password is None):
+        raise InputError("environment", "FLEET_ZENOH_USER" if user is None else "FLEET_ZENOH_PASSWORD(_FILE)",
+                         "user and password go together")
     return user, password
+
+
+def tls_from_env() -> dict[str, str]:
+    """`ZenohConfig.tls` options: the router's CA certificate from FLEET_ZENOH_TLS_ROOT_CA, if set."""
+    root_ca = os.environ.get("FLEET_ZENOH_TLS_ROOT_CA")
+    return {"root_ca_certificate": root_ca} if root_ca else {}
 
 
 def zconfig_from_args(args: argparse.Namespace) -> ZenohConfig:
     user, password = credentials()
     return ZenohConfig(mode=args.mode, connect=_split(args.connect), listen=_split(args.listen),
-                       user=user, password=password)
+                       user=user, password=password, tls=tls_from_env())
 
 
 def keys_from_args(args: argparse.Namespace) -> Keys:

@@ -28,7 +28,9 @@ class ZenohConfig:
     """What a fleet process needs to say about its zenoh session; `extra` reaches any other option.
 
     `tls` maps `transport/link/tls/<option>` names (e.g. ``root_ca_certificate``) to values; `extra`
-    maps full config paths (e.g. ``"transport/auth/usrpwd/dictionary_file"``) to JSON values.
+    maps full config paths (e.g. ``"scouting/delay"``) to JSON values. `config_file` is a zenoh JSON5
+    file to start from (e.g. deploy/router.json5 with its access control); every field set here, and
+    `listen`/`connect` when not empty, goes over it.
     """
 
     mode: Mode = "client"
@@ -43,6 +45,9 @@ class ZenohConfig:
     password: str | None = None
     tls: Mapping[str, Any] = field(default_factory=dict)
     extra: Mapping[str, Any] = field(default_factory=dict)
+    config_file: str | None = None
+    users_file: str | None = None
+    """A router's user-password dictionary ("user:password" lines): only those sessions may connect."""
 
     @classmethod
     def client(cls, *connect: str, **options: Any) -> ZenohConfig:
@@ -56,13 +61,15 @@ class ZenohConfig:
         """The `zenoh.Config` this describes (raises `zenoh.ZError` on an unknown or invalid option)."""
         values: dict[str, Any] = {
             "mode": self.mode,
-            "listen/endpoints": list(self.listen),
-            "connect/endpoints": list(self.connect),
             "connect/timeout_ms": self.connect_timeout_ms,
             "transport/link/tx/lease": self.lease_ms,
             "transport/link/tx/keep_alive": self.keep_alive,
             "scouting/multicast/enabled": self.multicast_scouting,
         }
+        if self.listen:
+            values["listen/endpoints"] = list(self.listen)
+        if self.connect:
+            values["connect/endpoints"] = list(self.connect)
         if not self.multicast_scouting:
             # Routers otherwise wait `scouting/delay` (500 ms) in open() for scouting answers.
             values["scouting/delay"] = 0
@@ -70,9 +77,11 @@ class ZenohConfig:
             values["transport/auth/usrpwd/user"] = self.user
         if self.password is not None:
             values["transport/auth/usrpwd/password"] = self.password
+        if self.users_file is not None:
+            values["transport/auth/usrpwd/dictionary_file"] = self.users_file
         values.update({f"transport/link/tls/{name}": value for name, value in self.tls.items()})
         values.update(self.extra)
-        config = zenoh.Config()
+        config = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
         for path, value in values.items():
             config.insert_json5(path, json.dumps(value))
         return config
@@ -94,13 +103,15 @@ class InProcessRouter:
     """A router-mode session on a free local TCP port, without multicast scouting.
 
     Clients connect to it explicitly (`client_config()`), so tests on one machine never meet.
+    `options` go to its `ZenohConfig` (e.g. `config_file` and `users_file` for access control:
+    `common.credentials.Credentials.router_options()`).
     """
 
-    def __init__(self, endpoint: str | None = None, attempts: int = 5) -> None:
+    def __init__(self, endpoint: str | None = None, attempts: int = 5, **options: Any) -> None:
         for attempt in range(attempts):
             self.endpoint = endpoint or free_tcp_endpoint()
             try:
-                self.session = open_session(ZenohConfig.router(self.endpoint))
+                self.session = open_session(ZenohConfig.router(self.endpoint, **options))
                 return
             except zenoh.ZError:  # the free port was taken in between
                 if endpoint or attempt == attempts - 1:

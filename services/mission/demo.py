@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from common.compose import Process
+from common.credentials import Credentials, make_credentials
 from common.keys import Keys
 from common.launcher import start, stop
 from common.liveliness import watch_alive
@@ -101,34 +102,41 @@ class LocalFleet:
     keys: Keys
     run_dir: Path
     radios: RadiosFile
+    credentials: Credentials
 
     def client_config(self) -> ZenohConfig:
-        return self.router.client_config()
+        """A session of the operator role (`mission`): runs missions, watches, injects simulator faults."""
+        return self.router.client_config(**self.credentials.options("mission"))
 
 
 @contextmanager
 def local_fleet(graph: FleetGraph, tasks: dict[str, Task], run_dir: Path, executors: int = 2, per_radio: int = 2,
                 fleet: str = "demo", viewer: bool = False, web: bool = False,
                 link: LinkModel | None = None) -> Iterator[LocalFleet]:
-    """An in-process router and every service as a process, up and alive; stopped on exit."""
+    """An in-process router and every service as a process, up and alive; stopped on exit.
+
+    Secured as compose.yaml is: the router enforces deploy/router.json5 with role credentials made
+    in run_dir/secrets, and each process authenticates with its role's (docs/security.md)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     radios = demo_radios(graph, tasks, per_radio, link)
     radios_path = run_dir / "radios.yaml"
     radios_path.write_text(dump_radios(radios))
     keys = Keys(fleet)
-    with InProcessRouter() as router:
+    creds = make_credentials(run_dir / "secrets")
+    with InProcessRouter(**creds.router_options()) as router:
         procs = fleet_processes(radios_path, radios, executors, run_dir.parent / "recordings", viewer, web)
         for p in procs:
-            p.env.update({"FLEET_ZENOH_CONNECT": router.endpoint, "FLEET_NAME": keys.fleet})
+            p.env.update({"FLEET_ZENOH_CONNECT": router.endpoint, "FLEET_NAME": keys.fleet, **creds.env(p.service)})
         print(f"fleet: router on {router.endpoint}; starting {len(procs)} processes (logs in {run_dir / 'logs'})")
         start(procs, run_dir, settle_s=0.1)
         try:
             counts = {"planner": 1, "executor": executors, "gateway": len(radios.radios), "sim": 1, "mocap": 1,
                       "telemetry": 1}
-            missing = asyncio.run(wait_for_services(router.client_config(), keys, counts, 60.0))
+            local = LocalFleet(router, keys, run_dir, radios, creds)
+            missing = asyncio.run(wait_for_services(local.client_config(), keys, counts, 60.0))
             if missing:
                 raise RuntimeError(f"services not up within 60 s: {', '.join(missing)} (see {run_dir / 'logs'})")
-            yield LocalFleet(router, keys, run_dir, radios)
+            yield local
         finally:
             stop(run_dir, grace_s=5.0)
 
