@@ -36,7 +36,7 @@ def cmd_up(args: argparse.Namespace) -> int:
             raise InputError("--set", item, "expected VAR=VALUE")
         k, v = item.split("=", 1)
         overrides[k] = v
-    procs = load_compose(args.compose, overrides)
+    procs = load_compose(args.compose, overrides, args.run_dir)
     if args.only:
         wanted = set(args.only.split(","))
         procs = [p for p in procs if p.service in wanted]

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -32,9 +33,11 @@ def test_fleet_up_mission_down(tmp_path) -> None:
     try:
         assert up.returncode == 0, up.stdout + up.stderr
         assert up.stdout.count("started") == 11  # router, planner, 2 executors, sim, 4 gateways, mocap, telemetry
+        operator = {"FLEET_ZENOH_USER": "mission", "FLEET_ZENOH_PASSWORD_FILE": str(run_dir / "secrets" / "zenoh-mission")}
         mission = subprocess.run(
             [*FLEET, "mission", "run", "maps/scenarios/town_8.yaml", "--connect", f"tcp/127.0.0.1:{port}",
-             "--fleet", "uptest"], cwd=REPO, capture_output=True, text=True, timeout=200)
+             "--fleet", "uptest"], cwd=REPO, capture_output=True, text=True, timeout=200,
+            env={**os.environ, **operator})
     finally:
         down = subprocess.run([*FLEET, "down", "--run-dir", str(run_dir)], cwd=REPO, capture_output=True, text=True,
                               timeout=120)
