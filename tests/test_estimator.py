@@ -78,7 +78,7 @@ def test_stale_threshold_is_a_covariance_bound() -> None:
     assert grows == sorted(grows)
     first_stale = next(dt for dt in (k * 0.01 for k in range(100)) if est.estimate(1.0 + dt).stale)
     assert est.pos_std(1.0 + first_stale) > est.params.stale_std >= est.pos_std(1.0 + first_stale - 0.01)
-    assert 0.15 < first_stale < 0.4
+    assert 0.3 < first_stale < 0.5  # a 0.3 s dropout is bridged (docs/reliability.md)
 
 
 def test_a_real_jump_is_reacquired() -> None:
