@@ -5,8 +5,9 @@ Layout: ``fleet/<fleet>/...``
 - ``vehicle/<vid>/{pose,state,cmd,telemetry,plan}``
 - ``planner/plan`` (queryable)
 - ``mission/<id>/{start,abort,status}``
-- ``sim/truth/<vid>``
+- ``sim/truth/<vid>``; ``sim/fault/<vid>`` (fault injection, simulators only: docs/reliability.md)
 - ``alive/<service>/<instance>`` (liveliness tokens)
+- ``stats/<service>/<instance>`` (each service's counters and figures, every few seconds)
 """
 
 from __future__ import annotations
@@ -79,6 +80,14 @@ class Keys:
     def all_sim_truth(self) -> str:
         return f"{self.root}/sim/truth/*"
 
+    def sim_fault(self, vid: str) -> str:
+        check_chunk(vid, "vehicle id")
+        return f"{self.root}/sim/fault/{vid}"
+
+    @property
+    def all_sim_faults(self) -> str:
+        return f"{self.root}/sim/fault/*"
+
     def alive(self, service: str, instance: str) -> str:
         check_chunk(service, "service name")
         check_chunk(instance, "instance name")
@@ -93,6 +102,14 @@ class Keys:
             return None
         parts = key[len(prefix):].split("/")
         return (parts[0], parts[1]) if len(parts) == 2 else None
+
+    def stats(self, service: str, instance: str) -> str:
+        check_chunk(service, "service name")
+        check_chunk(instance, "instance name")
+        return f"{self.root}/stats/{service}/{instance}"
+
+    def all_stats(self, service: str = "*") -> str:
+        return f"{self.root}/stats/{service}/*"
 
     def last_chunk(self, key: str) -> str:
         return str(key).rsplit("/", 1)[-1]

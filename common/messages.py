@@ -158,6 +158,35 @@ class SimTruth(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     charge_used_ah: float = 0.0
 
 
+SimFaultKind = Literal["mocap_dropout", "radio_blackout", "battery"]
+
+
+class SimFault(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Fault injection into the simulators (`sim/fault/<vid>`; docs/reliability.md). Only the
+    simulated motion capture and the simulated Crazyflies listen: real systems never see it.
+    `mocap_dropout`: the body is not seen for `duration_s`; `radio_blackout`: the simulated radio
+    loses every packet to and from the vehicle for `duration_s`; `battery`: the simulated battery
+    has used `charge_used_ah` from now on."""
+
+    vid: str
+    kind: SimFaultKind
+    duration_s: float = 0.0
+    charge_used_ah: float = 0.0
+
+
+class ServiceStats(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A service's health (`stats/<service>/<instance>`, every few seconds): `drops` is the total
+    of its dropped messages (`common.bus` drop counters), `counters` all its named counters,
+    `figures` service-specific measurements (e.g. the executor's missed control deadlines)."""
+
+    service: str
+    instance: str
+    t: float
+    drops: int
+    counters: dict[str, int]
+    figures: dict[str, float] = {}
+
+
 class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Query payload of `planner/plan`. `map` is a shipped map name or a path readable by the planner."""
 

@@ -8,7 +8,8 @@ body name -> (x, y, z, yaw) of every body visible in the frame.
   no frame timestamp: a frame is stamped on arrival minus the configured system latency. A failing
   connection is retried every `RETRY_S`.
 - `SimBackend`: `sim/truth/<vid>` from `fleet sim`, with Gaussian noise, a capture-to-publication
-  delay and random dropouts (`SimNoise`); the capture time is the truth's own time.
+  delay and random dropouts (`SimNoise`); the capture time is the truth's own time. `blind` hides
+  one body for a while (fault injection, docs/reliability.md).
 """
 
 from __future__ import annotations
@@ -98,13 +99,17 @@ class SimBackend:
         self._last_t[truth.vid] = truth.t
         starts = last is not None and n.dropout_rate_hz > 0.0 and truth.t > last
         if starts and self._rng.random() < -math.expm1(-n.dropout_rate_hz * (truth.t - last)):
-            self._dropout_until[truth.vid] = truth.t + n.dropout_s
+            self.blind(truth.vid, truth.t + n.dropout_s)
         if truth.t < self._dropout_until.get(truth.vid, -math.inf):
             return
         g = self._rng.gauss
         seen = {truth.vid: (truth.x + g(0.0, n.pos_std), truth.y + g(0.0, n.pos_std), truth.z + g(0.0, n.pos_std),
                             math.remainder(truth.yaw + g(0.0, n.yaw_std), 2.0 * math.pi))}
         asyncio.get_running_loop().call_later(n.latency_s, self._deliver, truth.t, seen)
+
+    def blind(self, vid: str, until: float) -> None:
+        """`vid` is not seen in frames captured before `until` (epoch s; an earlier end is kept)."""
+        self._dropout_until[vid] = max(until, self._dropout_until.get(vid, -math.inf))
 
     def _deliver(self, t: float, seen: Mapping[str, BodyPose]) -> None:
         if not self._closed:

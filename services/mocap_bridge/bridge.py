@@ -5,6 +5,10 @@ A `motioncapture` system (vicon, optitrack, qualisys, vrpn, or the library's moc
 ground truth (`sim`) feeds the `BodyTracker`, which maps rigid bodies to vehicles, limits the rate
 and reports a vanished body as `VehicleEvent` "mocap_lost" on `vehicle/<vid>/event` (no poses for it
 until it is back: "mocap_found").
+
+With the `sim` backend, a `SimFault` "mocap_dropout" on `sim/fault/<vid>` hides that body for its
+duration (fault injection, docs/reliability.md). Counters and the poses published per vehicle go
+out on `stats/mocap/<instance>`.
 """
 
 from __future__ import annotations
@@ -16,8 +20,9 @@ from collections.abc import Mapping
 
 from common.bus import Publisher
 from common.keys import Keys
-from common.messages import Pose, SimTruth, VehicleEvent
+from common.messages import Pose, SimFault, SimTruth, VehicleEvent
 from common.service import Service
+from common.stats import publish_stats
 from common.zsession import ZenohConfig
 from services.mocap_bridge.backends import LibBackend, SimBackend
 from services.mocap_bridge.config import MocapConfig, check_mocap
@@ -46,12 +51,14 @@ class MocapBridge(Service):
         if cfg.backend == "sim":
             backend = SimBackend(cfg.sim, self._on_frame)
             self.subscribe(self.keys.all_sim_truth, SimTruth, backend.on_truth)
+            self.subscribe(self.keys.all_sim_faults, SimFault, lambda f, _k: self._on_fault(backend, f))
         else:
             options = dict(cfg.options)
             if cfg.backend == "mock":
                 options.setdefault("frequency", str(round(cfg.rate_hz)))
             backend = LibBackend(cfg.backend, options, cfg.latency_s, self._on_frame, self._on_backend_error)
             backend.start(asyncio.get_running_loop())
+        self.spawn(publish_stats(self, self._figures), name="stats")
         try:
             while True:  # lost bodies are noticed even when no frame comes at all
                 self._publish_events(tracker.check(time.time()))
@@ -69,6 +76,16 @@ class MocapBridge(Service):
                 pub = self._poses[pose.vid] = self.publisher(self.keys.vehicle(pose.vid, "pose"), Pose)
             pub.put(pose)
             self.published[pose.vid] = self.published.get(pose.vid, 0) + 1
+
+    def _on_fault(self, backend: SimBackend, fault: SimFault) -> None:
+        if fault.kind != "mocap_dropout":
+            return
+        log.warning("mocap: fault injected: %s unseen for %.2f s", fault.vid, fault.duration_s)
+        self.counters.inc(f"fault:{fault.kind}:{fault.vid}")
+        backend.blind(fault.vid, time.time() + fault.duration_s)
+
+    def _figures(self) -> dict[str, float]:
+        return {"bodies": len(self.published), "poses": sum(self.published.values())}
 
     def _on_backend_error(self, message: str) -> None:
         if self.counters.inc("backend_error") == 1:

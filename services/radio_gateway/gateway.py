@@ -11,6 +11,7 @@ Who is obeyed: a vehicle of this radio, and only its owner, `owner_of(vid, live 
 gateway's own liveliness watch of service "executor"; anything else is refused, counted under
 ``refused:<reason>:<vid>`` and logged once per vehicle and reason. A vehicle whose command goes
 stale lands (flying) or stops (driving) under the gateway's control (`VehicleChannel`).
+Counters (refusals, drops, radio_behind) and link figures go out on `stats/gateway/<instance>`.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from common.keys import Keys
 from common.messages import Cmd, Pose, Telemetry, VehicleEvent
 from common.ownership import owner_of
 from common.service import Service
+from common.stats import publish_stats
 from common.zsession import ZenohConfig
 from services.radio_gateway import crtp
 from services.radio_gateway.config import RadiosFile
@@ -78,6 +80,7 @@ class RadioGateway(Service):
         on_error = lambda vid, msg: call_in_loop(loop, self._on_link_error, vid, msg)  # noqa: E731
         self._links = {vid: CrtpLink(vid, link.uri, on_packet, on_error) for vid, link in self.spec.vehicles.items()}
         sender = RadioSender(self.radio, on_error, self.counters)
+        self.spawn(publish_stats(self, self._figures), name="stats")
         try:
             await self._run(sender)
         finally:
@@ -175,6 +178,12 @@ class RadioGateway(Service):
             self.channels[parsed[0]].on_pose(pose, time.time())
 
     # ---- outputs --------------------------------------------------------------------------
+
+    def _figures(self) -> dict[str, float]:
+        chans = self.channels.values()
+        return {"vehicles": len(self.channels), "links_ok": sum(ch.stats.link_ok for ch in chans),
+                "taken_over": sum(ch.took_over for ch in chans),
+                "packets_dropped": sum(ch.stats.dropped for ch in chans)}
 
     def _sync_pose_subscriptions(self) -> None:
         """Poses only matter during a safety landing: subscribe while one lasts."""

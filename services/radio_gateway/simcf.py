@@ -51,6 +51,9 @@ class SimCrazyflie(asyncio.DatagramProtocol):
         self.watchdog_levels = 0
         self.watchdog_cuts = 0
         self.wheel_watchdogs = 0
+        self.blacked_out = 0
+        """Packets (both ways) lost to an injected radio blackout (`blackout`)."""
+        self._blackout_until = -math.inf
         self._armed = False
         self._wheels_on = False
         self._wheels_at = -math.inf
@@ -63,8 +66,21 @@ class SimCrazyflie(asyncio.DatagramProtocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self._transport = transport  # type: ignore[assignment]  # a datagram endpoint's transport
 
+    def blackout(self, until: float) -> None:
+        """Fault injection (docs/reliability.md): every packet to or from this vehicle is lost until
+        `until` (this clock), as when it flies out of the radio's range."""
+        self._blackout_until = until
+
+    def _blacked_out(self, now: float) -> bool:
+        if now < self._blackout_until:
+            self.blacked_out += 1
+            return True
+        return False
+
     def datagram_received(self, data: bytes, addr: Address) -> None:
         now = self.clock()
+        if self._blacked_out(now):
+            return
         at = self.radio.uplink(now)
         if at is not None:
             asyncio.get_running_loop().call_later(max(at - now, 0.0), self._deliver, data, addr)
@@ -79,6 +95,8 @@ class SimCrazyflie(asyncio.DatagramProtocol):
 
     def _reply(self, raw: bytes, addr: Address) -> None:
         now = self.clock()
+        if self._blacked_out(now):
+            return
         at = self.radio.downlink(now)
         if at is not None:
             asyncio.get_running_loop().call_later(max(at - now, 0.0), self._send, raw, addr)

@@ -4,6 +4,10 @@ Every ``udp://`` vehicle of the selected radios becomes a `SimCrazyflie` at its 
 behind its radio's link model (`SimRadio`, shared by the radio's vehicles). Ground truth goes out on
 `sim/truth/<vid>` at `truth_hz`; firmware watchdog trips go out as `VehicleEvent`s on
 `vehicle/<vid>/event`. The gateway talks to these exactly as to real vehicles (paper 000 §VI-C).
+
+Fault injection (docs/reliability.md): a `SimFault` on `sim/fault/<vid>` blacks out the vehicle's
+radio link for a while (`radio_blackout`) or sets its battery's used charge (`battery`); nothing
+happens unless one is published. Counters and figures go out on `stats/sim/<instance>`.
 """
 
 from __future__ import annotations
@@ -15,9 +19,10 @@ from collections.abc import Collection
 
 from common.bus import Publisher
 from common.keys import Keys
-from common.messages import SimTruth, VehicleEvent
+from common.messages import SimFault, SimTruth, VehicleEvent
 from common.model import VehicleModel
 from common.service import Service
+from common.stats import publish_stats
 from common.zsession import ZenohConfig
 from services.radio_gateway.config import RadiosFile, udp_address
 from services.radio_gateway.physics import PhysicsParams, SimFlyingCar
@@ -51,6 +56,8 @@ class SimService(Service):
     async def main(self) -> None:
         try:
             truth = await self._open()
+            self.subscribe(self.keys.all_sim_faults, SimFault, self._on_fault)
+            self.spawn(publish_stats(self, self._figures), name="stats")
             await self._publish_truth(truth)
         finally:
             for cf in self.vehicles.values():
@@ -87,9 +94,29 @@ class SimService(Service):
             due += self.period
             delay = due - loop.time()
             if delay < -self.period:  # fell behind (loaded machine): skip, do not burst
+                self.counters.inc("truth_behind")
                 due = loop.time()
                 delay = 0.0
             await asyncio.sleep(delay)
+
+    def _on_fault(self, fault: SimFault, _key: str) -> None:
+        cf = self.vehicles.get(fault.vid)
+        if cf is None or fault.kind == "mocap_dropout":  # not ours, or the mocap bridge's
+            return
+        log.warning("sim: fault injected into %s: %s", fault.vid, fault)
+        self.counters.inc(f"fault:{fault.kind}:{fault.vid}")
+        if fault.kind == "radio_blackout":
+            cf.blackout(time.time() + fault.duration_s)
+        else:
+            cf.car.charge_used_ah = fault.charge_used_ah
+
+    def _figures(self) -> dict[str, float]:
+        cfs = self.vehicles.values()
+        return {"vehicles": len(self.vehicles), "watchdog_levels": sum(cf.watchdog_levels for cf in cfs),
+                "watchdog_cuts": sum(cf.watchdog_cuts for cf in cfs),
+                "radio_lost": sum(r.lost for r in self.radios.values()),
+                "radio_congested": sum(r.congested for r in self.radios.values()),
+                "radio_delivered": sum(r.delivered for r in self.radios.values())}
 
     def _on_event(self, vid: str, kind: str, detail: str) -> None:
         self._events[vid].put(VehicleEvent(vid=vid, t=time.time(), kind=kind, detail=detail))
