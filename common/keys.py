@@ -2,7 +2,8 @@
 
 Layout: ``fleet/<fleet>/...``
 
-- ``vehicle/<vid>/{pose,state,cmd,telemetry,plan}``
+- ``vehicle/<vid>/{pose,state,cmd,telemetry,plan,event}``; ground-air teams (paper 002):
+  ``vehicle/<vid>/{team_plan,action,action_status}``
 - ``planner/plan`` (queryable)
 - ``mission/<id>/{start,abort,status}``
 - ``sim/truth/<vid>``; ``sim/fault/<vid>`` (fault injection, simulators only: docs/reliability.md)
@@ -14,10 +15,10 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, get_args
 
-VehicleTopic = Literal["pose", "state", "cmd", "telemetry", "plan", "event"]
-VEHICLE_TOPICS: tuple[VehicleTopic, ...] = ("pose", "state", "cmd", "telemetry", "plan", "event")
+VehicleTopic = Literal["pose", "state", "cmd", "telemetry", "plan", "event", "team_plan", "action", "action_status"]
+VEHICLE_TOPICS: tuple[VehicleTopic, ...] = get_args(VehicleTopic)
 MissionTopic = Literal["start", "abort", "status"]
 
 DEFAULT_FLEET = "default"

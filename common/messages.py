@@ -13,6 +13,7 @@ import msgspec
 
 from common.model import EdgeKind, NodeKind
 from common.planfile import Plan, PlanModel, Task
+from common.teamplan import Robot, Step, TeamPlan, Vec3
 
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 """Payloads above this are rejected before decoding (a plan for 120 vehicles is well under 1 MiB)."""
@@ -187,8 +188,24 @@ class ServiceStats(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     figures: dict[str, float] = {}
 
 
+class TeamTask(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A ground-air team's task (paper 002, `PlanRequest(planner="collab", team=...)`): the drone
+    `drone` from `drone_start` (x, y, z) to `goal` (x, y, z), helped by the UGV `ugv` starting at
+    `ugv_start` (x, y, heading_deg; 0 = +x, counter-clockwise). `method`: PAD (002 §IV) or the
+    full-dimensional ARA* baseline; `improve_s` bounds the improvement after the first solution."""
+
+    drone: str
+    ugv: str
+    drone_start: Vec3
+    ugv_start: Vec3
+    goal: Vec3
+    method: Literal["pad", "arastar"] = "pad"
+    improve_s: float = 1.0
+
+
 class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Query payload of `planner/plan`. `map` is a shipped map name or a path readable by the planner."""
+    """Query payload of `planner/plan`. `map` is a shipped map name or a path readable by the planner.
+    A team request (planner "collab") gives `team` and no `tasks`; `map` is a collab map."""
 
     map: str
     tasks: dict[str, Task]
@@ -197,12 +214,55 @@ class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     time_limit: float = 30.0
     mission: str = ""
     seed: int = 0
+    team: TeamTask | None = None
 
 
 class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     ok: bool
     error: str = ""
     plan: Plan | None = None
+    team_plan: TeamPlan | None = None
+
+
+class VehicleTeamPlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One robot's copy of a team plan (`vehicle/<vid>/team_plan`, paper 002 §IV-E): it executes
+    `plan.drone` or `plan.ugv` as `robot`, synchronised with `partner`. `t0` as in VehiclePlan."""
+
+    vid: str
+    mission: str
+    robot: Robot
+    partner: str
+    plan: TeamPlan
+    t0: float = 0.0
+
+
+class TeamAction(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Executor -> robot (`vehicle/<vid>/action`): run step `index` of the robot's sequence (the
+    controller action and the pose it should end in). Re-sent until the robot reports it done or
+    failed; a robot runs each (mission, index) once and answers repeats with its status."""
+
+    vid: str
+    owner: str
+    mission: str
+    index: int
+    step: Step
+    t: float
+
+
+ActionState = Literal["started", "done", "failed"]
+
+
+class ActionStatus(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Robot -> everyone (`vehicle/<vid>/action_status`): step `index` started, done or failed, and
+    the robot's pose then (drone x, y, z; UGV x, y, heading_deg)."""
+
+    vid: str
+    mission: str
+    index: int
+    status: ActionState
+    pose: Vec3
+    t: float
+    detail: str = ""
 
 
 class MissionStart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

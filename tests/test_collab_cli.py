@@ -7,8 +7,8 @@ import argparse
 import pytest
 
 from common.errors import InputError
+from common.teamplan import read_plan
 from services.planner.collab.cli import register
-from services.planner.collab.teamplan import read_plan
 
 
 def run(*argv: str) -> int:

@@ -9,8 +9,8 @@ import msgspec
 import numpy as np
 import pytest
 
+from common import teamplan as tp
 from common.errors import InputError
-from services.planner.collab import teamplan as tp
 from services.planner.collab.env import Env
 from services.planner.collab.maps import load_env
 from services.planner.collab.model import TeamModel

@@ -52,29 +52,19 @@ def _floats(text: str, what: str) -> tuple[float, float, float]:
 
 def _problem(args: argparse.Namespace, planner):
     from services.planner.collab.instances import sample_problem
-    from services.planner.collab.planner import Problem
 
     given = [args.start, args.ugv, args.goal]
     if not any(given):
         return sample_problem(planner, args.seed)
     if not all(given):
         raise InputError("fleet collab plan", "--start/--ugv/--goal", "give all three or none")
-    env = planner.env
-    sx, sy, sz = _floats(args.start, "--start")
-    ux, uy, uh = _floats(args.ugv, "--ugv")
-    gx, gy, gz = _floats(args.goal, "--goal")
-    problem = Problem(
-        drone_start=(env.level_of(sz), *env.cell_of(sx, sy)),
-        ugv_start=(*env.cell_of(ux, uy), round(uh / 45.0) % 8),
-        goal=(env.level_of(gz), *env.cell_of(gx, gy)),
-    )
-    planner.check(problem, "fleet collab plan")
-    return problem
+    return planner.problem_at(_floats(args.start, "--start"), _floats(args.ugv, "--ugv"), _floats(args.goal, "--goal"),
+                              "fleet collab plan")
 
 
 def format_plan(plan) -> str:
     """A readable listing of a team plan: one line per step, sync points as 'after <robot> <n>'."""
-    from services.planner.collab import teamplan as tp
+    from common import teamplan as tp
 
     lines = [f"team plan on {plan.map} ({plan.planner}): cost {plan.cost:.2f} (within {plan.epsilon:.2f} x optimal), "
              f"{plan.planning_time_s:.2f} s, {plan.expansions} expansions",
@@ -86,7 +76,7 @@ def format_plan(plan) -> str:
             fields = " ".join(f"{k}={_short(v)}" for k, v in _fields(step.action).items())
             sync = f"  [after {other} {step.wait_for}]" if step.wait_for else ""
             end = ", ".join(f"{v:.2f}" for v in step.end)
-            lines.append(f"  {i:3d} {type(step.action).__struct_config__.tag:18s} {fields} -> ({end}){sync}")
+            lines.append(f"  {i:3d} {tp.action_name(step):18s} {fields} -> ({end}){sync}")
     return "\n".join(lines)
 
 
@@ -103,9 +93,9 @@ def _short(v):
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
+    from common.teamplan import encode_json
     from services.planner.collab.maps import load_env
     from services.planner.collab.planner import TeamPlanner
-    from services.planner.collab.teamplan import encode_json
 
     planner = TeamPlanner(load_env(args.map))
     problem = _problem(args, planner)
@@ -123,10 +113,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    from common.teamplan import read_plan
     from services.planner.collab.maps import load_env
     from services.planner.collab.model import TeamModel
     from services.planner.collab.sensing import Sensing
-    from services.planner.collab.teamplan import read_plan
 
     plan = read_plan(args.plan)
     return _simulate(Sensing(load_env(args.map or plan.map), TeamModel()), plan)

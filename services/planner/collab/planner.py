@@ -9,13 +9,14 @@ from dataclasses import dataclass
 from typing import Literal
 
 from common.errors import InputError
+from common.teamplan import TeamPlan, Vec3
 from services.planner.collab.arastar import arastar
 from services.planner.collab.env import Env
 from services.planner.collab.lattice import Lattice, ugv_area
 from services.planner.collab.model import TeamModel
 from services.planner.collab.pad import PadConfig, pad
 from services.planner.collab.sensing import Sensing
-from services.planner.collab.teamplan import TeamPlan, build_team_plan
+from services.planner.collab.teamplan import build_team_plan
 
 Method = Literal["pad", "arastar"]
 
@@ -73,6 +74,18 @@ class TeamPlanner:
         r, c, heading = problem.ugv_start
         if not (s.ugv_ok(r, c) and 0 <= heading < 8):
             raise InputError(source, "ugv_start", f"cell ({r}, {c}) heading {heading} is not allowed for the UGV")
+
+    def problem_at(self, drone_start: Vec3, ugv_start: Vec3, goal: Vec3, source: str = "problem") -> Problem:
+        """A problem given in metres and degrees (drone x, y, z; UGV x, y, heading_deg; goal x, y, z),
+        on the lattice and checked (InputError naming the field)."""
+        env = self.env
+        problem = Problem(
+            drone_start=(env.level_of(drone_start[2]), *env.cell_of(drone_start[0], drone_start[1])),
+            ugv_start=(*env.cell_of(ugv_start[0], ugv_start[1]), round(ugv_start[2] / 45.0) % 8),
+            goal=(env.level_of(goal[2]), *env.cell_of(goal[0], goal[1])),
+        )
+        self.check(problem, source)
+        return problem
 
     def plan(
         self,

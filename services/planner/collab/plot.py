@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.lines import Line2D
 
+from common.teamplan import GoToLandmarkDyn, TeamPlan
 from services.planner.collab.env import Env
-from services.planner.collab.teamplan import GoToLandmarkDyn, TeamPlan
 
 CONTROLLER_COLORS = {
     "WallFollowing": "tab:blue",

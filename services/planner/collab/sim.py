@@ -1,11 +1,11 @@
 """Simulated execution of a TeamPlan (002 §IV-E) in a simulated world, one action at a time.
 
-The world gives the drone the sensing its controllers need (side IR ranges, landmark and UGV
-sightings, through `Sensing`) and runs each controller with `controllers.phi` from the robots'
-actual poses: a GOTOLANDMARK_DYN flies to its offset from wherever the UGV actually is, so a
-broken sync point shows up as a failed precondition or a wrong end pose. Both robots' sequences
-run concurrently in simulated time, honouring the sync points. An executor can drive it step by
-step: `ready()` lists the robots that may start their next action, `step(robot)` runs it.
+`TeamWorld` is the world: the two robots' poses and the sensing their controllers need (side IR
+ranges, landmark and UGV sightings, through `Sensing`). It runs one controller action with
+`controllers.phi` from the robots' actual poses: a GOTOLANDMARK_DYN flies to its offset from
+wherever the UGV actually is, so a broken sync point shows up as a failed precondition or a wrong
+end pose. `TeamSim` runs both robots' sequences of a plan in simulated time, honouring the sync
+points; the collab sim service (`simservice.py`) runs the actions executors send over zenoh.
 """
 
 from __future__ import annotations
@@ -13,9 +13,111 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from common import teamplan as tp
 from services.planner.collab import controllers as ctl
-from services.planner.collab import teamplan as tp
 from services.planner.collab.sensing import DIRS, Sensing
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What one action does in the world: where the robot ends up (on failure: where it stopped),
+    how long it takes (simulated seconds) and why it failed ("" if it did not)."""
+
+    pose: ctl.DronePose | ctl.UgvPose
+    duration_s: float
+    detail: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.detail
+
+
+class TeamWorld:
+    """The drone and the UGV in the world `sensing` describes. Poses are lattice cells; `xyz()` gives
+    metres (drone x, y, z; UGV x, y, heading_deg)."""
+
+    def __init__(self, sensing: Sensing, drone_start: tp.Vec3, ugv_start: tp.Vec3) -> None:
+        self.s = sensing
+        self.env = sensing.env
+        x, y, z = drone_start
+        self.drone = ctl.DronePose(self.env.level_of(z), *self.env.cell_of(x, y))
+        ux, uy, heading = ugv_start
+        self.ugv = ctl.UgvPose(*self.env.cell_of(ux, uy), round(heading / 45.0) % 8)
+
+    def xyz(self, robot: tp.Robot) -> tp.Vec3:
+        if robot == "drone":
+            return (*self.env.center(self.drone.row, self.drone.col), self.env.z_levels[self.drone.level])
+        return (*self.env.center(self.ugv.row, self.ugv.col), 45.0 * self.ugv.heading)
+
+    def outcome(self, robot: tp.Robot, step: tp.Step) -> Outcome:
+        """Run `robot`'s action from the current poses without moving anything; a result that ends
+        more than half a cell from the step's `end` is a failure."""
+        out = self._drone(step) if robot == "drone" else self._ugv(step)
+        if out.ok:
+            pose = self._metres(out.pose)
+            if math.dist(pose[:2], step.end[:2]) > self.env.resolution / 2:
+                return Outcome(out.pose, out.duration_s, f"ended at {_fmt(pose)}, expected {_fmt(step.end)}")
+        return out
+
+    def apply(self, robot: tp.Robot, out: Outcome) -> None:
+        """Put `robot` where `out` left it."""
+        if robot == "drone":
+            assert isinstance(out.pose, ctl.DronePose)
+            self.drone = out.pose
+        else:
+            assert isinstance(out.pose, ctl.UgvPose)
+            self.ugv = out.pose
+
+    def _metres(self, pose: ctl.DronePose | ctl.UgvPose) -> tp.Vec3:
+        x, y = self.env.center(pose.row, pose.col)
+        return (x, y, self.env.z_levels[pose.level] if isinstance(pose, ctl.DronePose) else 45.0 * pose.heading)
+
+    # ---- controllers ----------------------------------------------------------------------------
+    def _drone(self, step: tp.Step) -> Outcome:
+        a, env, m = step.action, self.env, self.s.model
+        before = self.drone
+        trigger = None
+        if isinstance(a, tp.WallFollowing):
+            c: ctl.DroneController = ctl.WallFollow(a.side, round(a.heading_deg / 45.0) % 8)
+            trigger = a.trigger
+        elif isinstance(a, tp.GoToLandmarkStat):
+            ids = [lm.id for lm in env.landmarks]
+            if a.landmark not in ids:
+                return Outcome(before, 0.0, f"unknown landmark {a.landmark}")
+            c = ctl.GoToLandmarkStat(ids.index(a.landmark), env.cell_of(a.target[0], a.target[1]))
+        elif isinstance(a, tp.GoToLandmarkDyn):
+            ux, uy, _ = self.xyz("ugv")
+            c = ctl.GoToLandmarkDyn(env.cell_of(ux + a.offset[0], uy + a.offset[1]))
+        elif isinstance(a, tp.MetricTurn):
+            c = ctl.MetricTurn(round(a.heading_deg / 45.0) % 8)
+        elif isinstance(a, tp.MetricStep):
+            c = ctl.MetricStep(round(a.distance_m / (env.resolution * math.hypot(*DIRS[before.heading]))))
+        elif isinstance(a, tp.Altitude):
+            c = ctl.Altitude(env.level_of(a.z))
+        else:
+            return Outcome(before, 0.0, f"{type(a).__name__} is not a drone action")
+        after = ctl.phi(self.s, before, c, trigger, self.ugv)
+        if after is None:
+            return Outcome(before, 0.0, f"{type(a).__name__} not available at {_fmt(self.xyz('drone'))}")
+        dz = abs(env.z_levels[after.level] - env.z_levels[before.level])
+        dist = math.hypot(after.row - before.row, after.col - before.col) * env.resolution + dz
+        return Outcome(after, dist / m.drone_speed + (1.0 if isinstance(a, tp.MetricTurn) else 0.0))
+
+    def _ugv(self, step: tp.Step) -> Outcome:
+        a, m = step.action, self.s.model
+        if not isinstance(a, tp.MetricMotion):
+            return Outcome(self.ugv, 0.0, f"{type(a).__name__} is not a UGV action")
+        turns = round(a.turn_deg / 45.0)
+        pose = self.ugv
+        for _ in range(abs(turns)):
+            pose = ctl.phi_ugv(self.s, pose, ctl.UgvTurn(1 if turns > 0 else -1))
+        n = round(a.distance_m / (self.env.resolution * math.hypot(*DIRS[pose.heading])))
+        for _ in range(n):
+            nxt = ctl.phi_ugv(self.s, pose, ctl.UgvForward())
+            if nxt is None:
+                return Outcome(pose, 0.0, f"UGV blocked at {_fmt(self._metres(pose))}")
+            pose = nxt
+        return Outcome(pose, abs(a.turn_deg) / m.ugv_turn_rate + a.distance_m / m.ugv_speed)
 
 
 @dataclass(frozen=True)
@@ -40,23 +142,19 @@ class SimReport:
 
 
 class TeamSim:
-    """A TeamPlan executed in the world `sensing` describes (by default the planning map)."""
+    """A TeamPlan executed in the world `sensing` describes (by default the planning map). An
+    executor can drive it step by step: `ready()` lists the robots that may start their next
+    action, `step(robot)` runs it."""
 
     def __init__(self, sensing: Sensing, plan: tp.TeamPlan) -> None:
-        self.s = sensing
-        self.env = sensing.env
+        self.world = TeamWorld(sensing, plan.drone_start, plan.ugv_start)
         self.plan = plan
         self.progress = tp.PlanProgress(plan)
-        x, y, z = plan.drone_start
-        self.drone = ctl.DronePose(self.env.level_of(z), *self.env.cell_of(x, y))
-        ux, uy, heading = plan.ugv_start
-        self.ugv = ctl.UgvPose(*self.env.cell_of(ux, uy), round(heading / 45.0) % 8)
         self.clock: dict[tp.Robot, float] = {"drone": 0.0, "ugv": 0.0}
         self.finish_times: dict[tp.Robot, list[float]] = {"drone": [], "ugv": []}
         self.events: list[StepEvent] = []
         self.failure: str | None = None
 
-    # ---- stepping -----------------------------------------------------------------------------
     def ready(self) -> list[tp.Robot]:
         """Robots whose next step may start now (its sync point is satisfied)."""
         if self.failure:
@@ -78,19 +176,17 @@ class TeamSim:
         step = self.progress.next_step(robot)
         assert step is not None
         t0 = self.start_time(robot)
-        detail, duration = self._run_drone(step) if robot == "drone" else self._run_ugv(step)
-        pose = self.drone_xyz() if robot == "drone" else self.ugv_xyh()
-        if not detail and math.dist(pose[:2], step.end[:2]) > self.env.resolution / 2:
-            detail = f"ended at {_fmt(pose)}, expected {_fmt(step.end)}"
-        ok = not detail
-        self.clock[robot] = t0 + duration
-        event = StepEvent(robot, index, type(step.action).__name__, t0, t0 + duration, pose, ok, detail)
+        out = self.world.outcome(robot, step)
+        self.world.apply(robot, out)
+        self.clock[robot] = t0 + out.duration_s
+        event = StepEvent(robot, index, type(step.action).__name__, t0, t0 + out.duration_s,
+                          self.world.xyz(robot), out.ok, out.detail)
         self.events.append(event)
-        if ok:
+        if out.ok:
             self.progress.complete(robot)
             self.finish_times[robot].append(self.clock[robot])
         else:
-            self.failure = f"{robot} step {index} ({event.action}): {detail}"
+            self.failure = f"{robot} step {index} ({event.action}): {out.detail}"
         return event
 
     def run(self) -> SimReport:
@@ -104,71 +200,13 @@ class TeamSim:
         return self.report()
 
     def report(self) -> SimReport:
-        at_goal = math.dist(self.drone_xyz(), self.plan.goal) <= self.env.resolution / 2
+        at_goal = math.dist(self.world.xyz("drone"), self.plan.goal) <= self.world.env.resolution / 2
         return SimReport(
             reached_goal=self.failure is None and self.progress.finished and at_goal,
             failure=self.failure,
             makespan_s=max(self.clock.values()),
             events=self.events,
         )
-
-    # ---- poses --------------------------------------------------------------------------------
-    def drone_xyz(self) -> tuple[float, float, float]:
-        return (*self.env.center(self.drone.row, self.drone.col), self.env.z_levels[self.drone.level])
-
-    def ugv_xyh(self) -> tuple[float, float, float]:
-        return (*self.env.center(self.ugv.row, self.ugv.col), 45.0 * self.ugv.heading)
-
-    # ---- controllers ----------------------------------------------------------------------------
-    def _run_drone(self, step: tp.Step) -> tuple[str, float]:
-        """Execute one drone action; returns (failure detail or "", duration)."""
-        a, env, m = step.action, self.env, self.s.model
-        before = self.drone
-        trigger = None
-        if isinstance(a, tp.WallFollowing):
-            c: ctl.DroneController = ctl.WallFollow(a.side, round(a.heading_deg / 45.0) % 8)
-            trigger = a.trigger
-        elif isinstance(a, tp.GoToLandmarkStat):
-            ids = [lm.id for lm in env.landmarks]
-            if a.landmark not in ids:
-                return f"unknown landmark {a.landmark}", 0.0
-            c = ctl.GoToLandmarkStat(ids.index(a.landmark), env.cell_of(a.target[0], a.target[1]))
-        elif isinstance(a, tp.GoToLandmarkDyn):
-            ux, uy, _ = self.ugv_xyh()
-            c = ctl.GoToLandmarkDyn(env.cell_of(ux + a.offset[0], uy + a.offset[1]))
-        elif isinstance(a, tp.MetricTurn):
-            c = ctl.MetricTurn(round(a.heading_deg / 45.0) % 8)
-        elif isinstance(a, tp.MetricStep):
-            c = ctl.MetricStep(round(a.distance_m / (env.resolution * math.hypot(*DIRS[before.heading]))))
-        elif isinstance(a, tp.Altitude):
-            c = ctl.Altitude(env.level_of(a.z))
-        else:
-            return f"{type(a).__name__} is not a drone action", 0.0
-        after = ctl.phi(self.s, before, c, trigger, self.ugv)
-        if after is None:
-            return f"{type(a).__name__} not available at {_fmt(self.drone_xyz())}", 0.0
-        self.drone = after
-        dz = abs(env.z_levels[after.level] - env.z_levels[before.level])
-        dist = math.hypot(after.row - before.row, after.col - before.col) * env.resolution + dz
-        return "", dist / m.drone_speed + (1.0 if isinstance(a, tp.MetricTurn) else 0.0)
-
-    def _run_ugv(self, step: tp.Step) -> tuple[str, float]:
-        a, m = step.action, self.s.model
-        if not isinstance(a, tp.MetricMotion):
-            return f"{type(a).__name__} is not a UGV action", 0.0
-        turns = round(a.turn_deg / 45.0)
-        pose = self.ugv
-        for _ in range(abs(turns)):
-            pose = ctl.phi_ugv(self.s, pose, ctl.UgvTurn(1 if turns > 0 else -1))
-        n = round(a.distance_m / (self.env.resolution * math.hypot(*DIRS[pose.heading])))
-        for _ in range(n):
-            nxt = ctl.phi_ugv(self.s, pose, ctl.UgvForward())
-            if nxt is None:
-                self.ugv = pose
-                return f"UGV blocked at {_fmt(self.ugv_xyh())}", 0.0
-            pose = nxt
-        self.ugv = pose
-        return "", abs(a.turn_deg) / m.ugv_turn_rate + a.distance_m / m.ugv_speed
 
 
 def _fmt(v: tuple[float, ...]) -> str:
