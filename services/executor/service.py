@@ -8,7 +8,8 @@ vehicle taken over mid-mission resumes from the last state its previous owner pu
 
 Inputs: `vehicle/*/plan`, `vehicle/*/pose`, `vehicle/*/telemetry`, `vehicle/*/state` (for
 take-over), `mission/*/start`, `mission/*/abort`. Outputs for owned vehicles: `vehicle/<vid>/cmd`
-at the control rate, `vehicle/<vid>/state` at the state rate, `vehicle/<vid>/event` on faults.
+at the control rate, `vehicle/<vid>/state` at the state rate, `vehicle/<vid>/event` on faults
+(team plans of ground-air teams, paper 002: `services/executor/team.py`).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from common.messages import (
 from common.ownership import owner_of
 from common.service import Service
 from common.svcargs import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
+from services.executor.team import TeamExecutor
 from services.executor.vehicle_controller import VehicleController
 
 log = logging.getLogger(__name__)
@@ -69,6 +71,7 @@ class LoopStats:
 class ExecutorService(Service):
     def __init__(self, instance: str, *args, rate_hz: float = 100.0, state_hz: float = 20.0, **kwargs) -> None:
         super().__init__("executor", instance, *args, **kwargs)
+        self.team = TeamExecutor(self)
         self.period = 1.0 / rate_hz
         self.state_every = max(1, round(rate_hz / state_hz))
         self.plans: dict[str, VehiclePlan] = {}
@@ -92,6 +95,7 @@ class ExecutorService(Service):
         self.subscribe(k.all_vehicles("state"), VehicleState, self._on_state, maxlen=4096)
         self.subscribe(k.all_missions("start"), MissionStart, self._on_start)
         self.subscribe(k.all_missions("abort"), MissionAbort, self._on_abort)
+        self.team.open()
         alive = await self.watch_alive("executor", lambda _i, _a, live: self._reassign(live))
         self._reassign(alive.instances)
         await self._control_loop()
@@ -113,6 +117,7 @@ class ExecutorService(Service):
             elif not mine and vid in self.controllers:
                 log.info("%s: vehicle %s passes to %s", self.instance, vid, owner_of(vid, self.live))
                 del self.controllers[vid]
+        self.team.reassign(self.live)
 
     def _take(self, vid: str) -> None:
         plan = self.plans[vid]
@@ -153,6 +158,7 @@ class ExecutorService(Service):
         if self.starts.get(start.mission) == start.t0:
             return
         self.starts[start.mission] = start.t0
+        self.team.on_start(start)
         for vid, ctl in self.controllers.items():
             if self.plans[vid].mission == start.mission:
                 ctl.start(start.t0)
@@ -161,6 +167,7 @@ class ExecutorService(Service):
         if abort.mission in self.aborts:
             return
         self.aborts[abort.mission] = abort.reason
+        self.team.on_abort(abort)
         for vid, ctl in self.controllers.items():
             if self.plans[vid].mission == abort.mission:
                 ctl.abort(abort.reason)
@@ -176,6 +183,7 @@ class ExecutorService(Service):
             ctl.on_telemetry(tel, time.time())
 
     def _on_state(self, state: VehicleState, _key: str) -> None:
+        self.team.on_state(state)
         if state.owner != self.instance:
             self.last_state[state.vid] = state
 

@@ -22,7 +22,7 @@ PLANNERS: dict[str, str] = {
 
 def get_planner(name: str) -> PlannerFn:
     if name not in PLANNERS:
-        raise InputError("planner", "", f"unknown planner {name!r} (choose from {', '.join(PLANNERS)})")
+        raise InputError("planner", "", f"unknown planner {name!r} (choose from {', '.join(PLANNERS)}; collab for ground-air teams)")
     module, fn = PLANNERS[name].split(":")
     return getattr(import_module(module), fn)
 

@@ -1,7 +1,8 @@
 """The planner service: a zenoh queryable `planner/plan` (paper 000 Fig. 4: map + scenario ->
 planner -> paths). A request names a map, tasks, a planner, mu and a time limit; the reply is a
 validated plan or a clear error. With a mission id it also publishes each vehicle's plan on
-`vehicle/<vid>/plan`."""
+`vehicle/<vid>/plan`. Planner "collab" plans for a ground-air team (paper 002, `services/planner/collab/
+request.py`): the reply carries a team plan, published to both robots on `vehicle/<vid>/team_plan`."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from common.messages import PlanReply, PlanRequest
 from common.service import Service
 from common.svcargs import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
 from common.vehicleplan import PlanPublisher, vehicle_plans
+from services.planner.collab.request import TeamPlanPublisher, robot_plans
 
 log = logging.getLogger(__name__)
 
@@ -28,6 +30,10 @@ def solve(req: PlanRequest) -> PlanReply:
         return PlanReply(ok=False, error=f"mu must be in [0, 1], got {req.mu}")
     if req.time_limit <= 0:
         return PlanReply(ok=False, error="time_limit must be positive")
+    if req.planner == "collab":
+        from services.planner.collab.request import solve_team
+
+        return solve_team(req)
     try:
         problem = problem_from_request(req.map, req.tasks, req.planner)
         plan, result = run_planner(problem, req.planner, req.mu, req.time_limit, req.seed)
@@ -47,9 +53,11 @@ class PlannerService(Service):
         super().__init__(*args, **kwargs)
         self._lock = asyncio.Lock()
         self._plans: PlanPublisher | None = None
+        self._team_plans: TeamPlanPublisher | None = None
 
     async def main(self) -> None:
         self._plans = PlanPublisher(self)
+        self._team_plans = TeamPlanPublisher(self)
         self.serve(self.keys.planner_plan, PlanRequest, PlanReply, self.handle)
         await self.stopped()
 
@@ -60,6 +68,8 @@ class PlannerService(Service):
         self.counters.inc("plans_ok" if reply.ok else "plans_failed")
         if reply.ok and req.mission and reply.plan is not None and self._plans is not None:
             self._plans.put(vehicle_plans(reply.plan, req.mission))
+        if reply.ok and req.mission and reply.team_plan is not None and req.team and self._team_plans is not None:
+            self._team_plans.put(robot_plans(reply.team_plan, req.team, req.mission))
         return reply
 
 

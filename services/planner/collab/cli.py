@@ -1,4 +1,5 @@
-"""`fleet collab ...`: plan, simulate and benchmark ground-air team plans (paper 002)."""
+"""`fleet collab ...`: plan, simulate and benchmark ground-air team plans (paper 002), run the
+simulated team as a service, and run team missions through the executors."""
 
 from __future__ import annotations
 
@@ -7,6 +8,10 @@ import sys
 from pathlib import Path
 
 from common.errors import InputError
+from common.svcargs import add_zenoh_args
+
+# The demo room's problem (maps/collab/demo-room.yaml): the drone needs the UGV to reach the goal.
+ROOM_MAP, ROOM_START, ROOM_UGV, ROOM_GOAL = "demo-room", "1.25,1.25,1", "0.75,1.25,0", "5.75,3.75,2"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,6 +38,34 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--map", help="default: the plan's map")
     p.set_defaults(handler=cmd_simulate)
 
+    p = csub.add_parser("sim", help="run a simulated ground-air team: executes the actions executors send")
+    p.add_argument("--map", default=ROOM_MAP, help="the world (a map name or file, as for plan)")
+    p.add_argument("--start", default=ROOM_START, help="drone start x,y,z in metres")
+    p.add_argument("--ugv", default=ROOM_UGV, help="UGV start x,y,heading_deg")
+    _team_ids(p)
+    p.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per real second")
+    p.add_argument("--truth-rate", type=float, default=10.0, help="ground truth publication rate (Hz)")
+    add_zenoh_args(p, default_instance="collab-sim")
+    p.set_defaults(handler=cmd_sim)
+
+    p = csub.add_parser("mission", help="plan a team mission, run it through the executors, print a summary")
+    p.add_argument("--map", default=ROOM_MAP)
+    p.add_argument("--start", default=ROOM_START, help="drone start x,y,z in metres")
+    p.add_argument("--ugv", default=ROOM_UGV, help="UGV start x,y,heading_deg")
+    p.add_argument("--goal", default=ROOM_GOAL, help="drone goal x,y,z")
+    _team_ids(p)
+    p.add_argument("--planner", choices=["pad", "arastar"], default="pad")
+    p.add_argument("--time-limit", type=float, default=30.0, help="seconds to the first solution")
+    p.add_argument("--improve", type=float, default=1.0, help="seconds to improve after it")
+    p.add_argument("--id", help="mission id (default: random)")
+    p.add_argument("--local", action="store_true",
+                   help="bring up a router, the planner, executors and the simulated team here first")
+    p.add_argument("--executors", type=int, default=2, help="with --local: how many executors")
+    p.add_argument("--time-scale", type=float, default=10.0, help="with --local: simulated seconds per real second")
+    p.add_argument("--run-dir", default="out/collab-mission", help="with --local: process state and logs")
+    add_zenoh_args(p, default_instance="mission")
+    p.set_defaults(handler=cmd_mission)
+
     p = csub.add_parser("bench", help="PAD vs full-dimensional ARA* on the two office maps (002 Tables I-II)")
     p.add_argument("--instances", type=int, default=50)
     p.add_argument("--time-limit", type=float, default=10.0)
@@ -42,11 +75,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=cmd_bench)
 
 
-def _floats(text: str, what: str) -> tuple[float, float, float]:
+def _team_ids(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--drone-id", default="drone1", help="the drone's vehicle id")
+    p.add_argument("--ugv-id", default="ugv1", help="the UGV's vehicle id")
+
+
+def floats(text: str, what: str, source: str = "fleet collab plan") -> tuple[float, float, float]:
+    """'x,y,z' -> three floats; an InputError naming the option otherwise."""
     try:
         x, y, z = (float(v) for v in text.split(","))
     except ValueError:
-        raise InputError("fleet collab plan", what, f"expected three comma-separated numbers, got {text!r}") from None
+        raise InputError(source, what, f"expected three comma-separated numbers, got {text!r}") from None
     return x, y, z
 
 
@@ -58,7 +97,7 @@ def _problem(args: argparse.Namespace, planner):
         return sample_problem(planner, args.seed)
     if not all(given):
         raise InputError("fleet collab plan", "--start/--ugv/--goal", "give all three or none")
-    return planner.problem_at(_floats(args.start, "--start"), _floats(args.ugv, "--ugv"), _floats(args.goal, "--goal"),
+    return planner.problem_at(floats(args.start, "--start"), floats(args.ugv, "--ugv"), floats(args.goal, "--goal"),
                               "fleet collab plan")
 
 
@@ -133,6 +172,61 @@ def _simulate(sensing, plan) -> int:
     status = "drone reached the goal" if report.reached_goal else f"FAILED: {report.failure or 'goal not reached'}"
     print(f"simulation: {status}; makespan {report.makespan_s:.1f} s")
     return 0 if report.reached_goal else 1
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    from common.svcargs import keys_from_args, run_service, zconfig_from_args
+    from services.planner.collab.maps import load_env
+    from services.planner.collab.planner import TeamPlanner
+    from services.planner.collab.sim import TeamWorld
+    from services.planner.collab.simservice import CollabSimService
+
+    if args.time_scale <= 0 or args.truth_rate <= 0:
+        raise InputError("fleet collab sim", "--time-scale/--truth-rate", "must be positive")
+    start, ugv = floats(args.start, "--start", "fleet collab sim"), floats(args.ugv, "--ugv", "fleet collab sim")
+    planner = TeamPlanner(load_env(args.map))
+    planner.problem_at(start, ugv, start, "fleet collab sim")  # checks that both robots may stand there
+    world = TeamWorld(planner.sensing, start, ugv)
+    svc = CollabSimService(args.instance, zconfig_from_args(args), keys_from_args(args), world,
+                           {"drone": args.drone_id, "ugv": args.ugv_id}, args.time_scale, args.truth_rate)
+    return run_service(svc)
+
+
+def cmd_mission(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from common.messages import TeamTask
+    from common.svcargs import keys_from_args, zconfig_from_args
+    from services.planner.collab.local import local_team
+    from services.planner.collab.mission import TeamMission, TeamMissionSpec
+
+    source = "fleet collab mission"
+    if args.executors < 1 or args.time_scale <= 0:
+        raise InputError(source, "--executors/--time-scale", "must be positive")
+    team = TeamTask(drone=args.drone_id, ugv=args.ugv_id, drone_start=floats(args.start, "--start", source),
+                    ugv_start=floats(args.ugv, "--ugv", source), goal=floats(args.goal, "--goal", source),
+                    method=args.planner, improve_s=args.improve)
+    spec = TeamMissionSpec(map=args.map, team=team, time_limit=args.time_limit, **({"mission": args.id} if args.id else {}))
+
+    def run(zconfig, keys) -> TeamMission:
+        mission = TeamMission(spec, zconfig, keys)
+        asyncio.run(mission.run())
+        return mission
+
+    if args.local:
+        try:
+            with local_team(args.map, team, Path(args.run_dir), args.executors, args.time_scale) as (zconfig, keys):
+                mission = run(zconfig, keys)
+        except RuntimeError as exc:
+            print(f"{source}: {exc}", file=sys.stderr)
+            return 1
+    else:
+        mission = run(zconfig_from_args(args), keys_from_args(args))
+    if mission.result is None:
+        print(f"{source}: could not run (no router reachable?)", file=sys.stderr)
+        return 1
+    print(mission.result.summary())
+    return 0 if mission.result.ok else 1
 
 
 def cmd_bench(args: argparse.Namespace) -> int:

@@ -45,16 +45,14 @@ class TeamWorld:
         self.ugv = ctl.UgvPose(*self.env.cell_of(ux, uy), round(heading / 45.0) % 8)
 
     def xyz(self, robot: tp.Robot) -> tp.Vec3:
-        if robot == "drone":
-            return (*self.env.center(self.drone.row, self.drone.col), self.env.z_levels[self.drone.level])
-        return (*self.env.center(self.ugv.row, self.ugv.col), 45.0 * self.ugv.heading)
+        return self.metres(self.drone if robot == "drone" else self.ugv)
 
     def outcome(self, robot: tp.Robot, step: tp.Step) -> Outcome:
         """Run `robot`'s action from the current poses without moving anything; a result that ends
         more than half a cell from the step's `end` is a failure."""
         out = self._drone(step) if robot == "drone" else self._ugv(step)
         if out.ok:
-            pose = self._metres(out.pose)
+            pose = self.metres(out.pose)
             if math.dist(pose[:2], step.end[:2]) > self.env.resolution / 2:
                 return Outcome(out.pose, out.duration_s, f"ended at {_fmt(pose)}, expected {_fmt(step.end)}")
         return out
@@ -68,7 +66,8 @@ class TeamWorld:
             assert isinstance(out.pose, ctl.UgvPose)
             self.ugv = out.pose
 
-    def _metres(self, pose: ctl.DronePose | ctl.UgvPose) -> tp.Vec3:
+    def metres(self, pose: ctl.DronePose | ctl.UgvPose) -> tp.Vec3:
+        """A lattice pose in metres: drone (x, y, z), UGV (x, y, heading_deg)."""
         x, y = self.env.center(pose.row, pose.col)
         return (x, y, self.env.z_levels[pose.level] if isinstance(pose, ctl.DronePose) else 45.0 * pose.heading)
 
@@ -115,7 +114,7 @@ class TeamWorld:
         for _ in range(n):
             nxt = ctl.phi_ugv(self.s, pose, ctl.UgvForward())
             if nxt is None:
-                return Outcome(pose, 0.0, f"UGV blocked at {_fmt(self._metres(pose))}")
+                return Outcome(pose, 0.0, f"UGV blocked at {_fmt(self.metres(pose))}")
             pose = nxt
         return Outcome(pose, abs(a.turn_deg) / m.ugv_turn_rate + a.distance_m / m.ugv_speed)
 

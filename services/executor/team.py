@@ -1,0 +1,283 @@
+"""Team plans on the executor (paper 002 §IV-E: plan execution with synchronisation points).
+
+An executor that owns a robot of a team plan (`vehicle/<vid>/team_plan`; the same rendezvous
+ownership as flying cars) runs that robot's steps in order, from the mission's start time on. A
+step with `wait_for = n` starts only once the partner robot has completed n steps: the partner's
+progress is its `VehicleState.step`, published by whichever executor owns it (this one or
+another). The step goes to the robot as a `TeamAction` on `vehicle/<vid>/action`, re-sent every
+`RESEND_S` until the robot reports it done or failed on `vehicle/<vid>/action_status`; every
+change of progress is published at once as a `VehicleState` (step = steps done, mode), and again
+every `HEARTBEAT_S`. A failed action stops the robot's sequence with a `VehicleEvent`
+("action_failed"). A robot taken over from a dead executor resumes at the step its last state
+named: robots run each (mission, index) once, so re-sending the step in flight is safe.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+from typing import Any
+
+from common.bus import Publisher
+from common.messages import (
+    ActionStatus,
+    MissionAbort,
+    MissionStart,
+    TeamAction,
+    VehicleEvent,
+    VehicleState,
+    VehicleTeamPlan,
+)
+from common.ownership import owner_of
+from common.service import Service
+from common.teamplan import PlanProgress, Vec3, action_name
+
+log = logging.getLogger(__name__)
+
+RESEND_S = 0.5
+"""An unanswered or unfinished action is sent again this often (zenoh keeps no history)."""
+HEARTBEAT_S = 0.5
+"""A team robot's state is re-published this often without changes (late joiners, take-over)."""
+TICK_S = 0.05
+"""Period of the timer that starts sequences at their start time, re-sends and heartbeats."""
+
+
+class TeamRobot:
+    """One robot's side of a team plan on the executor that owns it; no I/O (TeamExecutor does it).
+
+    Modes: `loaded` (not started), `waiting` (at a sync point), `acting` (an action is with the
+    robot), `done`, `failed`, `aborted`.
+    """
+
+    def __init__(self, assignment: VehicleTeamPlan, owner: str, resume: VehicleState | None = None) -> None:
+        self.a = assignment
+        self.owner = owner
+        self.robot = assignment.robot
+        self.progress = PlanProgress(assignment.plan)
+        self.steps = self.progress.steps[self.robot]
+        plan = assignment.plan
+        self.pose: Vec3 = plan.drone_start if self.robot == "drone" else plan.ugv_start
+        self.t0: float | None = None
+        self.inflight: int | None = None
+        self.sent_at = -math.inf
+        self.failure = ""
+        self.aborted = ""
+        if resume is not None:
+            self.progress.observe(self.robot, resume.step)
+            self.pose = _pose_of(resume, self.robot)
+            if resume.mode == "failed":
+                self.failure = f"failed under {resume.owner}"
+
+    @property
+    def done(self) -> int:
+        return self.progress.done[self.robot]
+
+    @property
+    def finished(self) -> bool:
+        return self.progress.next_step(self.robot) is None
+
+    @property
+    def mode(self) -> str:
+        if self.failure:
+            return "failed"
+        if self.aborted:
+            return "aborted"
+        if self.finished:
+            return "done"
+        if self.t0 is None:
+            return "loaded"
+        return "acting" if self.inflight is not None else "waiting"
+
+    def start(self, t0: float) -> None:
+        self.t0 = t0
+
+    def abort(self, reason: str) -> None:
+        if not (self.finished or self.failure):
+            self.aborted = reason
+
+    def partner_progress(self, done: int) -> bool:
+        """The partner has completed `done` steps; True if that is news."""
+        return self.progress.observe(PlanProgress.other(self.robot), done)
+
+    def action(self, now: float) -> TeamAction | None:
+        """The action to send now: the next step once the mission has started and its sync point is
+        met, then the same again every RESEND_S until the robot reports it done or failed."""
+        if self.failure or self.aborted or self.t0 is None or now < self.t0:
+            return None
+        if self.inflight is None:
+            if not self.progress.can_start(self.robot):
+                return None
+            self.inflight, self.sent_at = self.done, -math.inf
+        if now - self.sent_at < RESEND_S:
+            return None
+        self.sent_at = now
+        return TeamAction(vid=self.a.vid, owner=self.owner, mission=self.a.mission, index=self.inflight,
+                          step=self.steps[self.inflight], t=now)
+
+    def on_status(self, status: ActionStatus) -> bool:
+        """The robot's report on its current step (also one a previous owner sent); True if the
+        robot's progress or mode changed."""
+        if status.mission != self.a.mission or status.index != self.done or self.failure or status.status == "started":
+            return False
+        self.pose = status.pose
+        self.inflight = None
+        if status.status == "failed":
+            self.failure = f"step {status.index} ({action_name(self.steps[status.index])}): {status.detail}"
+        else:
+            self.progress.complete(self.robot)
+        return True
+
+    def state(self, now: float) -> VehicleState:
+        """Progress for the partner's executor and the mission: step = steps done; the pose the robot
+        reported last; tracking error = its distance from where the plan put it."""
+        x, y, third = self.pose
+        planned = self.steps[self.done - 1].end if self.done else self.pose
+        drone = self.robot == "drone"
+        return VehicleState(
+            vid=self.a.vid, t=now, owner=self.owner, mode=self.mode, x=x, y=y, z=third if drone else 0.0,
+            yaw=0.0 if drone else math.radians(third), mission=self.a.mission, step=self.done, steps=len(self.steps),
+            tracking_error=math.dist(self.pose[:2], planned[:2]), arrived=self.finished and not self.failure)
+
+
+def _pose_of(state: VehicleState, robot: str) -> Vec3:
+    """A team robot's pose from its VehicleState (the inverse of `TeamRobot.state`)."""
+    return (state.x, state.y, state.z) if robot == "drone" else (state.x, state.y, math.degrees(state.yaw))
+
+
+class TeamExecutor:
+    """The team-plan side of an executor service: holds the team plans it hears of, runs the robots
+    it owns, and publishes their actions, states and failures. The service calls `open()` from its
+    main and forwards ownership changes, states, mission starts and aborts."""
+
+    def __init__(self, service: Service) -> None:
+        self.svc = service
+        self.plans: dict[str, VehicleTeamPlan] = {}
+        self.robots: dict[str, TeamRobot] = {}
+        self.live: frozenset[str] = frozenset({service.instance})
+        self.progress: dict[tuple[str, str], int] = {}
+        """(mission, vid) -> steps done, from every team robot's state."""
+        self.others: dict[str, VehicleState] = {}
+        """The last state another executor published per vehicle (for take-over)."""
+        self.starts: dict[str, float] = {}
+        self.aborts: dict[str, str] = {}
+        self._pubs: dict[tuple[str, str], Publisher[Any]] = {}
+        self._stated: dict[str, tuple[float, str, int]] = {}
+        """vid -> (time, mode, steps done) of its last published state."""
+
+    def open(self) -> None:
+        k = self.svc.keys
+        self.svc.subscribe(k.all_vehicles("team_plan"), VehicleTeamPlan, self._on_plan)
+        self.svc.subscribe(k.all_vehicles("action_status"), ActionStatus, self._on_status)
+        self.svc.spawn(self._timer(), name="team timer")
+
+    # ---- hooks of the executor service --------------------------------------------------------
+    def reassign(self, live: frozenset[str]) -> None:
+        """Take the team robots that hash to this executor, release the others."""
+        self.live = live
+        for vid in self.plans:
+            mine = owner_of(vid, live) == self.svc.instance
+            if mine and vid not in self.robots:
+                self._take(vid)
+            elif not mine and vid in self.robots:
+                log.info("%s: team robot %s passes to %s", self.svc.instance, vid, owner_of(vid, live))
+                del self.robots[vid]
+
+    def on_state(self, state: VehicleState) -> None:
+        if state.owner != self.svc.instance:
+            self.others[state.vid] = state
+        if state.mission:
+            self._progressed(state.mission, state.vid, state.step)
+
+    def on_start(self, start: MissionStart) -> None:
+        self.starts[start.mission] = start.t0
+        for vid, robot in self.robots.items():
+            if robot.a.mission == start.mission and robot.t0 is None:
+                robot.start(start.t0)
+                self._advance(vid)
+
+    def on_abort(self, abort: MissionAbort) -> None:
+        self.aborts[abort.mission] = abort.reason
+        for vid, robot in self.robots.items():
+            if robot.a.mission == abort.mission:
+                robot.abort(abort.reason)
+                self._advance(vid)
+
+    # ---- inputs ---------------------------------------------------------------------------------
+    def _on_plan(self, a: VehicleTeamPlan, _key: str) -> None:
+        robot = self.robots.get(a.vid)
+        if robot is not None and robot.a.mission == a.mission:
+            if a.t0 and robot.t0 is None:
+                robot.start(a.t0)
+                self._advance(a.vid)
+            return
+        if robot is not None and robot.mode == "acting":
+            return  # a new mission waits until the robot has finished its action (the mission re-sends)
+        self.plans[a.vid] = a
+        if owner_of(a.vid, self.live) == self.svc.instance:
+            self._take(a.vid)
+
+    def _on_status(self, status: ActionStatus, _key: str) -> None:
+        robot = self.robots.get(status.vid)
+        if robot is None or not robot.on_status(status):
+            return
+        if robot.failure:
+            log.warning("%s: team robot %s failed: %s", self.svc.instance, status.vid, robot.failure)
+            self._pub(status.vid, "event", VehicleEvent).put(
+                VehicleEvent(vid=status.vid, t=time.time(), kind="action_failed", detail=robot.failure))
+        self._advance(status.vid)
+
+    # ---- running --------------------------------------------------------------------------------
+    def _take(self, vid: str) -> None:
+        a = self.plans[vid]
+        prev = self.others.get(vid)
+        resume = prev if prev is not None and prev.mission == a.mission else None
+        if resume is not None:
+            log.warning("%s: took over team robot %s from %s at step %d", self.svc.instance, vid, prev.owner, prev.step)
+        robot = self.robots[vid] = TeamRobot(a, self.svc.instance, resume)
+        robot.partner_progress(self.progress.get((a.mission, a.partner), 0))
+        t0 = a.t0 or self.starts.get(a.mission)
+        if t0:
+            robot.start(t0)
+        if a.mission in self.aborts:
+            robot.abort(self.aborts[a.mission])
+        self._stated.pop(vid, None)
+        self._advance(vid)
+
+    def _progressed(self, mission: str, vid: str, done: int) -> None:
+        """`vid` has completed `done` steps of `mission`: its partner may go on."""
+        if self.progress.get((mission, vid), -1) >= done:
+            return
+        self.progress[(mission, vid)] = done
+        for other, robot in self.robots.items():
+            if robot.a.partner == vid and robot.a.mission == mission and robot.partner_progress(done):
+                self._advance(other)
+
+    def _advance(self, vid: str) -> None:
+        """Send what is due for robot `vid`; publish its state when its mode or progress changed,
+        or when the heartbeat is due."""
+        robot = self.robots.get(vid)
+        if robot is None:
+            return
+        now = time.time()
+        action = robot.action(now)
+        if action is not None:
+            self._pub(vid, "action", TeamAction).put(action)
+        last = self._stated.get(vid)
+        if last is None or last[1:] != (robot.mode, robot.done) or now - last[0] >= HEARTBEAT_S:
+            self._stated[vid] = (now, robot.mode, robot.done)
+            self._pub(vid, "state", VehicleState).put(robot.state(now))
+            self._progressed(robot.a.mission, vid, robot.done)
+
+    async def _timer(self) -> None:
+        while True:
+            for vid in list(self.robots):
+                self._advance(vid)
+            await asyncio.sleep(TICK_S)
+
+    def _pub(self, vid: str, topic: Any, typ: type) -> Publisher[Any]:
+        pub = self._pubs.get((vid, topic))
+        if pub is None:
+            pub = self._pubs[(vid, topic)] = self.svc.publisher(self.svc.keys.vehicle(vid, topic), typ)
+        return pub
