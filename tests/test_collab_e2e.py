@@ -136,7 +136,7 @@ def test_a_robot_whose_executor_dies_is_taken_over_mid_action(zenoh_router: str)
         killed_at["log"] = len(obs.log)
         execs[ugv_exec].stop()
 
-    result, obs = asyncio.run(run_team(zenoh_router, (drone_exec, ugv_exec), time_scale=4.0,
+    result, obs = asyncio.run(run_team(zenoh_router, (drone_exec, ugv_exec), time_scale=6.0,
                                        during=kill_ugv_executor_mid_action))
     assert result.ok, result.summary()
     assert result.robots[UGV].owner == drone_exec and result.robots[UGV].done == len(result.plan.ugv)

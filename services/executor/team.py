@@ -52,7 +52,7 @@ class TeamRobot:
     """
 
     def __init__(self, assignment: VehicleTeamPlan, owner: str, resume: VehicleState | None = None) -> None:
-        self.a = assignment
+        self.assignment = assignment
         self.owner = owner
         self.robot = assignment.robot
         self.progress = PlanProgress(assignment.plan)
@@ -113,13 +113,13 @@ class TeamRobot:
         if now - self.sent_at < RESEND_S:
             return None
         self.sent_at = now
-        return TeamAction(vid=self.a.vid, owner=self.owner, mission=self.a.mission, index=self.inflight,
+        return TeamAction(vid=self.assignment.vid, owner=self.owner, mission=self.assignment.mission, index=self.inflight,
                           step=self.steps[self.inflight], t=now)
 
     def on_status(self, status: ActionStatus) -> bool:
         """The robot's report on its current step (also one a previous owner sent); True if the
         robot's progress or mode changed."""
-        if status.mission != self.a.mission or status.index != self.done or self.failure or status.status == "started":
+        if status.mission != self.assignment.mission or status.index != self.done or self.failure or status.status == "started":
             return False
         self.pose = status.pose
         self.inflight = None
@@ -136,8 +136,8 @@ class TeamRobot:
         planned = self.steps[self.done - 1].end if self.done else self.pose
         drone = self.robot == "drone"
         return VehicleState(
-            vid=self.a.vid, t=now, owner=self.owner, mode=self.mode, x=x, y=y, z=third if drone else 0.0,
-            yaw=0.0 if drone else math.radians(third), mission=self.a.mission, step=self.done, steps=len(self.steps),
+            vid=self.assignment.vid, t=now, owner=self.owner, mode=self.mode, x=x, y=y, z=third if drone else 0.0,
+            yaw=0.0 if drone else math.radians(third), mission=self.assignment.mission, step=self.done, steps=len(self.steps),
             tracking_error=math.dist(self.pose[:2], planned[:2]), arrived=self.finished and not self.failure)
 
 
@@ -187,27 +187,27 @@ class TeamExecutor:
     def on_state(self, state: VehicleState) -> None:
         if state.owner != self.svc.instance:
             self.others[state.vid] = state
-        if state.mission:
+        if state.mission and state.vid in self.plans:
             self._progressed(state.mission, state.vid, state.step)
 
     def on_start(self, start: MissionStart) -> None:
         self.starts[start.mission] = start.t0
         for vid, robot in self.robots.items():
-            if robot.a.mission == start.mission and robot.t0 is None:
+            if robot.assignment.mission == start.mission and robot.t0 is None:
                 robot.start(start.t0)
                 self._advance(vid)
 
     def on_abort(self, abort: MissionAbort) -> None:
         self.aborts[abort.mission] = abort.reason
         for vid, robot in self.robots.items():
-            if robot.a.mission == abort.mission:
+            if robot.assignment.mission == abort.mission:
                 robot.abort(abort.reason)
                 self._advance(vid)
 
     # ---- inputs ---------------------------------------------------------------------------------
     def _on_plan(self, a: VehicleTeamPlan, _key: str) -> None:
         robot = self.robots.get(a.vid)
-        if robot is not None and robot.a.mission == a.mission:
+        if robot is not None and robot.assignment.mission == a.mission:
             if a.t0 and robot.t0 is None:
                 robot.start(a.t0)
                 self._advance(a.vid)
@@ -251,7 +251,7 @@ class TeamExecutor:
             return
         self.progress[(mission, vid)] = done
         for other, robot in self.robots.items():
-            if robot.a.partner == vid and robot.a.mission == mission and robot.partner_progress(done):
+            if robot.assignment.partner == vid and robot.assignment.mission == mission and robot.partner_progress(done):
                 self._advance(other)
 
     def _advance(self, vid: str) -> None:
@@ -268,7 +268,7 @@ class TeamExecutor:
         if last is None or last[1:] != (robot.mode, robot.done) or now - last[0] >= HEARTBEAT_S:
             self._stated[vid] = (now, robot.mode, robot.done)
             self._pub(vid, "state", VehicleState).put(robot.state(now))
-            self._progressed(robot.a.mission, vid, robot.done)
+            self._progressed(robot.assignment.mission, vid, robot.done)
 
     async def _timer(self) -> None:
         while True:

@@ -8,7 +8,8 @@ An action takes its simulated duration divided by `time_scale` in real time; the
 `started`, then `done` or `failed` with its pose, on `vehicle/<vid>/action_status`. Its outcome is
 decided from the world as the action starts and the robot moves when it ends: a drone that flies to
 a UGV still on its way sees it where it was. Each robot runs one action at a time and each
-(mission, index) once; a repeated action is answered with its status. Ground truth
+(mission, index) once; a repeated action is answered with its status (also an earlier one: an
+executor that takes a robot over without its last state replays the finished steps). Ground truth
 (`sim/truth/<vid>`) for both robots at `truth_hz`, moving linearly during an action.
 """
 
@@ -53,6 +54,8 @@ class CollabSimService(Service):
         self.time_scale = time_scale
         self.truth_period = 1.0 / truth_hz
         self.runs: dict[str, _Run] = {}
+        self.finished: dict[tuple[str, str, int], ActionStatus] = {}
+        """(vid, mission, index) -> how the action ended."""
         self._status: dict[str, Publisher[ActionStatus]] = {}
         self._truth: dict[str, Publisher[SimTruth]] = {}
 
@@ -72,9 +75,9 @@ class CollabSimService(Service):
         if robot is None:
             return
         run = self.runs.get(action.vid)
-        if run is not None and run.mission == action.mission and action.index <= run.index:
-            if action.index == run.index:
-                self._status[action.vid].put(run.status)
+        ended = self.finished.get((action.vid, action.mission, action.index))
+        if ended is not None or (run is not None and (run.mission, run.index) == (action.mission, action.index)):
+            self._status[action.vid].put(ended or run.status)  # a repeat: its status
             return
         if run is not None and run.status.status == "started":
             self.counters.inc(f"busy:{action.vid}")  # one action at a time: the sender asks again
@@ -95,6 +98,7 @@ class CollabSimService(Service):
         run.status = ActionStatus(vid=vid, mission=run.mission, index=run.index,
                                   status="done" if run.outcome.ok else "failed", pose=self.world.xyz(robot),
                                   t=time.time(), detail=run.outcome.detail)
+        self.finished[(vid, run.mission, run.index)] = run.status
         self._status[vid].put(run.status)
 
     def _truth_of(self, vid: str, robot: Robot, now: float) -> SimTruth:
