@@ -7,6 +7,7 @@ unreachable parking) live in `services.planner.graph`.
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
@@ -19,6 +20,9 @@ from common.model import VehicleModel
 MAPS_DIR = Path(__file__).resolve().parent.parent / "maps"
 
 _Strict = {"frozen": True, "forbid_unknown_fields": True}
+
+MAX_AIR_NODES = 10_000
+"""Most air grid points a map may ask for (the shipped maps have at most 722): a finer grid is a typo."""
 
 
 class RoadNode(msgspec.Struct, **_Strict):
@@ -131,9 +135,11 @@ def resolve_map_path(name_or_path: str | Path) -> Path:
 
 def read_text(path: Path) -> str:
     try:
-        return path.read_text()
+        return path.read_text(encoding="utf-8")
     except OSError as exc:
         raise InputError(str(path), "", f"cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(str(path), f"byte {exc.start}", "not UTF-8 text") from None
 
 
 def load_map(name_or_path: str | Path) -> MapSpec:
@@ -144,8 +150,17 @@ def load_map(name_or_path: str | Path) -> MapSpec:
     return spec
 
 
+def _check_finite(value: object, field: str, source: str) -> None:
+    if isinstance(value, float) and not math.isfinite(value):
+        raise InputError(source, field, "must be a finite number")
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list | tuple) else ()
+    for key, item in items:
+        _check_finite(item, f"{field}[{key}]" if isinstance(key, int) else f"{field}.{key}".lstrip("."), source)
+
+
 def check_references(spec: MapSpec, source: str) -> None:
     """Edges and spots must name existing road nodes; ids must be unique; numbers must make sense."""
+    _check_finite(msgspec.to_builtins(spec), "", source)
     road = spec.roads.nodes
     for field in ("two_way", "one_way"):
         for i, (u, v) in enumerate(getattr(spec.roads, field)):
@@ -173,6 +188,9 @@ def check_references(spec: MapSpec, source: str) -> None:
             raise InputError(source, "air.layers", "needs at least one layer, every height above 0")
         if sorted(spec.air.layers) != list(spec.air.layers) or len(set(spec.air.layers)) != len(spec.air.layers):
             raise InputError(source, "air.layers", "heights must be strictly increasing")
+        points = len(spec.air.layers) * math.prod(math.floor(d / spec.air.spacing) + 1 for d in (xmax - xmin, ymax - ymin))
+        if points > MAX_AIR_NODES:
+            raise InputError(source, "air.spacing", f"{points} air grid points (at most {MAX_AIR_NODES}): too fine for the bounds")
     for i, zone in enumerate(spec.no_fly):
         if len(zone.polygon) < 3:
             raise InputError(source, f"no_fly[{i}].polygon", "needs at least 3 corners")
