@@ -21,6 +21,7 @@ import msgspec
 
 from common.credentials import ensure_credentials
 from common.errors import InputError
+from common.keys import check_chunk
 from common.mapfile import decode_yaml, read_text
 
 LOCAL_HOSTS = {"ROUTER_HOST": "127.0.0.1", "SIM_HOST": "127.0.0.1"}
@@ -116,14 +117,26 @@ def load_compose(path: str | Path, overrides: dict[str, str] | None = None,
         if argv is None:
             raise InputError(source, f"services.{name}", "needs `command` (or `x-fleet-local` for foreign images)")
         argv = argv.split() if isinstance(argv, str) else list(argv)
-        if isinstance(svc.environment, list):
-            pairs = [item.split("=", 1) for item in svc.environment]
-            service_env = {k: v for k, v in pairs}
-        else:
-            service_env = {k: str(v) for k, v in svc.environment.items()}
+        if not argv:
+            raise InputError(source, f"services.{name}.command", "is empty")
+        try:
+            check_chunk(name, "service name")
+        except ValueError as exc:  # it names the replicas' instances and log files
+            raise InputError(source, f"services.{name}", str(exc)) from None
+        service_env = _environment(svc.environment, source, f"services.{name}.environment")
         if svc.deploy.replicas < 1:
             raise InputError(source, f"services.{name}.deploy.replicas", "must be at least 1")
         for i in range(svc.deploy.replicas):
             instance = name if svc.deploy.replicas == 1 else f"{name}-{i + 1}"
             procs.append(Process(name, instance, local_argv(argv), {**service_env, "FLEET_INSTANCE": instance}))
     return procs
+
+
+def _environment(environment: dict[str, str | int | float] | list[str], source: str, field: str) -> dict[str, str]:
+    """Compose's two forms: a mapping, or a list of VAR=VALUE."""
+    if isinstance(environment, dict):
+        return {k: str(v) for k, v in environment.items()}
+    for item in environment:
+        if "=" not in item:
+            raise InputError(source, field, f"{item!r} is not VAR=VALUE")
+    return dict(item.split("=", 1) for item in environment)
