@@ -65,18 +65,21 @@ class Role:
 
 ROLES: dict[str, Role] = {
     "executor": Role(
-        publish=("vehicle/*/cmd", "vehicle/*/state", "vehicle/*/event"),
-        subscribe=("vehicle/*/plan", "vehicle/*/pose", "vehicle/*/telemetry", "vehicle/*/state",
-                   "mission/*/start", "mission/*/abort"),
+        publish=("vehicle/*/cmd", "vehicle/*/state", "vehicle/*/event", "vehicle/*/action"),
+        subscribe=("vehicle/*/plan", "vehicle/*/team_plan", "vehicle/*/pose", "vehicle/*/telemetry",
+                   "vehicle/*/state", "vehicle/*/action_status", "mission/*/start", "mission/*/abort"),
         watch=("alive/executor/*",)),
-    "planner": Role(publish=("vehicle/*/plan",), serve=("planner/plan",)),
+    "planner": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan"), serve=("planner/plan",)),
     "gateway": Role(publish=("vehicle/*/telemetry", "vehicle/*/event"),
                     subscribe=("vehicle/*/cmd", "vehicle/*/pose"), watch=("alive/executor/*",)),
     "sim": Role(publish=("sim/truth/*", "vehicle/*/event"), subscribe=("sim/fault/*",)),
     "mocap": Role(publish=("vehicle/*/pose", "vehicle/*/event"), subscribe=("sim/truth/*", "sim/fault/*")),
     "telemetry": Role(subscribe=("vehicle/*/plan", "vehicle/*/state", "vehicle/*/telemetry", "sim/truth/*")),
+    # the simulated ground-air team of paper 002 (`fleet collab sim`): runs the executors' actions
+    "collab-sim": Role(publish=("vehicle/*/action_status", "sim/truth/*"), subscribe=("vehicle/*/action",)),
     # the operator: runs missions, watches everything, injects simulator faults; never commands a vehicle
-    "mission": Role(publish=("vehicle/*/plan", "mission/*/start", "mission/*/abort", "sim/fault/*"),
+    "mission": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan", "mission/*/start", "mission/*/abort",
+                             "sim/fault/*"),
                     subscribe=("**",), query=("planner/plan",), watch=("alive/**",)),
 }
 
