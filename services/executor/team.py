@@ -205,18 +205,18 @@ class TeamExecutor:
                 self._advance(vid)
 
     # ---- inputs ---------------------------------------------------------------------------------
-    def _on_plan(self, a: VehicleTeamPlan, _key: str) -> None:
-        robot = self.robots.get(a.vid)
-        if robot is not None and robot.assignment.mission == a.mission:
-            if a.t0 and robot.t0 is None:
-                robot.start(a.t0)
-                self._advance(a.vid)
+    def _on_plan(self, assigned: VehicleTeamPlan, _key: str) -> None:
+        robot = self.robots.get(assigned.vid)
+        if robot is not None and robot.assignment.mission == assigned.mission:
+            if assigned.t0 and robot.t0 is None:
+                robot.start(assigned.t0)
+                self._advance(assigned.vid)
             return
         if robot is not None and robot.mode == "acting":
             return  # a new mission waits until the robot has finished its action (the mission re-sends)
-        self.plans[a.vid] = a
-        if owner_of(a.vid, self.live) == self.svc.instance:
-            self._take(a.vid)
+        self.plans[assigned.vid] = assigned
+        if owner_of(assigned.vid, self.live) == self.svc.instance:
+            self._take(assigned.vid)
 
     def _on_status(self, status: ActionStatus, _key: str) -> None:
         robot = self.robots.get(status.vid)
@@ -230,18 +230,18 @@ class TeamExecutor:
 
     # ---- running --------------------------------------------------------------------------------
     def _take(self, vid: str) -> None:
-        a = self.plans[vid]
+        assigned = self.plans[vid]
         prev = self.others.get(vid)
-        resume = prev if prev is not None and prev.mission == a.mission else None
+        resume = prev if prev is not None and prev.mission == assigned.mission else None
         if resume is not None:
             log.warning("%s: took over team robot %s from %s at step %d", self.svc.instance, vid, prev.owner, prev.step)
-        robot = self.robots[vid] = TeamRobot(a, self.svc.instance, resume)
-        robot.partner_progress(self.progress.get((a.mission, a.partner), 0))
-        t0 = a.t0 or self.starts.get(a.mission)
+        robot = self.robots[vid] = TeamRobot(assigned, self.svc.instance, resume)
+        robot.partner_progress(self.progress.get((assigned.mission, assigned.partner), 0))
+        t0 = assigned.t0 or self.starts.get(assigned.mission)
         if t0:
             robot.start(t0)
-        if a.mission in self.aborts:
-            robot.abort(self.aborts[a.mission])
+        if assigned.mission in self.aborts:
+            robot.abort(self.aborts[assigned.mission])
         self._stated.pop(vid, None)
         self._advance(vid)
 
