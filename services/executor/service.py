@@ -78,6 +78,8 @@ class ExecutorService(Service):
         self.starts: dict[str, float] = {}
         self.aborts: dict[str, str] = {}
         self.last_state: dict[str, VehicleState] = {}
+        self.last_pose: dict[str, Pose] = {}
+        """The latest pose of every vehicle, owned or not: a take-over starts from it."""
         self.controllers: dict[str, VehicleController] = {}
         self.live: frozenset[str] = frozenset()
         self.stats = LoopStats()
@@ -129,6 +131,9 @@ class ExecutorService(Service):
         prev = self.last_state.get(vid)
         if prev is not None and prev.mission == plan.mission and prev.owner != self.instance:
             ctl.take_over(prev, time.time())
+            pose = self.last_pose.get(vid)
+            if pose is not None and pose.t > prev.t:  # after a partition the last state is a lease (~1 s) old
+                ctl.on_pose(pose)
             log.warning("%s: took over %s from %s in mode %s", self.instance, vid, prev.owner, prev.mode)
         if plan.mission in self.aborts:
             ctl.abort(self.aborts[plan.mission])
@@ -173,6 +178,7 @@ class ExecutorService(Service):
                 ctl.abort(abort.reason)
 
     def _on_pose(self, pose: Pose, _key: str) -> None:
+        self.last_pose[pose.vid] = pose
         ctl = self.controllers.get(pose.vid)
         if ctl is not None:
             ctl.on_pose(pose)
