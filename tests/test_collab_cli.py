@@ -46,6 +46,10 @@ def test_plan_with_a_seeded_problem_as_json(capsys):
         (("collab", "plan", *ROOM[:4], "--ugv", "1.25,1.25,zero", *ROOM[6:]), "--ugv"),
         (("collab", "simulate", "/nonexistent/plan.json"), ""),
         (("collab", "bench", "--instances", "0"), "--instances"),
+        (("collab", "sim", "--ugv", "0.25,0.25,0"), "ugv_start"),  # the UGV inside the outer wall
+        (("collab", "sim", "--time-scale", "0"), "--time-scale"),
+        (("collab", "mission", "--goal", "5.75,3.75"), "--goal"),
+        (("collab", "mission", "--local", "--executors", "0"), "--executors"),
     ],
 )
 def test_bad_input_raises_input_error(argv, field):
