@@ -28,7 +28,8 @@ class FaultParams:
     link_timeout_s: telemetry silence meaning a lost link; max_hold_s: longest ground hold before
     giving up the plan; emergency descent: speed (m/s), gain on its error (1/s), acceleration
     limit (m/s^2), and the wait past the predicted touchdown before the motors stop, as a
-    fraction of the predicted descent time plus a margin (s)."""
+    fraction of the predicted descent time plus a margin (s); rest_speed: with poses back, a
+    vertical speed (m/s) below which the vehicle rests (motors may stop)."""
 
     vbat_low: float = 3.3
     vbat_low_s: float = 1.0
@@ -39,6 +40,7 @@ class FaultParams:
     descent_accel: float = 1.0
     descent_slack: float = 1.0
     descent_margin_s: float = 0.3
+    rest_speed: float = 0.05
 
     def descent_accel_cmd(self, vz: float) -> float:
         """Vertical acceleration (m/s^2) steering the dead-reckoned vertical speed to -descent_speed."""

@@ -151,6 +151,14 @@ class VehicleController:
     def mode(self) -> Mode:
         return self.machine.mode
 
+    @property
+    def landing_node(self) -> str | None:
+        """The ground node a fault landing (low battery, lost link, abort) is heading for; None
+        while the vehicle follows its plan (or a planned landing ends the mission)."""
+        if not self._fault_landing or self._active is None or self._active is self.trajectory:
+            return None
+        return self._active.steps[-1].node
+
     def reference(self, now: float) -> RefSample | None:
         """The reference being followed at `now` (the plan's, or a fault landing's); None before
         the mission starts."""
@@ -283,14 +291,17 @@ class VehicleController:
     def _emergency(self, now: float, est: Estimate) -> Setpoint:
         """Level descent on the dead-reckoned state (the estimator integrates the accelerations
         commanded here); the thrust keeps the bias the flight integrators learned. Motors off
-        after the predicted descent time again plus a margin (see `FaultParams`)."""
+        after the predicted descent time again plus a margin (see `FaultParams`), unless poses
+        are back and show the vehicle still descending: the prediction assumed every command
+        arrived, which a lost router or radio makes false (the gateway may have been landing it
+        its own way), so the motors then wait until it rests."""
         faults = self.params.faults
         assert self._descent is not None
         start, cut = self._descent
         if cut is None and est.z <= self._ground_z:  # predicted touchdown
             cut = now + faults.descent_slack * (now - start) + faults.descent_margin_s
             self._descent = (start, cut)
-        if cut is not None and now >= cut:
+        if cut is not None and now >= cut and (est.stale or abs(est.vz) < faults.rest_speed):
             self.machine.request(Mode.DONE, now, "emergency descent complete")
             return StopSetpoint()
         accel = faults.descent_accel_cmd(est.vz)
