@@ -9,7 +9,14 @@ vehicle taken over mid-mission resumes from the last state its previous owner pu
 Inputs: `vehicle/*/plan`, `vehicle/*/pose`, `vehicle/*/telemetry`, `vehicle/*/state` (for
 take-over), `mission/*/start`, `mission/*/abort`. Outputs for owned vehicles: `vehicle/<vid>/cmd`
 at the control rate, `vehicle/<vid>/state` at the state rate, `vehicle/<vid>/event` on faults
-(team plans of ground-air teams, paper 002: `services/executor/team.py`).
+(team plans of ground-air teams, paper 002: `services/executor/team.py`);
+`stats/executor/<instance>`: counters, missed control deadlines, pose-to-command latency.
+
+Losing the router (docs/bus.md) makes every remote token vanish at once: that is not the death of
+the other executors, so ownership stands still until the router is back and the others have had
+time to reconnect (`ROUTER_SETTLE_S`). Meanwhile no command reaches a vehicle, so the gateways land
+the flying ones and stop the others (stale commands): the executor aborts the missions of the
+vehicles it owns rather than resume a plan whose timing is gone when the router returns.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ from collections import deque
 import numpy as np
 
 from common.bus import Publisher
+from common.liveliness import AliveSet
 from common.messages import (
     Cmd,
     MissionAbort,
@@ -35,7 +43,9 @@ from common.messages import (
 )
 from common.ownership import owner_of
 from common.service import Service
+from common.stats import publish_stats
 from common.svcargs import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
+from services.executor.modes import Mode
 from services.executor.team import TeamExecutor
 from services.executor.vehicle_controller import VehicleController
 
@@ -43,15 +53,29 @@ log = logging.getLogger(__name__)
 
 FAULT_MODES = {"emergency_landing": "emergency_landing", "holding": "holding"}
 
+ROUTER_SETTLE_S = 2.0
+"""After the router comes back, clients reconnect one by one (zenoh retries every 1 to 4 s):
+ownership waits this long for the other executors' tokens before it moves any vehicle."""
+TAKEOVER_GRACE_S = 0.1
+"""A change of the live executors is applied this much later: a router shutting down drops its
+clients one by one, so a peer's token may vanish a few ms before this process loses the router
+too. Well inside the gateways' 0.2 s before a silent vehicle's command is stale."""
+ROUTER_CHECK_TICKS = 10
+"""Control ticks between two looks at the router link (a look costs about a microsecond)."""
+
 
 class LoopStats:
-    """Tick lateness (how far after its due time a tick started) and tick cost, last N ticks."""
+    """Tick lateness (how far after its due time a tick started), tick cost and pose-to-command
+    latency (a command's publication - the capture time of the newest pose fused since the
+    vehicle's previous command), last N of each; counts and the worst latency since the start."""
 
     def __init__(self, n: int = 2000) -> None:
         self.late: deque[float] = deque(maxlen=n)
         self.cost: deque[float] = deque(maxlen=n)
+        self.latency: deque[float] = deque(maxlen=10 * n)
         self.ticks = 0
         self.missed = 0
+        self.worst_latency = 0.0
 
     def add(self, late: float, cost: float, period: float) -> None:
         self.ticks += 1
@@ -60,12 +84,22 @@ class LoopStats:
         if late > period:
             self.missed += 1
 
+    def add_latency(self, seconds: float) -> None:
+        self.latency.append(seconds)
+        self.worst_latency = max(self.worst_latency, seconds)
+
     def percentiles(self) -> dict[str, float]:
-        if not self.late:
-            return {}
-        late, cost = np.array(self.late), np.array(self.cost)
-        return {"late_p50_ms": 1e3 * float(np.percentile(late, 50)), "late_p99_ms": 1e3 * float(np.percentile(late, 99)),
-                "cost_p50_ms": 1e3 * float(np.percentile(cost, 50)), "cost_p99_ms": 1e3 * float(np.percentile(cost, 99))}
+        out: dict[str, float] = {}
+        for name, values in (("late", self.late), ("cost", self.cost), ("pose_to_cmd", self.latency)):
+            if values:
+                p50, p99 = np.percentile(np.array(values), [50, 99])
+                out |= {f"{name}_p50_ms": 1e3 * float(p50), f"{name}_p99_ms": 1e3 * float(p99)}
+        return out
+
+    def figures(self) -> dict[str, float]:
+        """Counts, percentiles and the worst latency, for `stats/executor/<instance>`."""
+        return {"ticks": self.ticks, "missed": self.missed, "pose_to_cmd_max_ms": 1e3 * self.worst_latency,
+                **self.percentiles()}
 
 
 class ExecutorService(Service):
@@ -87,6 +121,10 @@ class ExecutorService(Service):
         self._state: dict[str, Publisher[VehicleState]] = {}
         self._event: dict[str, Publisher[VehicleEvent]] = {}
         self._last_mode: dict[str, str] = {}
+        self._fresh_pose: dict[str, float] = {}  # vid -> capture time of a pose fused since its last cmd
+        self._executors: AliveSet | None = None
+        self._router_lost_at: float | None = None
+        self._router_back_at: float | None = None
 
     # ---- wiring ---------------------------------------------------------------------------------
     async def main(self) -> None:
@@ -98,9 +136,15 @@ class ExecutorService(Service):
         self.subscribe(k.all_missions("start"), MissionStart, self._on_start)
         self.subscribe(k.all_missions("abort"), MissionAbort, self._on_abort)
         self.team.open()
-        alive = await self.watch_alive("executor", lambda _i, _a, live: self._reassign(live))
-        self._reassign(alive.instances)
+        loop = asyncio.get_running_loop()
+        self._executors = await self.watch_alive(
+            "executor", lambda _i, _a, _live: loop.call_later(TAKEOVER_GRACE_S, self._on_executors))
+        self._reassign(self._executors.instances)
+        self.spawn(publish_stats(self, self._figures), name="stats")
         await self._control_loop()
+
+    def _figures(self) -> dict[str, float]:
+        return {"vehicles": len(self.controllers), **self.stats.figures()}
 
     def _publisher(self, table: dict, vid: str, topic: str, typ: type) -> Publisher:
         pub = table.get(vid)
@@ -109,6 +153,37 @@ class ExecutorService(Service):
         return pub
 
     # ---- ownership ------------------------------------------------------------------------------
+    def _on_executors(self) -> None:
+        """The live executors changed `TAKEOVER_GRACE_S` ago: re-apply ownership, unless the router
+        is lost or just back (then `_check_router` does once the others have reconnected)."""
+        if self._router_lost_at is None and self.session.info.routers_zid():
+            assert self._executors is not None
+            self._reassign(self._executors.instances)
+
+    def _check_router(self, now: float) -> None:
+        """Notice the loss of the router (abort the owned vehicles' missions) and its return
+        (re-apply ownership once the other executors have had `ROUTER_SETTLE_S` to reconnect)."""
+        if not self.session.info.routers_zid():
+            self._router_back_at = None
+            if self._router_lost_at is None:
+                self._router_lost_at = now
+                log.error("%s: lost the router: aborting the running missions (the gateways land or stop "
+                          "the vehicles); ownership stands still until it is back", self.instance)
+                for vid, ctl in self.controllers.items():
+                    if ctl.t0 is not None:  # started (or due to start): its timing is gone
+                        self.aborts.setdefault(self.plans[vid].mission, "the executor lost its router")
+                        ctl.abort("the executor lost its router")
+            return
+        if self._router_lost_at is None:
+            return
+        if self._router_back_at is None:
+            self._router_back_at = now
+            log.warning("%s: the router is back after %.1f s", self.instance, now - self._router_lost_at)
+        elif now - self._router_back_at >= ROUTER_SETTLE_S:
+            self._router_lost_at = self._router_back_at = None
+            assert self._executors is not None
+            self._reassign(self._executors.instances)
+
     def _reassign(self, live: frozenset[str]) -> None:
         """Take the vehicles that hash to us, release the others (rendezvous hashing)."""
         self.live = live | {self.instance}
@@ -180,8 +255,8 @@ class ExecutorService(Service):
     def _on_pose(self, pose: Pose, _key: str) -> None:
         self.last_pose[pose.vid] = pose
         ctl = self.controllers.get(pose.vid)
-        if ctl is not None:
-            ctl.on_pose(pose)
+        if ctl is not None and ctl.on_pose(pose):
+            self._fresh_pose[pose.vid] = pose.t
 
     def _on_telemetry(self, tel: Telemetry, _key: str) -> None:
         ctl = self.controllers.get(tel.vid)
@@ -200,12 +275,17 @@ class ExecutorService(Service):
         while True:
             start = time.monotonic()
             now = time.time()
+            if n % ROUTER_CHECK_TICKS == 0:
+                self._check_router(now)
             for vid, ctl in list(self.controllers.items()):
                 cmd, state = ctl.tick(now)
                 self._publisher(self._cmd, vid, "cmd", Cmd).put(cmd)
+                captured = self._fresh_pose.pop(vid, None)
+                if captured is not None:
+                    self.stats.add_latency(time.time() - captured)
                 if n % self.state_every == 0:
                     self._publisher(self._state, vid, "state", VehicleState).put(state)
-                self._report_mode(vid, state, now)
+                self._report_mode(vid, ctl, state, now)
             n += 1
             end = time.monotonic()
             self.stats.add(start - due, end - start, self.period)
@@ -214,12 +294,26 @@ class ExecutorService(Service):
                 due = end
             await asyncio.sleep(max(0.0, due - time.monotonic()))
 
-    def _report_mode(self, vid: str, state: VehicleState, now: float) -> None:
+    def _report_mode(self, vid: str, ctl: VehicleController, state: VehicleState, now: float) -> None:
+        """Tell everyone (`vehicle/<vid>/event`) when a vehicle enters a fault mode, or leaves its
+        plan for a battery or link fault: "low_battery" / "link_lost", with the node it lands at."""
         prev = self._last_mode.get(vid)
         self._last_mode[vid] = state.mode
-        if prev != state.mode and state.mode in FAULT_MODES:
+        if prev == state.mode:
+            return
+        kind, detail, node = FAULT_MODES.get(state.mode), f"from {prev}", ""
+        leaves_plan = state.mode == Mode.LANDING or (state.mode == Mode.DONE and prev != Mode.LANDING)
+        if kind is None and leaves_plan:
+            if ctl.faults.low_battery(ctl.charge_used_ah, now):
+                kind = "low_battery"
+            elif ctl.faults.link_lost(now):
+                kind = "link_lost"
+            node = ctl.landing_node or ""
+            where = f"landing at {node}" if node else "landing here" if state.mode == Mode.LANDING else "stopped here"
+            detail = f"from {prev}: {where}"
+        if kind is not None:
             self._publisher(self._event, vid, "event", VehicleEvent).put(
-                VehicleEvent(vid=vid, t=now, kind=FAULT_MODES[state.mode], detail=f"from {prev}"))
+                VehicleEvent(vid=vid, t=now, kind=kind, detail=detail, node=node))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
