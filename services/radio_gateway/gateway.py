@@ -32,7 +32,7 @@ from services.radio_gateway.config import RadiosFile
 from services.radio_gateway.link import CrtpLink, RadioSender
 from services.radio_gateway.linkstats import Event
 from services.radio_gateway.scheduler import Scheduler
-from services.radio_gateway.vehicle import VehicleChannel
+from services.radio_gateway.vehicle import Refused, VehicleChannel
 
 log = logging.getLogger(__name__)
 
@@ -150,6 +150,9 @@ class RadioGateway(Service):
             return
         try:
             events = ch.command(cmd.setpoint, time.time())
+        except Refused as exc:
+            self._refuse(exc.reason, vid, str(exc))
+            return
         except ValueError as exc:
             self._refuse("bad_setpoint", vid, str(exc))
             return

@@ -9,7 +9,11 @@ Modes:
 - DRIVE: the latest wheel command, through the driving command switch, when it changes and at
   least every `wheel_refresh_s` (the wheel watchdog stops after 0.5 s).
 - LANDING: the command went stale (older than `stale_s`) in flight: the gateway's own
-  hover-then-land (`SafeLanding`), then STOPPING. A fresh command takes back over.
+  hover-then-land (`SafeLanding`, from the median vertical thrust of the owner's last setpoints,
+  `HOVER_WINDOW`: the last one alone may be braking the end of a takeoff), then STOPPING. A fresh flight command takes back over; a wheel
+  command or a stop is refused until the vehicle has landed (`Refused`): its sender lost track of
+  it (e.g. an executor whose router went away believes its blind descent is over), and either
+  would drop an airborne vehicle (no flight setpoints: the firmware cuts the motors).
 - STOPPING: `stop_repeats` commander stops (motors off) and a zero wheel command, then IDLE.
   Entered on a StopSetpoint, after a landing, or when a wheel command goes stale.
 - IDLE: nothing to send but status requests.
@@ -17,15 +21,37 @@ Modes:
 
 from __future__ import annotations
 
+import math
+import statistics
+from collections import deque
 from enum import StrEnum
 
 from common.messages import FlightSetpoint, Pose, Setpoint, StopSetpoint, WheelSetpoint
+from common.thrust import thrust_command, thrust_newtons
 from services.radio_gateway import crtp
 from services.radio_gateway.config import GatewayParams
 from services.radio_gateway.landing import SafeLanding
 from services.radio_gateway.linkstats import Event, LinkStats
+from services.radio_gateway.physics import FIRMWARE_MIN_THRUST
 
 _UNLOCK = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=0)
+
+HOVER_WINDOW = 100
+"""Flight setpoints (1 s at 100 Hz) whose median vertical thrust is the hover thrust a safety landing
+starts from (without a pose it can only set a thrust). The median ignores the brief transients a
+mean keeps: a takeoff starts about 20 % above the hover and the executor brakes its end up to 29 %
+below it; the last setpoint alone made 1.4 m/s touchdowns, a 1 s mean climbs away."""
+HOVER_MARGIN = 0.03
+"""The safety landing starts this fraction below that hover thrust: a blind descent that errs must
+err downwards (a vehicle climbing open loop falls when the motors stop)."""
+
+
+class Refused(ValueError):
+    """A command this channel will not take now; `reason` names it in the gateway's counters."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(detail)
+        self.reason = reason
 
 
 class Drive(StrEnum):
@@ -49,6 +75,7 @@ class VehicleChannel:
         self.took_over = False
         """The gateway is landing or stopped the vehicle because its command went stale."""
         self._flight: FlightSetpoint | None = None
+        self._thrusts: deque[float] = deque(maxlen=HOVER_WINDOW)  # vertical thrust (N) of recent setpoints
         self._flight_raw = b""
         self._unlock = False
         self._stops_left = 0
@@ -60,7 +87,11 @@ class VehicleChannel:
     # ---- commands -------------------------------------------------------------------------
 
     def command(self, setpoint: Setpoint, now: float) -> list[Event]:
-        """Take the owner's setpoint (ValueError, nothing changed, if it cannot go on the wire)."""
+        """Take the owner's setpoint (ValueError, nothing changed, if it cannot go on the wire;
+        `Refused` during the safety landing unless it is a flight setpoint)."""
+        if self.mode == Drive.LANDING and not isinstance(setpoint, FlightSetpoint):
+            raise Refused("while_landing", f"{type(setpoint).__name__} during the safety landing: "
+                                           "landing on, motors off once landed")
         events: list[Event] = []
         if isinstance(setpoint, FlightSetpoint):
             raw = crtp.encode_setpoint(setpoint)
@@ -68,7 +99,11 @@ class VehicleChannel:
                 events.append(("cmd_resumed", "fresh flight command during the safety landing"))
             elif self.mode != Drive.FLIGHT:
                 self._unlock = True
+                self._thrusts.clear()  # a new flight
             self._flight, self._flight_raw = setpoint, raw
+            if setpoint.thrust >= FIRMWARE_MIN_THRUST:
+                self._thrusts.append(thrust_newtons(setpoint.thrust) * math.cos(math.radians(setpoint.roll))
+                                     * math.cos(math.radians(setpoint.pitch)))
             self._stops_left = 0  # flying again: pending stops are void (other modes finish them)
             self._enter(Drive.FLIGHT)
         elif isinstance(setpoint, WheelSetpoint):
@@ -83,6 +118,13 @@ class VehicleChannel:
         self.cmd_at = now
         self.took_over = False
         return events
+
+    def _hover_setpoint(self) -> FlightSetpoint | None:
+        """Level, `HOVER_MARGIN` below the median recent vertical thrust (the last setpoint if none)."""
+        if not self._thrusts:
+            return self._flight
+        hover = statistics.median(self._thrusts)
+        return FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=thrust_command((1.0 - HOVER_MARGIN) * hover))
 
     def _enter(self, mode: Drive) -> None:
         self.mode = mode
@@ -106,7 +148,7 @@ class VehicleChannel:
         events = self.stats.check(now)
         age = now - self.cmd_at
         if self.mode == Drive.FLIGHT and self.stale(now):
-            self.landing = SafeLanding(now, self._flight, self.params.landing, 1.0 / self.params.tick_hz)
+            self.landing = SafeLanding(now, self._hover_setpoint(), self.params.landing, 1.0 / self.params.tick_hz)
             self.mode = Drive.LANDING
             self.took_over = True
             events.append(("stale_cmd_landing", f"no command for {age:.2f} s in flight: hover, then land"))
