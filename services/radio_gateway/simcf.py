@@ -51,6 +51,8 @@ class SimCrazyflie(asyncio.DatagramProtocol):
         self.watchdog_levels = 0
         self.watchdog_cuts = 0
         self.wheel_watchdogs = 0
+        self.hardest_touchdown = 0.0
+        """Fastest touchdown so far (m/s, `SimFlyingCar.last_impact_speed`): above ~1 m/s a crash."""
         self.blacked_out = 0
         """Packets (both ways) lost to an injected radio blackout (`blackout`)."""
         self._blackout_until = -math.inf
@@ -108,6 +110,7 @@ class SimCrazyflie(asyncio.DatagramProtocol):
         steps = int((now - self.car.t) / self.step_s)
         if steps > 0:
             self.car.step(steps * self.step_s)
+            self.hardest_touchdown = max(self.hardest_touchdown, self.car.last_impact_speed)
         self._watch(self.car.t)
 
     def _watch(self, t: float) -> None:

@@ -116,7 +116,9 @@ class SimService(Service):
                 "watchdog_cuts": sum(cf.watchdog_cuts for cf in cfs),
                 "radio_lost": sum(r.lost for r in self.radios.values()),
                 "radio_congested": sum(r.congested for r in self.radios.values()),
-                "radio_delivered": sum(r.delivered for r in self.radios.values())}
+                "radio_delivered": sum(r.delivered for r in self.radios.values()),
+                "touchdown_max_mps": max((cf.hardest_touchdown for cf in cfs), default=0.0),
+                **{f"touchdown_mps:{vid}": cf.hardest_touchdown for vid, cf in self.vehicles.items()}}
 
     def _on_event(self, vid: str, kind: str, detail: str) -> None:
         self._events[vid].put(VehicleEvent(vid=vid, t=time.time(), kind=kind, detail=detail))
