@@ -1,7 +1,10 @@
 """`fleet mission run`: ask the planner for a plan, hand it out, start every executor at a common
 time, show progress, and end with a summary (arrived, time, energy per vehicle, largest tracking
 error, smallest separation between bodies in ground truth). Aborts on request (SIGINT/SIGTERM) or
-on a vehicle fault, landing every vehicle.
+on a vehicle fault, landing every vehicle. A fault is a fault event (`FAULT_EVENTS`), a vehicle
+state in emergency landing, or no state from a vehicle for `contact_timeout_s` (its executor or the
+router is gone: events published meanwhile are lost, and the gateways land what they cannot hear
+commands for). Fails fast when no executor or no planner is alive.
 
 While the mission runs, plans and the start message are re-published every second so that an
 executor that joins late or takes over a vehicle has them (zenoh keeps no history by itself).
@@ -51,6 +54,7 @@ class MissionSpec:
     planner_timeout_s: float = 10.0
     slack_s: float = 20.0
     abort_on_fault: bool = True
+    contact_timeout_s: float = 1.0
 
 
 @dataclass
@@ -116,6 +120,7 @@ class MissionRunner(Service):
         self.states: dict[str, VehicleState] = {}
         self.events: list[str] = []
         self.fault: str | None = None
+        self.heard: dict[str, float] = {}  # vid -> arrival of its latest state
         self.t0: float | None = None
         self.voltage = 3.7
 
@@ -132,6 +137,8 @@ class MissionRunner(Service):
         executors = await self.watch_alive("executor")
         if not executors.instances:
             return self._finish(started, False, "no executor is alive: start executors (fleet executor / fleet up)")
+        if not (await self.watch_alive("planner")).instances:
+            return self._finish(started, False, "no planner is alive: start one (fleet planner / fleet up)")
         try:
             reply = await query(self.session, self.keys.planner_plan,
                                 PlanRequest(map=spec.map, tasks=spec.tasks, planner=spec.planner, mu=spec.mu,
@@ -180,6 +187,7 @@ class MissionRunner(Service):
                 if all(r.arrived for r in self.reports.values()):
                     reason = "every vehicle arrived"
                     break
+                self._check_contact(time.time())
                 if self.fault and spec.abort_on_fault:
                     reason = f"aborted on fault: {self.fault}"
                     break
@@ -222,6 +230,7 @@ class MissionRunner(Service):
         if r is None:
             return
         self.states[state.vid] = state
+        self.heard[state.vid] = time.time()
         r.mode, r.step, r.steps, r.owner = state.mode, state.step, state.steps, state.owner
         if state.mission != self.spec.mission or self.t0 is None:
             return
@@ -231,8 +240,17 @@ class MissionRunner(Service):
             where = "air" if state.mode in AIRBORNE_MODES else "ground"
             r.sq_error[where] += state.tracking_error**2
             r.samples[where] += 1
+        if state.mode == "emergency_landing":  # its event may have been lost with the router
+            self.fault = self.fault or f"{state.vid}: in emergency landing"
         if state.arrived and not r.arrived:
             r.arrived, r.arrival_s = True, state.t - self.t0
+
+    def _check_contact(self, now: float) -> None:
+        """A vehicle not heard from for `contact_timeout_s` is a fault (its owner or the router is gone)."""
+        for vid in self.spec.tasks:
+            silent = now - self.heard.get(vid, now)
+            if silent > self.spec.contact_timeout_s:
+                self.fault = self.fault or f"{vid}: lost contact (no state for {silent:.1f} s)"
 
     def _on_event(self, event: VehicleEvent, _key: str) -> None:
         text = f"{event.vid}: {event.kind} {event.detail}".strip()
