@@ -21,6 +21,10 @@ from dataclasses import dataclass
 from common.messages import PlanStep, Telemetry
 from common.model import VehicleModel
 
+_MIN_DESCENT = 0.01
+"""m: the descent of a safe landing is timed as at least this long, so that its last two entries are
+never at the same time (a vehicle that sank to the ground while its link was lost)."""
+
 
 @dataclass(frozen=True, slots=True)
 class FaultParams:
@@ -95,6 +99,6 @@ def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence
     if reach > 0.01:
         t += reach / model.speed.fly
         steps.append(PlanStep(node=f"above-{target.node}", t=t, pos=(gx, gy, pos[2]), kind="air", edge="fly"))
-    t += max(pos[2] - gz, 0.0) / model.speed.land
+    t += max(pos[2] - gz, _MIN_DESCENT) / model.speed.land  # already down (it sank): still a step in time
     steps.append(PlanStep(node=target.node, t=t, pos=(gx, gy, gz), kind=target.kind, edge="land"))
     return steps
