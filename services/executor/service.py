@@ -125,6 +125,7 @@ class ExecutorService(Service):
         self._executors: AliveSet | None = None
         self._router_lost_at: float | None = None
         self._router_back_at: float | None = None
+        self._failed: set[tuple[str, str]] = set()  # (vid, mission) whose controller raised
 
     # ---- wiring ---------------------------------------------------------------------------------
     async def main(self) -> None:
@@ -198,6 +199,8 @@ class ExecutorService(Service):
 
     def _take(self, vid: str) -> None:
         plan = self.plans[vid]
+        if (vid, plan.mission) in self._failed:
+            return
         ctl = VehicleController(vid, plan.model, owner=self.instance)
         ctl.load(plan)
         t0 = plan.t0 or self.starts.get(plan.mission)
@@ -278,7 +281,11 @@ class ExecutorService(Service):
             if n % ROUTER_CHECK_TICKS == 0:
                 self._check_router(now)
             for vid, ctl in list(self.controllers.items()):
-                cmd, state = ctl.tick(now)
+                try:
+                    cmd, state = ctl.tick(now)
+                except Exception as exc:  # one vehicle's bug must not take the others down
+                    self._give_up(vid, exc, now)
+                    continue
                 self._publisher(self._cmd, vid, "cmd", Cmd).put(cmd)
                 captured = self._fresh_pose.pop(vid, None)
                 if captured is not None:
@@ -293,6 +300,18 @@ class ExecutorService(Service):
             if end - due > 10 * self.period:  # hopelessly behind (suspended?): skip, don't burst
                 due = end
             await asyncio.sleep(max(0.0, due - time.monotonic()))
+
+    def _give_up(self, vid: str, exc: Exception, now: float) -> None:
+        """Stop commanding `vid` for the rest of its mission (its gateway lands or stops it when
+        its command goes stale) and tell everyone."""
+        mission = self.plans[vid].mission
+        log.exception("%s: the controller of %s failed; the vehicle is left to its gateway's safety "
+                      "landing for the rest of mission %s", self.instance, vid, mission, exc_info=exc)
+        self.counters.inc(f"controller_failed:{vid}")
+        self._failed.add((vid, mission))
+        del self.controllers[vid]
+        self._publisher(self._event, vid, "event", VehicleEvent).put(
+            VehicleEvent(vid=vid, t=now, kind="controller_failed", detail=f"{type(exc).__name__}: {exc}"))
 
     def _report_mode(self, vid: str, ctl: VehicleController, state: VehicleState, now: float) -> None:
         """Tell everyone (`vehicle/<vid>/event`) when a vehicle enters a fault mode, or leaves its

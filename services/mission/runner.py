@@ -35,7 +35,8 @@ from services.mission.separation import SeparationMonitor
 
 log = logging.getLogger(__name__)
 
-FAULT_EVENTS = frozenset({"emergency_landing", "low_battery", "link_lost", "crash", "stale_cmd_landing"})
+FAULT_EVENTS = frozenset({"emergency_landing", "low_battery", "link_lost", "crash", "stale_cmd_landing",
+                          "controller_failed"})
 """Events that abort a mission. A motion-capture dropout (`mocap_lost`) is not one by itself: the
 executor predicts through short dropouts and reports what it does about long ones (an emergency
 landing, or holding on the ground)."""
