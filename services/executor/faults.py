@@ -4,8 +4,9 @@ not fall below C_low), lost radio link, and where to go when the plan must be le
 - low battery: the charge used (eq. 4-5, estimated by the executor) reaches the usable charge
   (capacity - reserve), or the telemetry voltage stays below `vbat_low` for `vbat_low_s`;
 - lost link: the gateway reports `link_ok = False`, or telemetry that was flowing stops;
-- safe landing: fly level to above the nearest ground node of the vehicle's own plan (a node it
-  was going to use anyway), then descend at the landing speed;
+- safe landing: fly level to above the nearest node of the vehicle's own plan where it takes off or
+  lands (a node it was going to use anyway, under airspace it flies in), then descend at the
+  landing speed;
 - emergency descent: without a trustworthy pose, a level descent at `descent_speed` on the
   dead-reckoned state (the estimator predicts with the commanded accelerations); the real vehicle
   may descend slower (drag, thrust error), so the motors stop only after the predicted descent
@@ -84,11 +85,19 @@ class FaultMonitor:
         return not tel.link_ok or now - self._telemetry_at > self.params.link_timeout_s
 
 
+def landing_nodes(plan: Sequence[PlanStep]) -> list[PlanStep]:
+    """The entries of `plan` where it lands or from where it takes off."""
+    return [s for i, s in enumerate(plan)
+            if s.edge == "land" or (i + 1 < len(plan) and plan[i + 1].edge == "takeoff")]
+
+
 def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence[PlanStep],
                        model: VehicleModel) -> list[PlanStep]:
     """Path entries from `pos` at time `t`: level flight to above the plan's ground node nearest
-    in the horizontal, then a descent onto it, at the model's fly and land speeds."""
-    ground = [s for s in plan if s.kind != "air"]
+    in the horizontal, then a descent onto it, at the model's fly and land speeds. The nodes where
+    the plan takes off or lands come first: they are under the airspace it flies in (other ground
+    nodes, e.g. a parking spot next to a landing node, may lie under a no-fly zone)."""
+    ground = landing_nodes(plan) or [s for s in plan if s.kind != "air"]
     if not ground:
         target = PlanStep(node="below", t=0.0, pos=(pos[0], pos[1], 0.0), kind="land")
     else:
