@@ -202,7 +202,7 @@ class MissionRunner(Service):
         if not all(r.arrived for r in self.reports.values()):
             abort_pub.put(MissionAbort(mission=spec.mission, reason=reason))
             await self._wait_landed(10.0, lambda: abort_pub.put(MissionAbort(mission=spec.mission, reason=reason)))
-        ok = all(r.arrived for r in self.reports.values()) and not sep.contacts
+        ok = reason == "every vehicle arrived" and not sep.contacts  # landing at its goal after a fault is no success
         if sep.contacts:
             reason += f"; bodies came into contact {len(sep.contacts)} times"
         result = self._finish(started, ok, reason, plan)
