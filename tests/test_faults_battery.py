@@ -1,0 +1,63 @@
+"""Battery below its reserve mid-flight (issue 8), injected into the simulated battery: the voltage
+sags under the flight current, the executor sees it (telemetry vbat < 3.3 V for 1 s), lands the
+vehicle at the nearest node where its plan takes off or lands and tells everyone (a
+"low_battery" VehicleEvent naming that node); the mission runner aborts (decided: the plan's
+collision-freedom assumes every vehicle follows it), so the others land or stop. No contact."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
+
+from common.messages import SimFault
+from common.model import VehicleModel
+from common.vehicleplan import vehicle_plans
+from services.executor.faults import landing_nodes
+from services.mission.demo import local_fleet
+from services.mission.runner import MissionRunner, MissionSpec
+from services.planner.loading import load_graph
+
+MODEL = VehicleModel()
+NEARLY_EMPTY_AH = MODEL.capacity_ah - 0.5 * MODEL.reserve_ah
+"""Half the reserve left (5 % of the capacity): about 3.1 V in flight."""
+
+
+@pytest.mark.timeout(180)
+def test_low_battery_mid_flight_lands_at_the_nearest_safe_node_and_aborts_the_mission(tmp_path) -> None:
+    spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
+    marks: dict[str, float] = {}
+
+    async def scenario(watch: Watch, runner: MissionRunner) -> None:
+        await until(lambda: watch.mode("cf1") == "flying", 60, "cf1 flying")
+        await until(airborne(watch, "cf1"), 5, "cf1 at cruise height")
+        marks["drained"] = watch.inject(SimFault(vid="cf1", kind="battery", charge_used_ah=NEARLY_EMPTY_AH))
+
+    with local_fleet(load_graph("town"), TOWN_TASKS, tmp_path / "run", executors=2, fleet="batteryfault") as fleet:
+        result, watch = fly(fleet, spec, scenario)
+
+    drained = marks["drained"]
+    told = [(t, e) for t, e in watch.events if e.vid == "cf1" and e.kind == "low_battery"]
+    assert told, watch.kinds("cf1")
+    t_told, event = told[0]
+    assert 1.0 <= t_told - drained < 3.0  # 1 s under 3.3 V, telemetry at 5 Hz
+    assert min(tel.vbat for tel in watch.telemetry["cf1"] if tel.t > drained) < 3.3
+    assert not result.ok and "cf1: low_battery" in result.reason, result.reason
+    # it landed where it said: where its plan takes off or lands, nearest to where it was when told
+    assert result.plan is not None
+    candidates = landing_nodes(vehicle_plans(result.plan, result.mission)["cf1"].steps)
+    at = min(watch.states["cf1"], key=lambda s: abs(s.t - t_told))
+    nearest = min(candidates, key=lambda s: math.dist(s.pos[:2], (at.x, at.y))).node
+    assert event.node == nearest, (event.node, nearest)
+    final = watch.truth["cf1"][-1]
+    gx, gy, gz = result.plan.graph.nodes[event.node].pos
+    assert math.dist((final.x, final.y, final.z), (gx, gy, gz)) < 0.05
+    assert watch.hardest_touchdown("cf1") < 0.7
+    # the others were told (the abort): all on the ground, motors off, no contact
+    assert result.contacts == 0
+    for vid in TOWN_TASKS:
+        assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
+    print(f"low battery reported {t_told - drained:.2f} s after the drain; landed at {event.node}, "
+          f"{100 * math.dist((final.x, final.y), (gx, gy)):.1f} cm from it, "
+          f"touchdown {watch.hardest_touchdown('cf1'):.2f} m/s")

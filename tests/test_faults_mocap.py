@@ -1,0 +1,56 @@
+"""Motion-capture dropouts mid-flight (issue 8), injected at the simulated motion capture: 0.3 s is
+bridged by the executor's prediction (the vehicle flies its plan on), 2 s makes it land (a blind,
+level emergency descent), and the mission aborts cleanly: every vehicle ends on the ground, no
+contact."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+from fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
+
+from common.messages import SimFault
+from services.mission.demo import local_fleet
+from services.mission.runner import MissionRunner, MissionSpec
+from services.planner.loading import load_graph
+
+SHORT, LONG = 0.3, 2.0
+
+
+@pytest.mark.timeout(180)
+def test_a_short_dropout_is_flown_through_and_a_long_one_lands_the_vehicle(tmp_path) -> None:
+    spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
+    marks: dict[str, float] = {}
+
+    async def scenario(watch: Watch, runner: MissionRunner) -> None:
+        await until(lambda: watch.mode("cf1") == "flying" and watch.mode("cf2") == "flying", 60, "both flying")
+        await until(airborne(watch, "cf1"), 5, "cf1 at cruise height")
+        marks["short"] = watch.inject(SimFault(vid="cf1", kind="mocap_dropout", duration_s=SHORT))
+        await asyncio.sleep(SHORT + 1.0)
+        assert watch.mode("cf2") == "flying", "cf2 must still be flying for the long dropout"
+        marks["long"] = watch.inject(SimFault(vid="cf2", kind="mocap_dropout", duration_s=LONG))
+
+    with local_fleet(load_graph("town"), TOWN_TASKS, tmp_path / "run", executors=2, fleet="mocapfault") as fleet:
+        result, watch = fly(fleet, spec, scenario)
+
+    short, long = marks["short"], marks["long"]
+    # the short dropout happened (the bridge reported the body lost) and was flown through
+    assert "mocap_lost" in watch.kinds("cf1", since=short)
+    cf1 = [s for s in watch.states["cf1"] if short <= s.t < long]
+    assert {s.mode for s in cf1} <= {"flying", "landing"}, {s.mode for s in cf1}
+    assert all(s.pose_ok for s in cf1), "the prediction must bridge 0.3 s"
+    assert max(s.tracking_error for s in cf1) < 0.05
+    assert min(s.z for s in watch.truth_between("cf1", short, long)) > 0.3
+    assert watch.first("cf1", "emergency_landing") is None
+    # the long one made cf2 land, blind, soon after the prediction went stale
+    landed_at = watch.first("cf2", "emergency_landing")
+    assert landed_at is not None and landed_at - long < 1.0, watch.kinds("cf2")
+    assert not result.ok and "cf2: " in result.reason and "emergency" in result.reason, result.reason
+    assert watch.hardest_touchdown("cf2") < 0.6
+    # the mission aborted cleanly: all on the ground, motors off, no contact
+    assert result.contacts == 0
+    for vid in TOWN_TASKS:
+        assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
+    print(f"cf1 through {SHORT} s: worst tracking error {max(s.tracking_error for s in cf1):.3f} m; "
+          f"cf2 emergency landing {landed_at - long:.2f} s into {LONG} s, touchdown {watch.hardest_touchdown('cf2'):.2f} m/s")

@@ -1,0 +1,107 @@
+"""Radio link loss (issue 8), injected into the simulated radio (every packet to and from one vehicle
+lost for a while):
+
+- at the gateway, with a stand-in executor hovering two vehicles: the simulated firmware levels the
+  attitude 0.5 s into the silence and cuts the motors at 2 s (the vehicle falls: that is what a
+  Crazyflie does); the gateway reports `link_lost` after its 1 s timeout (event and telemetry),
+  `link_up` and the latched `firmware_watchdog` when the link is back; the other vehicle flies on;
+- in a mission, a 1.5 s loss while cruising: levelled, no cut; the link is reported lost, the
+  executor lands the vehicle at its nearest safe node once the link is back and the mission aborts
+  cleanly;
+- a vehicle that sank to the ground while its link was lost (the firmware kept a thrust below the
+  hover) still gets a landing from its executor (it used to raise and take the executor down).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+
+import pytest
+import zenoh
+from fleet_faults import TOWN_TASKS, Watch, fly, until
+
+from common.messages import PlanStep, SimFault
+from common.model import VehicleModel
+from common.zsession import ZenohConfig
+from services.executor.faults import safe_landing_steps
+from services.executor.trajectory import Trajectory
+from services.mission.demo import local_fleet
+from services.mission.runner import MissionRunner, MissionSpec
+from services.planner.loading import load_graph
+from services.radio_gateway.config import simulated_radios
+from services.radio_gateway.gateway import RadioGateway
+from services.radio_gateway.loadgen import LoadCommander, running
+from services.radio_gateway.simservice import SimService
+
+
+@pytest.mark.timeout(60)
+def test_firmware_levels_at_half_a_second_cuts_at_two_and_the_gateway_reports_the_loss(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
+    cfg = ZenohConfig.client(zenoh_router)
+    spec = simulated_radios({"cf0": (0.0, 0.0, 0.0), "cf1": (0.4, 0.0, 0.0)}, per_radio=2)
+    sim, gw = SimService(spec, cfg), RadioGateway("r0", spec, cfg)
+    cmd = LoadCommander("e1", cfg, flyers=["cf0", "cf1"])
+    watch = Watch(sim.keys)
+
+    async def main() -> dict[str, float]:
+        watch.open(cfg)
+        async with running(sim, gw, cmd):
+            await until(lambda: all(v in sim.vehicles and sim.vehicles[v].car.z > 0.4 for v in ("cf0", "cf1")),
+                        8.0, "both hovering")
+            await until(lambda: watch.kinds("cf0") == ["link_up"], 2.0, "cf0's link up")
+            t = watch.inject(SimFault(vid="cf0", kind="radio_blackout", duration_s=2.5))
+            await until(lambda: "firmware_watchdog" in watch.kinds("cf0"), 6.0, "the latched watchdog report")
+            lost = [tel for tel in watch.telemetry["cf0"] if tel.t > t and not tel.link_ok]
+            assert lost and all(tel.link_quality == 0.0 for tel in lost)
+            return {kind: watch.first("cf0", kind, since=t) - t
+                    for kind in ("sim_watchdog_level", "link_lost", "sim_watchdog_cut", "link_up")}
+
+    try:
+        after = asyncio.run(main())
+    finally:
+        watch.close()
+    print("s after the link went:", {k: round(v, 2) for k, v in after.items()})
+    assert 0.45 <= after["sim_watchdog_level"] < 0.8
+    assert 0.75 <= after["link_lost"] < 1.5  # 1 s after the last status reply (5 Hz)
+    assert 1.95 <= after["sim_watchdog_cut"] < 2.3
+    assert 2.5 <= after["link_up"] < 3.5
+    cf0, cf1 = sim.vehicles["cf0"], sim.vehicles["cf1"]
+    assert cf0.watchdog_levels == 1 and cf0.watchdog_cuts == 1 and cf0.hardest_touchdown > 1.0  # it fell
+    assert cf1.watchdog_levels == 0 and cf1.car.z > 0.4 and "link_lost" not in watch.kinds("cf1")
+    assert cf0.blacked_out > 0
+
+
+@pytest.mark.timeout(180)
+def test_a_link_lost_mid_flight_lands_the_vehicle_and_aborts_the_mission(tmp_path) -> None:
+    spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
+    marks: dict[str, float] = {}
+
+    async def scenario(watch: Watch, runner: MissionRunner) -> None:
+        await until(lambda: watch.mode("cf1") == "flying", 60, "cf1 flying")
+        await asyncio.sleep(1.0)  # cruising: the setpoint the firmware keeps is about the hover's
+        marks["cut"] = watch.inject(SimFault(vid="cf1", kind="radio_blackout", duration_s=1.5))
+
+    with local_fleet(load_graph("town"), TOWN_TASKS, tmp_path / "run", executors=2, fleet="radiofault") as fleet:
+        result, watch = fly(fleet, spec, scenario)
+
+    cut = marks["cut"]
+    kinds = watch.kinds("cf1", since=cut)
+    print("cf1 events after the cut:", kinds)
+    assert {"sim_watchdog_level", "link_lost", "link_up", "firmware_watchdog"} <= set(kinds)
+    assert "sim_watchdog_cut" not in kinds
+    assert any(not tel.link_ok for tel in watch.telemetry["cf1"] if tel.t > cut)
+    assert not result.ok and "cf1: link_lost" in result.reason, result.reason
+    assert any(e.kind == "link_lost" and e.node for _, e in watch.events if e.vid == "cf1")  # the executor's
+    assert result.contacts == 0
+    for vid in TOWN_TASKS:
+        assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
+        assert watch.hardest_touchdown(vid) < 0.7, (vid, watch.hardest_touchdown(vid))
+
+
+def test_a_safe_landing_from_the_ground_is_still_a_trajectory() -> None:
+    plan = [PlanStep(node="p", t=0.0, pos=(0.0, 0.0, 0.0), kind="parking"),
+            PlanStep(node="a", t=5.0, pos=(1.0, 0.0, 0.4), kind="air", edge="fly")]
+    for at in ((0.5, 0.0, 0.0), (0.0, 0.0, -0.001)):  # sank beside the node, or onto it
+        steps = safe_landing_steps(at, 3.0, plan, VehicleModel())
+        assert steps[-1].node == "p" and abs(Trajectory(steps).sample(steps[-1].t + 1.0).z) < 1e-9

@@ -1,0 +1,67 @@
+"""The zenoh router restarted mid-mission (issue 8). Every command, pose and token crosses the router,
+so while it is down the gateways take over the flying vehicles (stale commands: they land them) and
+the executors' poses go stale. Decided behaviour: the mission aborts cleanly. Every vehicle ends on
+the ground, motors off, without contact or a hard touchdown; no vehicle resumes its plan after the
+outage; every service reconnects (its token is back) and the executors own the vehicles again."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import pytest
+from fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
+
+from common.launcher import stop as stop_services
+from common.zsession import InProcessRouter
+from services.mission.demo import local_fleet, wait_for_services
+from services.mission.runner import MissionRunner, MissionSpec
+from services.planner.loading import load_graph
+
+DOWN_S = 1.0
+BLIND_TOUCHDOWN = 1.0
+"""m/s: without poses the gateways land open loop, a little under the hover thrust so that they
+never climb: harder than a landing under position control (about 0.5 m/s, the motors stop 2 cm
+up), far from a fall from cruise height (2.8 m/s from 0.4 m)."""
+
+
+@pytest.mark.timeout(180)
+def test_router_restart_mid_flight_aborts_the_mission_cleanly(tmp_path) -> None:
+    spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
+    marks: dict[str, float] = {}
+    restarted: list[InProcessRouter] = []
+
+    with local_fleet(load_graph("town"), TOWN_TASKS, tmp_path / "run", executors=2, fleet="routerfault") as fleet:
+        async def scenario(watch: Watch, runner: MissionRunner) -> None:
+            await until(lambda: watch.mode("cf1") == "flying" and watch.mode("cf2") == "flying", 60, "both flying")
+            await until(airborne(watch, "cf1"), 5, "cf1 at cruise height")
+            marks["down"] = time.time()
+            fleet.router.close()
+            await asyncio.sleep(DOWN_S)
+            restarted.append(InProcessRouter(fleet.router.endpoint, **fleet.credentials.router_options()))
+            marks["up"] = time.time()
+
+        try:
+            result, watch = fly(fleet, spec, scenario)
+            counts = {"planner": 1, "executor": 2, "gateway": len(fleet.radios.radios), "sim": 1, "mocap": 1,
+                      "telemetry": 1}
+            assert asyncio.run(wait_for_services(fleet.client_config(), fleet.keys, counts, 10.0)) == []
+        finally:
+            stop_services(fleet.run_dir)  # while the new router still serves them: a clean stop
+            for router in restarted:
+                router.close()
+
+    down, up = marks["down"], marks["up"]
+    back = min(s.t for states in watch.states.values() for s in states if s.t > up)
+    print(f"router down {up - down:.2f} s, states flow again {back - down:.2f} s after it went; touchdowns (m/s): "
+          f"{ {vid: round(watch.hardest_touchdown(vid), 2) for vid in TOWN_TASKS} }")
+    assert not result.ok and "lost contact" in result.reason, result.reason
+    assert result.contacts == 0
+    assert watch.stats["sim"].figures["watchdog_cuts"] == 0  # no motors cut in the air
+    for vid in TOWN_TASKS:
+        assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
+        assert watch.hardest_touchdown(vid) < BLIND_TOUCHDOWN, (vid, watch.hardest_touchdown(vid))
+        after = [s.mode for s in watch.states[vid] if s.t > up]
+        assert after and not {"driving", "taking_off", "flying"} & set(after), (vid, after)  # no plan resumed
+        owners = {s.owner for s in watch.states[vid]}
+        assert len(owners) == 1, (vid, owners)  # nobody grabbed it while the tokens were gone
