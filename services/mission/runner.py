@@ -2,7 +2,7 @@
 time, show progress, and end with a summary (arrived, time, energy per vehicle, largest tracking
 error, smallest separation between bodies in ground truth). Aborts on request (SIGINT/SIGTERM) or
 on a vehicle fault, landing every vehicle. A fault is a fault event (`FAULT_EVENTS`), a vehicle
-state in emergency landing, or no state from a vehicle for `contact_timeout_s` (its executor or the
+state in emergency landing, or no state from a vehicle for `contact_timeout_s` (2 s: its executor or the
 router is gone: events published meanwhile are lost, and the gateways land what they cannot hear
 commands for). Fails fast when no executor or no planner is alive.
 
@@ -55,7 +55,7 @@ class MissionSpec:
     planner_timeout_s: float = 10.0
     slack_s: float = 20.0
     abort_on_fault: bool = True
-    contact_timeout_s: float = 1.0
+    contact_timeout_s: float = 2.0
 
 
 @dataclass
