@@ -18,7 +18,7 @@ from services.mission.demo import local_fleet, wait_for_services
 from services.mission.runner import MissionRunner, MissionSpec
 from services.planner.loading import load_graph
 
-DOWN_S = 1.0
+DOWN_S = 0.5
 BLIND_TOUCHDOWN = 1.0
 """m/s: without poses the gateways land open loop, a little under the hover thrust so that they
 never climb: harder than a landing under position control (about 0.5 m/s, the motors stop 2 cm
@@ -55,7 +55,7 @@ def test_router_restart_mid_flight_aborts_the_mission_cleanly(tmp_path) -> None:
     back = min(s.t for states in watch.states.values() for s in states if s.t > up)
     print(f"router down {up - down:.2f} s, states flow again {back - down:.2f} s after it went; touchdowns (m/s): "
           f"{ {vid: round(watch.hardest_touchdown(vid), 2) for vid in TOWN_TASKS} }")
-    assert not result.ok and "lost contact" in result.reason, result.reason
+    assert not result.ok and ("lost contact" in result.reason or "in emergency landing" in result.reason), result.reason
     assert result.contacts == 0
     assert watch.stats["sim"].figures["watchdog_cuts"] == 0  # no motors cut in the air
     for vid in TOWN_TASKS:
