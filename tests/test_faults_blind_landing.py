@@ -7,16 +7,18 @@ through the gateway's `VehicleChannel`, then falls silent; the channel lands it 
 
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 
-from common.messages import FlightSetpoint, Pose, StopSetpoint
+from common.messages import FlightSetpoint, Pose, Setpoint, StopSetpoint, WheelSetpoint
 from common.model import VehicleModel
 from services.executor.closed_loop import Mocap, MocapNoise, plan_for, reference_steps
 from services.executor.vehicle_controller import VehicleController
 from services.radio_gateway import crtp
 from services.radio_gateway.config import GatewayParams
 from services.radio_gateway.physics import PhysicsParams, SimFlyingCar
-from services.radio_gateway.vehicle import VehicleChannel
+from services.radio_gateway.vehicle import Refused, VehicleChannel
 
 MODEL = VehicleModel()
 STEPS = reference_steps(MODEL)
@@ -26,9 +28,11 @@ DT = 0.01
 PERTURBED = PhysicsParams(thrust_scale=0.95, mass_scale=1.04, tau_motor=0.04)
 
 
-def blind_landing(silent_at: float, physics: PhysicsParams) -> tuple[SimFlyingCar, float, float]:
-    """Fly the plan until `silent_at` (sim time), then only the gateway commands: the vehicle, the
-    height when the commands stopped and the highest point after."""
+def blind_landing(silent_at: float, physics: PhysicsParams,
+                  stray: Setpoint | None = None) -> tuple[SimFlyingCar, float, float]:
+    """Fly the plan until `silent_at` (sim time), then only the gateway commands (one `stray`
+    setpoint from the owner 1 s into its landing): the vehicle, the height when the commands
+    stopped and the highest point after."""
     car = SimFlyingCar("cf1", MODEL, physics, pos=STEPS[0].pos, yaw=0.0)
     ctl = VehicleController("cf1", MODEL)
     ctl.on_pose(Pose(vid="cf1", t=0.0, x=0.0, y=0.0, z=0.0, yaw=0.0))
@@ -42,6 +46,10 @@ def blind_landing(silent_at: float, physics: PhysicsParams) -> tuple[SimFlyingCa
             ctl.on_pose(mocap.observe(car.truth()))
             ch.command(ctl.tick(now)[0].setpoint, now)
             silent_z = top = car.z
+        elif stray is not None and now >= silent_at + 1.0:
+            with contextlib.suppress(Refused):  # refused: the landing goes on
+                ch.command(stray, now)
+            stray = None
         top = max(top, car.z)
         ch.supervise(now)
         raw, _ = ch.flight_packet(now)
@@ -62,3 +70,11 @@ def test_a_blind_safety_landing_from_any_moment_of_the_flight_touches_down_gentl
     assert car.z == 0.0 and car.thrust < 1e-3  # down, motors off
     assert top < silent_z + 0.15  # a climbing vehicle coasts up a little, never away
     assert car.last_impact_speed < 0.7
+
+
+@pytest.mark.parametrize("stray", [StopSetpoint(), WheelSetpoint(left=0.0, right=0.0)], ids=["stop", "wheels"])
+def test_a_stop_or_wheel_command_does_not_end_the_safety_landing_in_the_air(stray: Setpoint) -> None:
+    """An owner back from a lost router may believe its vehicle down (its blind descent is over):
+    obeyed, its stop would cut the motors in the air and its wheel command end the flight setpoints."""
+    car, silent_z, _ = blind_landing(TAKEOFF_END + 3.0, PhysicsParams(), stray)
+    assert silent_z > 0.4 and car.z == 0.0 and car.last_impact_speed < 0.7
