@@ -13,10 +13,17 @@ import pytest
 from fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
 
 from common.launcher import stop as stop_services
+from common.messages import Pose
+from common.model import G, VehicleModel
+from common.thrust import thrust_command, to_flight_setpoint
 from common.zsession import InProcessRouter
+from services.executor.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
+from services.executor.modes import Mode
+from services.executor.vehicle_controller import VehicleController
 from services.mission.demo import local_fleet, wait_for_services
 from services.mission.runner import MissionRunner, MissionSpec
 from services.planner.loading import load_graph
+from services.radio_gateway.physics import SimFlyingCar
 
 DOWN_S = 0.5
 BLIND_TOUCHDOWN = 1.0
@@ -65,3 +72,28 @@ def test_router_restart_mid_flight_aborts_the_mission_cleanly(tmp_path) -> None:
         assert after and not {"driving", "taking_off", "flying"} & set(after), (vid, after)  # no plan resumed
         owners = {s.owner for s in watch.states[vid]}
         assert len(owners) == 1, (vid, owners)  # nobody grabbed it while the tokens were gone
+
+
+def test_a_blind_descent_whose_commands_were_lost_waits_for_the_vehicle_to_rest() -> None:
+    """Closed loop without zenoh: cruising, the executor loses its router for 5 s (no poses in, no
+    commands out; a gateway keeps the vehicle hovering meanwhile). Its blind descent predicted a
+    touchdown long ago, but the poses that come back show the vehicle still in the air: the motors
+    stop only once it rests on the ground (they used to stop at once: a fall from cruise height)."""
+    model = VehicleModel()
+    steps = reference_steps(model)
+    t0 = 0.5
+    sim = SimFlyingCar("cf1", model, pos=steps[0].pos, yaw=0.0)
+    ctl = VehicleController("cf1", model)
+    ctl.on_pose(Pose(vid="cf1", t=0.0, x=0.0, y=0.0, z=0.0, yaw=0.0))
+    ctl.load(plan_for("cf1", steps, model, t0=t0))
+    mocap = Mocap(MocapNoise(), seed=5)
+    run(ctl, sim, t0 + next(s.t for s in steps if s.edge == "fly") - 2.0, mocap)
+    hover = to_flight_setpoint(0.0, 0.0, 0.0, thrust_command(model.mass * G))  # the gateway holds it up
+    back = sim.t + 5.0
+    while sim.t < back:
+        ctl.tick(sim.t)  # blind, and nobody hears it
+        sim.apply(hover, sim.t)
+        sim.step(0.01)
+    assert ctl.mode == Mode.EMERGENCY_LANDING and sim.z > 0.4
+    run(ctl, sim, sim.t + 6.0, mocap)
+    assert ctl.mode == Mode.DONE and sim.z == 0.0 and sim.last_impact_speed < 0.7
