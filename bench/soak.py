@@ -1,0 +1,280 @@
+"""Soak: many simulated vehicles through back-to-back missions for a set time (issue 8).
+
+The fleet runs as in `fleet demo` (in-process router with access control, every service a process,
+simulated Crazyflies), sized for a large fleet: gateways with `--subscribe-each`, the simulator's
+ground truth at `--truth-hz`, no telemetry recorder. Missions on the city934 map follow each other:
+each starts where the last one left the vehicles, with fresh goals. Collected while it runs:
+
+- every service's `stats/<service>/<instance>` (common/stats.py): dropped messages, refusals,
+  the executors' missed control deadlines and pose-to-command latency, the simulator's lag;
+- each process's resident memory and CPU time from /proc, every `--sample-s` seconds.
+
+Printed as tables at the end; `soak.png` plots memory and latency over time.
+
+    python -m bench.soak [--minutes 5] [--vehicles 80] [--executors 2] [--per-radio 8] [--truth-hz 50]
+    FLEET_SOAK_MINUTES=20 make soak        # the same through pytest -m soak (tests/test_soak.py)
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import random
+import time
+from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from bench.tables import bench_parser, format_table, new_figure, save_figure
+from common.bus import subscribe
+from common.credentials import make_credentials
+from common.keys import Keys
+from common.launcher import start, stop
+from common.messages import ServiceStats
+from common.planfile import Task
+from common.zsession import InProcessRouter, open_session
+from services.mission.demo import LocalFleet, demo_radios, fleet_processes, wait_for_services
+from services.mission.runner import MissionResult, MissionRunner, MissionSpec
+from services.planner.graph import FleetGraph
+from services.planner.loading import load_graph
+from services.radio_gateway.config import dump_radios
+
+MAP = "city934"
+SERVICES = ("executor", "gateway", "sim", "mocap", "planner")
+_PAGE_KB = os.sysconf("SC_PAGE_SIZE") / 1024
+_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def draw_tasks(graph: FleetGraph, starts: dict[str, str], rng: random.Random) -> dict[str, Task]:
+    """Fresh distinct goals for vehicles at `starts`: free spots first, then (beyond half the spots)
+    other vehicles' starts, never a vehicle's own."""
+    spots = sorted(graph.endpoints())
+    taken = set(starts.values())
+    free = [s for s in spots if s not in taken]
+    rng.shuffle(free)
+    goals = free[:len(starts)] + rng.sample(sorted(taken), max(0, len(starts) - len(free)))
+    while True:
+        rng.shuffle(goals)
+        if all(g != s for g, s in zip(goals, starts.values(), strict=True)):
+            return {vid: Task(start=s, goal=g) for (vid, s), g in zip(starts.items(), goals, strict=True)}
+
+
+@contextmanager
+def soak_fleet(graph: FleetGraph, tasks: dict[str, Task], run_dir: Path, executors: int, per_radio: int,
+               truth_hz: float, fleet: str = "soak") -> Iterator[LocalFleet]:
+    """The demo's processes (services.mission.demo), minus the recorder, tuned for a large fleet."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    radios = demo_radios(graph, tasks, per_radio)
+    radios_path = run_dir / "radios.yaml"
+    radios_path.write_text(dump_radios(radios))
+    keys = Keys(fleet)
+    creds = make_credentials(run_dir / "secrets")
+    procs = [p for p in fleet_processes(radios_path, radios, executors, run_dir / "recordings")
+             if p.service != "telemetry"]
+    for p in procs:
+        p.argv += {"gateway": ["--subscribe-each"], "sim": ["--truth-hz", str(truth_hz)]}.get(p.service, [])
+    with InProcessRouter(**creds.router_options()) as router:
+        for p in procs:
+            p.env.update({"FLEET_ZENOH_CONNECT": router.endpoint, "FLEET_NAME": keys.fleet, **creds.env(p.service)})
+        start(procs, run_dir, settle_s=0.1)
+        try:
+            local = LocalFleet(router, keys, run_dir, radios, creds)
+            counts = {"planner": 1, "executor": executors, "gateway": len(radios.radios), "sim": 1, "mocap": 1}
+            missing = asyncio.run(wait_for_services(local.client_config(), keys, counts, 120.0))
+            if missing:
+                raise RuntimeError(f"services not up within 120 s: {', '.join(missing)} (see {run_dir / 'logs'})")
+            yield local
+        finally:
+            stop(run_dir, grace_s=5.0)
+
+
+def proc_sample(pid: int) -> tuple[float, float] | None:
+    """(resident MB, CPU seconds) of a process, None if it is gone."""
+    try:
+        rss_pages = int(Path(f"/proc/{pid}/statm").read_text().split()[1])
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError, ValueError):
+        return None
+    return rss_pages * _PAGE_KB / 1024, (int(fields[11]) + int(fields[12])) / _TICKS
+
+
+@dataclass
+class SoakLog:
+    """Everything collected while the soak runs."""
+
+    started: float = field(default_factory=time.time)
+    stats: dict[str, ServiceStats] = field(default_factory=dict)  # "service/instance" -> latest
+    first_stats: dict[str, ServiceStats] = field(default_factory=dict)
+    series: dict[str, list[tuple[float, float, float]]] = field(default_factory=lambda: defaultdict(list))
+    """instance -> (t, RSS MB, CPU s)."""
+    latency: dict[str, list[tuple[float, float, float]]] = field(default_factory=lambda: defaultdict(list))
+    """executor instance -> (t, pose-to-command p99 ms, missed deadlines so far)."""
+    missions: list[MissionResult] = field(default_factory=list)
+    load: list[float] = field(default_factory=list)
+    """The machine's 1-minute load average at each process sample (other work shares the cores)."""
+
+    def on_stats(self, msg: ServiceStats) -> None:
+        name = f"{msg.service}/{msg.instance}"
+        self.first_stats.setdefault(name, msg)
+        self.stats[name] = msg
+        if msg.service == "executor":
+            self.latency[msg.instance].append((msg.t - self.started, msg.figures.get("pose_to_cmd_p99_ms", 0.0),
+                                               msg.figures.get("missed", 0.0)))
+
+
+async def sample_processes(log: SoakLog, pids: dict[str, int], every_s: float) -> None:
+    while True:
+        now = time.time() - log.started
+        log.load.append(os.getloadavg()[0])
+        for name, pid in pids.items():
+            sample = proc_sample(pid)
+            if sample is not None:
+                log.series[name].append((now, *sample))
+        await asyncio.sleep(every_s)
+
+
+async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], seconds: float, sample_s: float,
+               seed: int) -> SoakLog:
+    """Missions back to back for `seconds` (the last one is flown to its end); stops at a failed one."""
+    log = SoakLog()
+    pids = {p["instance"]: p["pid"] for p in json.loads((fleet.run_dir / "up.json").read_text())}
+    session = open_session(fleet.client_config())
+    for service in SERVICES:  # one subscription per service: what the router's access control grants
+        subscribe(session, fleet.keys.all_stats(service), ServiceStats, lambda m, _k: log.on_stats(m))
+    sampler = asyncio.create_task(sample_processes(log, pids, sample_s))
+    rng = random.Random(seed)
+    try:
+        while time.time() - log.started < seconds:
+            spec = MissionSpec(map=MAP, tasks=tasks, planner="sipp", time_limit=60.0, ready_timeout_s=60.0,
+                               slack_s=30.0, mission=f"soak{len(log.missions) + 1:03d}")
+            runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
+            await runner.run()
+            result = runner.result
+            assert result is not None
+            log.missions.append(result)
+            print(f"[{time.time() - log.started:6.0f} s] {result.summary().splitlines()[0]}; "
+                  f"{sum(r.arrived for r in result.vehicles.values())}/{len(tasks)} arrived, "
+                  f"contacts {result.contacts}", flush=True)
+            if not result.ok:
+                break
+            tasks = draw_tasks(graph, {vid: t.goal for vid, t in tasks.items()}, rng)
+        await asyncio.sleep(2.5)  # everyone's last stats
+    finally:
+        sampler.cancel()
+        session.close()
+    return log
+
+
+def mb_per_min(points: list[tuple[float, float, float]]) -> float:
+    """Memory growth (MB/min) from the first third of the run to the last (warm-up excluded)."""
+    if len(points) < 6:
+        return 0.0
+    third = len(points) // 3
+    early, late = points[third:2 * third], points[2 * third:]
+    t0, m0 = sum(p[0] for p in early) / len(early), sum(p[1] for p in early) / len(early)
+    t1, m1 = sum(p[0] for p in late) / len(late), sum(p[1] for p in late) / len(late)
+    return 60.0 * (m1 - m0) / (t1 - t0) if t1 > t0 else 0.0
+
+
+def report(log: SoakLog, seconds: float) -> str:
+    """The tables: missions, each service's drops and figures, each process's memory and CPU."""
+    elapsed = time.time() - log.started
+    ok = sum(m.ok for m in log.missions)
+    arrived = sum(sum(r.arrived for r in m.vehicles.values()) for m in log.missions)
+    flights = sum(len(m.vehicles) for m in log.missions)
+    gap = min((m.min_gap for m in log.missions), default=float("inf"))
+    lines = [f"soak: {elapsed / 60:.1f} min (asked {seconds / 60:.1f}), missions {ok}/{len(log.missions)} OK, "
+             f"{arrived}/{flights} vehicle trips arrived, contacts {sum(m.contacts for m in log.missions)}, "
+             f"closest bodies {100 * gap:.1f} cm; machine load average {min(log.load, default=0):.1f}-"
+             f"{max(log.load, default=0):.1f} on {os.cpu_count()} cores"]
+    for m in log.missions:
+        if not m.ok:
+            lines.append(f"failed: {m.mission}: {m.reason}")
+    rows = []
+    for name, st in sorted(log.stats.items()):
+        first = log.first_stats[name]
+        f = st.figures
+        extra = ""
+        if st.service == "executor":
+            extra = (f"missed {f.get('missed', 0):.0f}/{f.get('ticks', 0):.0f} ticks, late p99 {f.get('late_p99_ms', 0):.1f} ms, "
+                     f"tick p99 {f.get('cost_p99_ms', 0):.1f} ms, pose->cmd p50/p99/max "
+                     f"{f.get('pose_to_cmd_p50_ms', 0):.0f}/{f.get('pose_to_cmd_p99_ms', 0):.0f}/"
+                     f"{f.get('pose_to_cmd_max_ms', 0):.0f} ms")
+        elif st.service == "sim":
+            extra = (f"truth behind {st.counters.get('truth_behind', 0)}x, watchdog level/cut "
+                     f"{f.get('watchdog_levels', 0):.0f}/{f.get('watchdog_cuts', 0):.0f}, radio lost "
+                     f"{f.get('radio_lost', 0):.0f} congested {f.get('radio_congested', 0):.0f}")
+        elif st.service == "gateway":
+            extra = f"refused {sum(v for k, v in st.counters.items() if k.startswith('refused:'))}, " \
+                    f"radio_behind {st.counters.get('radio_behind', 0)}"
+        rows.append([name, st.drops, st.drops - first.drops, extra])
+    lines += ["", format_table(["service", "dropped", "of which in soak", "figures"], rows), ""]
+    mem = []
+    for name, points in sorted(log.series.items()):
+        cpu = (points[-1][2] - points[0][2]) / max(points[-1][0] - points[0][0], 1e-9)
+        mem.append([name, f"{points[0][1]:.0f}", f"{max(p[1] for p in points):.0f}", f"{points[-1][1]:.0f}",
+                    f"{mb_per_min(points):+.2f}", f"{100 * cpu:.0f}"])
+    lines.append(format_table(["process", "RSS start MB", "max MB", "end MB", "growth MB/min", "CPU %"], mem))
+    return "\n".join(lines)
+
+
+def summary(log: SoakLog) -> dict:
+    """What a test checks: each mission's verdict and each process's memory growth (MB/min)."""
+    return {"missions": [{"mission": m.mission, "ok": m.ok, "reason": m.reason, "contacts": m.contacts}
+                         for m in log.missions],
+            "growth_mb_per_min": {name: mb_per_min(points) for name, points in log.series.items()},
+            "drops": {name: st.drops for name, st in log.stats.items()}}
+
+
+def figure(log: SoakLog, out: str | Path) -> Path:
+    fig, (ax1, ax2) = new_figure(2, width=6.0)
+    for name, points in sorted(log.series.items()):
+        ax1.plot([p[0] / 60 for p in points], [p[1] for p in points], label=name)
+    ax1.set(xlabel="minutes", ylabel="resident MB", title="memory per process")
+    ax1.legend(fontsize=6, ncol=2)
+    for name, points in sorted(log.latency.items()):
+        ax2.plot([p[0] / 60 for p in points], [p[1] for p in points], label=f"{name} p99")
+    ax2.set(xlabel="minutes", ylabel="ms", title="pose-to-command latency (last 2000 ticks)")
+    ax2.legend(fontsize=7)
+    return save_figure(fig, out, "soak")
+
+
+def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: int = 8, truth_hz: float = 50.0,
+             sample_s: float = 5.0, seed: int = 0, run_dir: Path = Path("out/soak/run"),
+             out: str | Path = "out") -> SoakLog:
+    """Start the fleet, soak it for `minutes`, print the report and save the figure."""
+    graph = load_graph(MAP)
+    rng = random.Random(seed)
+    spots = sorted(graph.endpoints())
+    starts = {f"cf{i + 1:02d}": s for i, s in enumerate(rng.sample(spots, vehicles))}
+    tasks = draw_tasks(graph, starts, rng)
+    with soak_fleet(graph, tasks, run_dir, executors, per_radio, truth_hz) as fleet:
+        log = asyncio.run(soak(fleet, graph, tasks, 60.0 * minutes, sample_s, seed))
+    print(report(log, 60.0 * minutes))
+    print(f"saved {figure(log, out)}")
+    return log
+
+
+def main() -> None:
+    parser = bench_parser(__doc__.splitlines()[0])
+    parser.add_argument("--minutes", type=float, default=float(os.environ.get("FLEET_SOAK_MINUTES", "5")))
+    parser.add_argument("--vehicles", type=int, default=80)
+    parser.add_argument("--executors", type=int, default=2)
+    parser.add_argument("--per-radio", type=int, default=8)
+    parser.add_argument("--truth-hz", type=float, default=50.0)
+    parser.add_argument("--sample-s", type=float, default=5.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--run-dir", default="out/soak/run", help="logs and state of the fleet's processes")
+    parser.add_argument("--summary", help="also write the verdicts and memory growth here (JSON)")
+    args = parser.parse_args()
+    log = run_soak(args.minutes, args.vehicles, args.executors, args.per_radio, args.truth_hz, args.sample_s,
+                   args.seed, Path(args.run_dir), args.out)
+    if args.summary:
+        Path(args.summary).write_text(json.dumps(summary(log), indent=1))
+
+
+if __name__ == "__main__":
+    main()
