@@ -113,6 +113,8 @@ class SoakLog:
     latency: dict[str, list[tuple[float, float, float]]] = field(default_factory=lambda: defaultdict(list))
     """executor instance -> (t, pose-to-command p99 ms, missed deadlines so far)."""
     missions: list[MissionResult] = field(default_factory=list)
+    idle_from: float | None = None
+    """s into the soak when a mission failed: from then on the fleet runs on without missions."""
     load: list[float] = field(default_factory=list)
     """The machine's 1-minute load average at each process sample (other work shares the cores)."""
 
@@ -138,7 +140,9 @@ async def sample_processes(log: SoakLog, pids: dict[str, int], every_s: float) -
 
 async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], seconds: float, sample_s: float,
                seed: int) -> SoakLog:
-    """Missions back to back for `seconds` (the last one is flown to its end); stops at a failed one."""
+    """Missions back to back for `seconds` (the last one is flown to its end); after a failed one
+    the services run on without missions until the time is up (memory, drops and deadlines still
+    count: every executor ticks and every pose flows whether the vehicles move or not)."""
     log = SoakLog()
     pids = {p["instance"]: p["pid"] for p in json.loads((fleet.run_dir / "up.json").read_text())}
     session = open_session(fleet.client_config())
@@ -158,7 +162,9 @@ async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], sec
             print(f"[{time.time() - log.started:6.0f} s] {result.summary().splitlines()[0]}; "
                   f"{sum(r.arrived for r in result.vehicles.values())}/{len(tasks)} arrived, "
                   f"contacts {result.contacts}", flush=True)
-            if not result.ok:
+            if not result.ok:  # the vehicles are wherever the abort left them: no next mission
+                log.idle_from = time.time() - log.started
+                await asyncio.sleep(max(0.0, seconds - log.idle_from))
                 break
             tasks = draw_tasks(graph, {vid: t.goal for vid, t in tasks.items()}, rng)
         await asyncio.sleep(2.5)  # everyone's last stats
@@ -193,6 +199,8 @@ def report(log: SoakLog, seconds: float) -> str:
     for m in log.missions:
         if not m.ok:
             lines.append(f"failed: {m.mission}: {m.reason}")
+    if log.idle_from is not None:
+        lines.append(f"no missions from {log.idle_from / 60:.1f} min on: the services ran on with the vehicles stopped")
     rows = []
     for name, st in sorted(log.stats.items()):
         first = log.first_stats[name]
