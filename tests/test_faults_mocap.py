@@ -1,18 +1,25 @@
 """Motion-capture dropouts mid-flight (issue 8), injected at the simulated motion capture: 0.3 s is
 bridged by the executor's prediction (the vehicle flies its plan on), 2 s makes it land (a blind,
 level emergency descent), and the mission aborts cleanly: every vehicle ends on the ground, no
-contact."""
+contact. A bridge that falls behind drops late frames rather than queue them."""
 
 from __future__ import annotations
 
 import asyncio
+import time
+from collections.abc import Callable
 
 import pytest
+import zenoh
 from fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
 
-from common.messages import SimFault
+from common.bus import Publisher
+from common.messages import SimFault, SimTruth
+from common.zsession import ZenohConfig
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
+from services.mocap_bridge.bridge import MocapBridge
+from services.mocap_bridge.config import MocapConfig, SimNoise
 from services.planner.loading import load_graph
 
 SHORT, LONG = 0.3, 2.0
@@ -54,3 +61,24 @@ def test_a_short_dropout_is_flown_through_and_a_long_one_lands_the_vehicle(tmp_p
         assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
     print(f"cf1 through {SHORT} s: worst tracking error {max(s.tracking_error for s in cf1):.3f} m; "
           f"cf2 emergency landing {landed_at - long:.2f} s into {LONG} s, touchdown {watch.hardest_touchdown('cf2'):.2f} m/s")
+
+
+def test_late_frames_are_dropped_not_queued(zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
+    """A bridge that falls behind drops frames older than `max_age_s` (counted) instead of
+    publishing a backlog of late poses."""
+    cfg = ZenohConfig.client(zenoh_router)
+    bridge = MocapBridge(MocapConfig(sim=SimNoise(latency_s=0.0)), cfg)
+    session = zsession()
+    truth = Publisher(session, bridge.keys.sim_truth("cf1"), SimTruth)
+
+    async def main() -> None:
+        task = asyncio.create_task(bridge.run())
+        await until(lambda: truth.matched, 5.0, "the bridge's subscription")
+        for age in (1.0, 0.5, 0.0):
+            truth.put(SimTruth(vid="cf1", t=time.time() - age, x=0.0, y=0.0, z=0.0, yaw=0.0))
+        await until(lambda: bridge.published.get("cf1") == 1, 2.0, "the fresh pose")
+        bridge.stop()
+        assert await task == 0
+
+    asyncio.run(main())
+    assert bridge.counters.total() == 2

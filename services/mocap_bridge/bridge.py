@@ -67,8 +67,16 @@ class MocapBridge(Service):
             backend.close()
 
     def _on_frame(self, t: float, seen: Mapping[str, BodyPose]) -> None:
+        """A frame captured at `t`: poses and events. One older than `max_age_s` by now (the loop
+        fell behind) is dropped and counted: a late pose only misleads, and a backlog of them
+        would grow without bound (measured: 80 s behind in an overloaded soak)."""
         assert self.tracker is not None
-        poses, events = self.tracker.frame(t, seen, time.time())
+        now = time.time()
+        if now - t > self.config.max_age_s:
+            self.counters.drop("late", Pose, self.keys.all_vehicles("pose"),
+                               f"a frame captured {now - t:.2f} s ago (max_age_s {self.config.max_age_s})")
+            return
+        poses, events = self.tracker.frame(t, seen, now)
         self._publish_events(events)
         for pose in poses:
             pub = self._poses.get(pose.vid)

@@ -8,6 +8,7 @@ rate_hz: 100                    # most poses per second per body
 bodies: {cf_01: cf1, cf_02: cf2}   # rigid-body name -> vehicle id (empty: the body's name is the vid)
 lost_after_s: 0.1               # a body unseen this long is reported lost
 latency_s: 0.0                  # real systems: subtracted from the arrival time for the capture stamp
+max_age_s: 0.1                  # a frame captured longer ago when the bridge gets to it is dropped
 sim: {pos_std: 0.001, yaw_std: 0.0087, latency_s: 0.006, dropout_rate_hz: 0.0, dropout_s: 0.2, seed: 0}
 ```
 """
@@ -52,6 +53,7 @@ class MocapConfig(msgspec.Struct, **_Strict):
     bodies: dict[str, str] = {}
     lost_after_s: Positive = 0.1
     latency_s: NonNegative = 0.0
+    max_age_s: Positive = 0.1
     sim: SimNoise = SimNoise()
 
 
