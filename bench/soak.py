@@ -215,6 +215,8 @@ def report(log: SoakLog, seconds: float) -> str:
             extra = (f"truth behind {st.counters.get('truth_behind', 0)}x, watchdog level/cut "
                      f"{f.get('watchdog_levels', 0):.0f}/{f.get('watchdog_cuts', 0):.0f}, radio lost "
                      f"{f.get('radio_lost', 0):.0f} congested {f.get('radio_congested', 0):.0f}")
+        elif st.service == "mocap":
+            extra = f"poses {f.get('poses', 0):.0f}, late frames dropped {f.get('late_frames', 0):.0f}"
         elif st.service == "gateway":
             extra = f"refused {sum(v for k, v in st.counters.items() if k.startswith('refused:'))}, " \
                     f"radio_behind {st.counters.get('radio_behind', 0)}"

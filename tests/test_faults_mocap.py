@@ -81,4 +81,4 @@ def test_late_frames_are_dropped_not_queued(zenoh_router: str, zsession: Callabl
         assert await task == 0
 
     asyncio.run(main())
-    assert bridge.counters.total() == 2
+    assert bridge.counters["late_frames"] == 2

@@ -73,8 +73,9 @@ class MocapBridge(Service):
         assert self.tracker is not None
         now = time.time()
         if now - t > self.config.max_age_s:
-            self.counters.drop("late", Pose, self.keys.all_vehicles("pose"),
-                               f"a frame captured {now - t:.2f} s ago (max_age_s {self.config.max_age_s})")
+            if self.counters.inc("late_frames") == 1:
+                log.warning("mocap: dropped a frame captured %.2f s ago (max_age_s %.2f; further ones only "
+                            "counted as 'late_frames')", now - t, self.config.max_age_s)
             return
         poses, events = self.tracker.frame(t, seen, now)
         self._publish_events(events)
@@ -93,7 +94,8 @@ class MocapBridge(Service):
         backend.blind(fault.vid, time.time() + fault.duration_s)
 
     def _figures(self) -> dict[str, float]:
-        return {"bodies": len(self.published), "poses": sum(self.published.values())}
+        return {"bodies": len(self.published), "poses": sum(self.published.values()),
+                "late_frames": self.counters.get("late_frames", 0)}
 
     def _on_backend_error(self, message: str) -> None:
         if self.counters.inc("backend_error") == 1:
