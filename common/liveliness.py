@@ -42,8 +42,9 @@ class AliveSet:
         self._instances: set[str] = set()
         self._heard: set[str] = set()
         self._changed = asyncio.Event()
-        self._subscriber = session.liveliness().declare_subscriber(
-            keys.all_alive(service), self._on_sample, history=True)
+        # No history: a liveliness query right after a history subscriber on the same session gets
+        # no replies (zenoh 1.10, 38 of 40 tries), so `sync` would be no barrier; the query is the snapshot.
+        self._subscriber = session.liveliness().declare_subscriber(keys.all_alive(service), self._on_sample)
 
     @property
     def instances(self) -> frozenset[str]:
