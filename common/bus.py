@@ -152,6 +152,13 @@ class Mailbox(Generic[T]):
         if wake:
             call_in_loop(self._loop, self._wakeup.set)
 
+    def drain(self) -> list[T]:
+        """Every waiting item, oldest first, without waiting (event loop only)."""
+        with self._lock:
+            items = list(self._items)
+            self._items.clear()
+        return items
+
     async def get(self) -> T:
         """The oldest item, waiting for one (event loop only)."""
         while True:
@@ -220,8 +227,18 @@ class Subscription(Generic[T]):
         """The next message and its key (only without a handler)."""
         return await self._mailbox.get()
 
+    def drain(self) -> list[tuple[T, str]]:
+        """Every message waiting, oldest first, without waiting (only without a handler): a control
+        loop pulls its inputs right before it uses them."""
+        return self._mailbox.drain()
+
     async def _pump(self, handler: MessageHandler[T]) -> None:
+        """Hand each message to `handler`, yielding to the loop after each one: `recv` does not
+        suspend while the mailbox holds items, so a stream arriving as fast as it is handled (or a
+        backlog after a stall) would otherwise keep the control loops from running (measured: pose
+        handlers ran for up to 0.96 s in one step, the executor's commands went stale)."""
         while True:
+            await asyncio.sleep(0)
             msg, key = await self.recv()
             try:
                 result = handler(msg, key)

@@ -29,7 +29,7 @@ from collections import deque
 
 import numpy as np
 
-from common.bus import Publisher
+from common.bus import Publisher, Subscription
 from common.liveliness import AliveSet
 from common.messages import (
     Cmd,
@@ -131,7 +131,7 @@ class ExecutorService(Service):
     async def main(self) -> None:
         k = self.keys
         self.subscribe(k.all_vehicles("plan"), VehiclePlan, self._on_plan)
-        self.subscribe(k.all_vehicles("pose"), Pose, self._on_pose, maxlen=4096)
+        poses = self.subscribe(k.all_vehicles("pose"), Pose, maxlen=4096)  # pulled by each tick
         self.subscribe(k.all_vehicles("telemetry"), Telemetry, self._on_telemetry, maxlen=1024)
         self.subscribe(k.all_vehicles("state"), VehicleState, self._on_state, maxlen=4096)
         self.subscribe(k.all_missions("start"), MissionStart, self._on_start)
@@ -142,7 +142,7 @@ class ExecutorService(Service):
             "executor", lambda _i, _a, _live: loop.call_later(TAKEOVER_GRACE_S, self._on_executors))
         self._reassign(self._executors.instances)
         self.spawn(publish_stats(self, self._figures), name="stats")
-        await self._control_loop()
+        await self._control_loop(poses)
 
     def _figures(self) -> dict[str, float]:
         return {"vehicles": len(self.controllers), **self.stats.figures()}
@@ -272,11 +272,16 @@ class ExecutorService(Service):
             self.last_state[state.vid] = state
 
     # ---- the loop -------------------------------------------------------------------------------
-    async def _control_loop(self) -> None:
+    async def _control_loop(self, poses: Subscription[Pose]) -> None:
+        """Every tick fuses the poses that arrived since the last one, then commands every vehicle:
+        a tick that runs late (a starved process) judges staleness on every pose that reached the
+        process, not only on those a handler happened to run for first."""
         due = time.monotonic()
         n = 0
         while True:
             start = time.monotonic()
+            for pose, key in poses.drain():
+                self._on_pose(pose, key)
             now = time.time()
             if n % ROUTER_CHECK_TICKS == 0:
                 self._check_router(now)

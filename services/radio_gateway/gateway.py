@@ -73,30 +73,35 @@ class RadioGateway(Service):
             self._events[vid] = self.publisher(self.keys.vehicle(vid, "event"), VehicleEvent)
         alive = await self.watch_alive("executor", lambda _i, _a, live: self._set_executors(live))
         self._set_executors(alive.instances)
-        for key in ([self.keys.vehicle(vid, "cmd") for vid in self.channels] if self.subscribe_each
-                    else [self.keys.all_vehicles("cmd")]):
-            self.subscribe(key, Cmd, self._on_cmd)
+        cmds = [self.subscribe(key, Cmd) for key in  # pulled by each tick
+                ([self.keys.vehicle(vid, "cmd") for vid in self.channels] if self.subscribe_each
+                 else [self.keys.all_vehicles("cmd")])]
         on_packet = lambda vid, raw: call_in_loop(loop, self._on_packet, vid, raw)  # noqa: E731
         on_error = lambda vid, msg: call_in_loop(loop, self._on_link_error, vid, msg)  # noqa: E731
         self._links = {vid: CrtpLink(vid, link.uri, on_packet, on_error) for vid, link in self.spec.vehicles.items()}
         sender = RadioSender(self.radio, on_error, self.counters)
         self.spawn(publish_stats(self, self._figures), name="stats")
         try:
-            await self._run(sender)
+            await self._run(sender, cmds)
         finally:
             sender.close()
             for sub in self._poses.values():
                 sub.close()
             await asyncio.gather(*(asyncio.to_thread(link.close) for link in self._links.values()))
 
-    async def _run(self, sender: RadioSender) -> None:
-        """The tick loop: safety, one batch, pose subscriptions, telemetry."""
+    async def _run(self, sender: RadioSender, cmds: list[Subscription[Cmd]]) -> None:
+        """The tick loop: the commands that arrived, safety, one batch, pose subscriptions,
+        telemetry. Commands are taken right before the staleness check: a tick that runs late (a
+        starved process) must not take its owner's waiting commands for missing ones."""
         loop = asyncio.get_running_loop()
         period = 1.0 / self.params.tick_hz
         telemetry_every = max(1, round(self.params.tick_hz / self.params.status_hz))
         due = loop.time()
         ticks = 0
         while True:
+            for sub in cmds:
+                for cmd, key in sub.drain():
+                    self._on_cmd(cmd, key)
             now = time.time()
             for ch in self.channels.values():
                 self._publish_events(ch.vid, ch.supervise(now))

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
+import time
 from pathlib import Path
 
 from common.errors import InputError
@@ -20,9 +22,13 @@ log = logging.getLogger(__name__)
 
 class TelemetryService(Service):
     def __init__(self, instance: str, *args, out: Path = Path("out/recordings"), viewer: bool = False,
-                 web: bool = False, **kwargs) -> None:
+                 web: bool = False, max_hz: float = 20.0, **kwargs) -> None:
         super().__init__("telemetry", instance, *args, **kwargs)
+        if max_hz <= 0:
+            raise ValueError("max_hz must be positive")
         self.out = out
+        self.min_interval = 1.0 / max_hz
+        self._logged_at: dict[str, float] = {}
         self.viewer = viewer
         self.web = web
         self.mission = ""
@@ -43,9 +49,14 @@ class TelemetryService(Service):
                 self.recording.close()
 
     def _with_recording(self, log_fn):
-        def handler(msg, _key: str) -> None:
-            if self.recording is not None:
-                log_fn(self.recording, msg)
+        """At most `max_hz` messages per key are drawn: the streams arrive at up to 100 Hz per
+        vehicle and the recorder shares the machine with the control loops."""
+        def handler(msg, key: str) -> None:
+            now = time.monotonic()
+            if self.recording is None or now - self._logged_at.get(key, -float("inf")) < self.min_interval:
+                return
+            self._logged_at[key] = now
+            log_fn(self.recording, msg)
         return handler
 
     def _on_plan(self, plan: VehiclePlan, _key: str) -> None:
@@ -79,11 +90,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("out/recordings"), help="directory for .rrd files")
     p.add_argument("--viewer", action="store_true", help="spawn the rerun viewer")
     p.add_argument("--web", action="store_true", help="serve the rerun web viewer")
+    p.add_argument("--max-hz", type=float, default=20.0, help="most samples drawn per second per vehicle and stream")
+    p.add_argument("--nice", type=int, default=10,
+                   help="lower the recorder's CPU priority by this much (it must not delay the control loops)")
     add_zenoh_args(p, default_instance="telemetry")
     p.set_defaults(handler=cmd_telemetry)
 
 
 def cmd_telemetry(args: argparse.Namespace) -> int:
+    if args.max_hz <= 0:
+        raise InputError(f"--max-hz: must be positive, got {args.max_hz}")
+    if args.nice > 0:
+        os.nice(args.nice)
     svc = TelemetryService(args.instance, zconfig_from_args(args), keys_from_args(args),
-                           out=args.out, viewer=args.viewer, web=args.web)
+                           out=args.out, viewer=args.viewer, web=args.web, max_hz=args.max_hz)
     return run_service(svc)
