@@ -112,13 +112,13 @@ def test_stale_commands_land_a_flyer_and_stop_a_driver() -> None:
     assert flyer.mode == Drive.FLIGHT and not flyer.took_over
 
 
-def test_a_stop_goes_out_three_times_then_only_status() -> None:
+def test_a_stop_goes_out_three_times_with_zero_wheels_then_only_status() -> None:
     chans, sched = _radio(1, 0)
     (ch,) = chans
     _run(chans, sched, 0.3, lambda c, now: HOVER)
     sent, _ = _run(chans, sched, 1.0, lambda c, now: StopSetpoint(), t0=0.3)
     kinds = _kinds(sent[ch.vid])
-    assert kinds["Stop"] == 3 and kinds["Wheels"] == 1 and kinds["FlightSetpoint"] == 0
+    assert kinds["Stop"] == 3 and kinds["Wheels"] == 3 and kinds["FlightSetpoint"] == 0
     assert ch.mode == Drive.IDLE and not ch.wants_flight_slot
 
 

@@ -85,7 +85,7 @@ class GatewayParams(msgspec.Struct, **_Strict):
     drivers together; wheel_refresh_s: an unchanged wheel command is resent this often (the wheel
     watchdog stops after 0.5 s); status_hz: status requests per vehicle per second; stale_s: a cmd
     older than this is stale; link_timeout_s: no status for this long means the link is lost;
-    stop_repeats: how many times a stop is sent."""
+    stop_repeats: how many times a stop (motors off, and zero wheels) is sent."""
 
     tick_hz: Positive = 100.0
     drive_hz: Positive = 50.0

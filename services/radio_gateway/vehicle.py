@@ -14,7 +14,8 @@ Modes:
   command or a stop is refused until the vehicle has landed (`Refused`): its sender lost track of
   it (e.g. an executor whose router went away believes its blind descent is over), and either
   would drop an airborne vehicle (no flight setpoints: the firmware cuts the motors).
-- STOPPING: `stop_repeats` commander stops (motors off) and a zero wheel command, then IDLE.
+- STOPPING: `stop_repeats` commander stops (motors off) and as many zero wheel commands (one lost
+  packet would leave the wheels turning until the wheel watchdog), then IDLE.
   Entered on a StopSetpoint, after a landing, or when a wheel command goes stale.
 - IDLE: nothing to send but status requests.
 """
@@ -82,7 +83,7 @@ class VehicleChannel:
         self._wheels = (0.0, 0.0)
         self._wheels_sent: tuple[float, float] | None = None
         self._wheels_sent_at = -float("inf")
-        self._wheel_zero = False
+        self._wheel_zeros_left = 0
 
     # ---- commands -------------------------------------------------------------------------
 
@@ -111,7 +112,7 @@ class VehicleChannel:
             if self.mode == Drive.LANDING:
                 events.append(("cmd_resumed", "fresh wheel command during the safety landing"))
             self._wheels = (setpoint.left, setpoint.right)
-            self._wheel_zero = False
+            self._wheel_zeros_left = 0
             self._enter(Drive.DRIVE)
         elif isinstance(setpoint, StopSetpoint) and self.mode not in (Drive.STOPPING, Drive.IDLE):
             self._stop()
@@ -134,7 +135,7 @@ class VehicleChannel:
         self._enter(Drive.STOPPING)
         self._stops_left = self.params.stop_repeats
         self._wheels = (0.0, 0.0)
-        self._wheel_zero = True
+        self._wheel_zeros_left = self.params.stop_repeats
 
     def stale(self, now: float) -> bool:
         return now - self.cmd_at > self.params.stale_s
@@ -184,14 +185,14 @@ class VehicleChannel:
             events = []
         if self._stops_left > 0:
             self._stops_left -= 1
-            if self._stops_left == 0 and self.mode == Drive.STOPPING and not self._wheel_zero:
+            if self._stops_left == 0 and self.mode == Drive.STOPPING and not self._wheel_zeros_left:
                 self.mode = Drive.IDLE
             return self._count(crtp.encode_stop()), events
         return None, events
 
     def wheel_due(self, now: float) -> bool:
         """Whether the driving command switch should carry a wheel packet for this vehicle."""
-        if self._wheel_zero:
+        if self._wheel_zeros_left:
             return True
         if self.mode != Drive.DRIVE:
             return False
@@ -202,9 +203,9 @@ class VehicleChannel:
         if not self.wheel_due(now):
             return None
         self._wheels_sent, self._wheels_sent_at = self._wheels, now
-        if self._wheel_zero:
-            self._wheel_zero = False
-            if self.mode == Drive.STOPPING and self._stops_left == 0:
+        if self._wheel_zeros_left:
+            self._wheel_zeros_left -= 1
+            if not self._wheel_zeros_left and self.mode == Drive.STOPPING and self._stops_left == 0:
                 self.mode = Drive.IDLE
         return self._count(crtp.encode_wheels(*self._wheels))
 
