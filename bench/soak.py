@@ -163,6 +163,7 @@ async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], sec
                   f"{sum(r.arrived for r in result.vehicles.values())}/{len(tasks)} arrived, "
                   f"contacts {result.contacts}", flush=True)
             if not result.ok:  # the vehicles are wherever the abort left them: no next mission
+                print(result.summary(), flush=True)
                 log.idle_from = time.time() - log.started
                 await asyncio.sleep(max(0.0, seconds - log.idle_from))
                 break

@@ -147,3 +147,25 @@ def test_a_stop_followed_at_once_by_driving_still_stops_the_motors() -> None:
     kinds = _kinds(sent[ch.vid])
     assert kinds["Stop"] == 3 and kinds["FlightSetpoint"] == 0 and kinds["Wheels"] >= 5
     assert ch.mode == Drive.DRIVE and not ch.wants_flight_slot
+
+
+def _status(ch: VehicleChannel, flags: int) -> crtp.Status:
+    """A reply to a request sent now, everything received."""
+    sent = ch.stats.sent + 1
+    return crtp.Status(echo_sent=sent, received=sent, setpoints=0, vbat_mv=3900, wheel_left_mm_s=0,
+                       wheel_right_mm_s=0, flags=flags)
+
+
+def test_motors_reported_running_after_the_stops_were_lost_are_stopped_again() -> None:
+    chans, sched = _radio(1, 0)
+    (ch,) = chans
+    _run(chans, sched, 0.3, lambda c, now: HOVER)
+    _run(chans, sched, 0.2, lambda c, now: StopSetpoint() if now < 0.32 else WheelSetpoint(left=0.05, right=0.05),
+         t0=0.3)  # the stops went out (and were lost): driving now
+    assert ch.mode == Drive.DRIVE and not ch.wants_flight_slot
+    assert [e[0] for e in ch.on_status(_status(ch, crtp.FLAG_MOTORS), 0.5)] == ["link_up", "motors_restopped"]
+    sent, _ = _run(chans, sched, 0.1, lambda c, now: WheelSetpoint(left=0.05, right=0.05), t0=0.5)
+    assert _kinds(sent[ch.vid])["Stop"] == 3 and ch.mode == Drive.DRIVE
+    assert ch.on_status(_status(ch, 0), 0.6) == [] and not ch.wants_flight_slot  # stopped: nothing more
+    _run(chans, sched, 0.1, lambda c, now: HOVER, t0=0.6)
+    assert ch.on_status(_status(ch, crtp.FLAG_MOTORS), 0.7) == [] and ch.mode == Drive.FLIGHT  # flying: its own

@@ -172,8 +172,7 @@ class RadioGateway(Service):
                             self.instance, vid, exc)
             return
         if isinstance(packet, crtp.Status):
-            ch = self.channels[vid]
-            self._publish_events(vid, ch.stats.on_status(packet, time.time()))
+            self._publish_events(vid, self.channels[vid].on_status(packet, time.time()))
 
     def _on_link_error(self, vid: str, message: str) -> None:
         if self.counters.inc(f"link_error:{vid}") == 1:

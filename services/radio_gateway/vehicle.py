@@ -18,6 +18,10 @@ Modes:
   packet would leave the wheels turning until the wheel watchdog), then IDLE.
   Entered on a StopSetpoint, after a landing, or when a wheel command goes stale.
 - IDLE: nothing to send but status requests.
+
+A status reply that shows the motors running while the vehicle is driving or idle (every stop of
+its landing was lost: a congested radio drops whole batches) brings the stops back
+(`motors_restopped`), instead of leaving the motors spinning until the firmware's watchdog.
 """
 
 from __future__ import annotations
@@ -139,6 +143,17 @@ class VehicleChannel:
 
     def stale(self, now: float) -> bool:
         return now - self.cmd_at > self.params.stale_s
+
+    def on_status(self, status: crtp.Status, now: float) -> list[Event]:
+        """Fold in a status reply; stop again motors that run while nothing here flies them."""
+        stale_before = self.stats.stale_replies
+        events = self.stats.on_status(status, now)
+        fresh = self.stats.stale_replies == stale_before
+        if (fresh and status.flags & crtp.FLAG_MOTORS and self.mode in (Drive.DRIVE, Drive.IDLE)
+                and self._stops_left == 0):
+            self._stops_left = self.params.stop_repeats
+            events.append(("motors_restopped", "status shows the motors running while driving or idle: stop sent again"))
+        return events
 
     def on_pose(self, pose: Pose, now: float) -> None:
         if self.landing is not None:
