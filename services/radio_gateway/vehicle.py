@@ -88,6 +88,7 @@ class VehicleChannel:
         self._wheels_sent: tuple[float, float] | None = None
         self._wheels_sent_at = -float("inf")
         self._wheel_zeros_left = 0
+        self._last_stop_sent = 0  # `stats.sent` when the last commander stop went out
 
     # ---- commands -------------------------------------------------------------------------
 
@@ -149,7 +150,8 @@ class VehicleChannel:
         stale_before = self.stats.stale_replies
         events = self.stats.on_status(status, now)
         fresh = self.stats.stale_replies == stale_before
-        if (fresh and status.flags & crtp.FLAG_MOTORS and self.mode in (Drive.DRIVE, Drive.IDLE)
+        after_stops = status.echo_sent > self._last_stop_sent  # asked after the last stop went out
+        if (fresh and after_stops and status.flags & crtp.FLAG_MOTORS and self.mode in (Drive.DRIVE, Drive.IDLE)
                 and self._stops_left == 0):
             self._stops_left = self.params.stop_repeats
             events.append(("motors_restopped", "status shows the motors running while driving or idle: stop sent again"))
@@ -202,7 +204,9 @@ class VehicleChannel:
             self._stops_left -= 1
             if self._stops_left == 0 and self.mode == Drive.STOPPING and not self._wheel_zeros_left:
                 self.mode = Drive.IDLE
-            return self._count(crtp.encode_stop()), events
+            raw = self._count(crtp.encode_stop())
+            self._last_stop_sent = self.stats.sent
+            return raw, events
         return None, events
 
     def wheel_due(self, now: float) -> bool:
