@@ -65,7 +65,9 @@ class AliveSet:
         if alive == (instance in self._instances):
             return
         (self._instances.add if alive else self._instances.discard)(instance)
-        log.info("%s %s %s", self.service, instance, "alive" if alive else "gone")
+        # a service gone is worth a warning (the fleet's processes log at WARNING): take-overs hang on it
+        log.log(logging.INFO if alive else logging.WARNING, "%s %s %s", self.service, instance,
+                "alive" if alive else "gone")
         changed, self._changed = self._changed, asyncio.Event()
         changed.set()
         if self._on_change is not None:
