@@ -49,6 +49,12 @@ Rep = TypeVar("Rep")
 
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
+LOOP_PROBE_S = 0.05
+"""s, how often the event loop's own lateness is measured (`Service._watch_loop`)."""
+LOOP_STALL_S = 0.2
+"""s, a probe this late means the loop did not run for that long (a handler hogging it, the process
+starved of CPU, a GC pause): logged at WARNING and counted as `loop_stall`."""
+
 
 class Service:
     """One fleet process: `name` is its service kind, `instance` tells replicas apart."""
@@ -138,6 +144,7 @@ class Service:
                 return 1
             self._closers.append(declare_alive(self.session, self.keys, self.name, self.instance).undeclare)
             log.info("%s/%s running", self.name, self.instance)
+            self.spawn(self._watch_loop(), name="loop-watch")
             main = self.spawn(self.main(), name="main")
             stop = asyncio.create_task(self._stop.wait())
             await asyncio.wait({main, stop}, return_when=asyncio.FIRST_COMPLETED)
@@ -147,6 +154,18 @@ class Service:
             await self._shutdown()
             for sig in signals:
                 self._loop.remove_signal_handler(sig)
+
+    async def _watch_loop(self) -> None:
+        """Measure how late the loop wakes a `LOOP_PROBE_S` sleep; report stalls (the fleet's
+        deadlines, e.g. the gateway's 0.2 s stale command, are judged by loops like this one)."""
+        loop = asyncio.get_running_loop()
+        while True:
+            due = loop.time() + LOOP_PROBE_S
+            await asyncio.sleep(LOOP_PROBE_S)
+            late = loop.time() - due
+            if late > LOOP_STALL_S:
+                self.counters.inc("loop_stall")
+                log.warning("%s/%s: event loop stalled for %.2f s", self.name, self.instance, late)
 
     async def _shutdown(self) -> None:
         self._stop.set()

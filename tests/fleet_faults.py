@@ -5,10 +5,11 @@ faults injected through the simulators' fault keys (`sim/fault/<vid>`, docs/reli
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import time
 from collections import defaultdict
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Iterable
 from dataclasses import dataclass, field
 
 import zenoh
@@ -30,13 +31,14 @@ TOWN_TASKS = {
 STATS_SERVICES = ("executor", "gateway", "sim", "mocap")
 
 
-async def until(predicate: Callable[[], bool], timeout: float, what: str) -> None:
+async def until(predicate: Callable[[], bool], timeout: float, what: str | Callable[[], str]) -> None:
+    """Wait for `predicate`; on timeout fail naming `what` (a callable says what is still missing)."""
     try:
         async with asyncio.timeout(timeout):
             while not predicate():
                 await asyncio.sleep(0.02)
     except TimeoutError:
-        raise AssertionError(f"timed out after {timeout} s waiting for {what}") from None
+        raise AssertionError(f"timed out after {timeout} s waiting for {what() if callable(what) else what}") from None
 
 
 @dataclass
@@ -100,6 +102,17 @@ class Watch:
 
 Scenario = Callable[[Watch, MissionRunner], Awaitable[None]]
 
+SETTLE_S = 3.0
+"""s after a mission's end for its vehicles to come to rest: a landing's last stop can be lost on
+the radio, and the gateway repeats it when the next status reply still shows the motors running."""
+
+
+async def settle(watch: Watch, vids: Iterable[str], timeout: float) -> None:
+    """Wait until every one of `vids` is at rest on the ground or `timeout` passed (the tests'
+    assertions then say which is not)."""
+    with contextlib.suppress(AssertionError):
+        await until(lambda: all(watch.truth[v] and watch.at_rest_on_ground(v) for v in vids), timeout, "rest")
+
 
 def fly(fleet: LocalFleet, spec: MissionSpec, scenario: Scenario) -> tuple[MissionResult, Watch]:
     """Run the mission of `spec` on `fleet` while `scenario(watch, runner)` injects and checks;
@@ -114,6 +127,7 @@ def fly(fleet: LocalFleet, spec: MissionSpec, scenario: Scenario) -> tuple[Missi
             await scenario(watch, runner)
             assert await mission == 0
             ended = time.time()  # the simulator's figures from after the end
+            await settle(watch, runner.spec.tasks, SETTLE_S)
             await until(lambda: "sim" in watch.stats and watch.stats["sim"].t > ended, 5.0, "the sim's stats")
         finally:
             watch.close()

@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import time
 from pathlib import Path
 
 from common.errors import InputError
 from common.mapfile import load_map
 from common.messages import SimTruth, Telemetry, VehiclePlan, VehicleState
+from common.priority import lower_priority
 from common.service import Service
 from common.svcargs import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
 from services.telemetry.rerun_log import FleetRecording
@@ -100,8 +100,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_telemetry(args: argparse.Namespace) -> int:
     if args.max_hz <= 0:
         raise InputError(f"--max-hz: must be positive, got {args.max_hz}")
-    if args.nice > 0:
-        os.nice(args.nice)
+    lower_priority(args.nice)
     svc = TelemetryService(args.instance, zconfig_from_args(args), keys_from_args(args),
                            out=args.out, viewer=args.viewer, web=args.web, max_hz=args.max_hz)
     return run_service(svc)
