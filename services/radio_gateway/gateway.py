@@ -30,7 +30,7 @@ from common.zsession import ZenohConfig
 from services.radio_gateway import crtp
 from services.radio_gateway.config import RadiosFile
 from services.radio_gateway.link import CrtpLink, RadioSender
-from services.radio_gateway.linkstats import Event
+from services.radio_gateway.linkstats import LINK_EVENTS, Event
 from services.radio_gateway.scheduler import Scheduler
 from services.radio_gateway.vehicle import Refused, VehicleChannel
 
@@ -204,14 +204,19 @@ class RadioGateway(Service):
     def _publish_events(self, vid: str, events: list[Event]) -> None:
         for kind, detail in events:
             log.info("%s: %s %s: %s", self.instance, vid, kind, detail)
-            self._events[vid].put(VehicleEvent(vid=vid, t=time.time(), kind=kind, detail=detail))
+            now = time.time()
+            self._events[vid].put(VehicleEvent(vid=vid, t=now, kind=kind, detail=detail))
+            if kind in LINK_EVENTS:  # the owner reacts on telemetry: tell it now, not at the next sample
+                self._put_telemetry(vid, self.channels[vid], now)
 
     def _publish_telemetry(self, now: float) -> None:
         for vid, ch in self.channels.items():
-            st = ch.stats
-            if not st.reporting(now):
-                continue
-            self._telemetry[vid].put(Telemetry(
-                vid=vid, t=now, gateway=self.instance, vbat=st.vbat, link_quality=st.link_quality, sent=st.sent,
-                acked=st.acked, dropped=st.dropped, cmd_rate_hz=st.cmd_rate_hz, link_ok=st.link_ok,
-                owner=self.owners[vid] or "", stale_cmd=ch.took_over))
+            if ch.stats.reporting(now):
+                self._put_telemetry(vid, ch, now)
+
+    def _put_telemetry(self, vid: str, ch: VehicleChannel, now: float) -> None:
+        st = ch.stats
+        self._telemetry[vid].put(Telemetry(
+            vid=vid, t=now, gateway=self.instance, vbat=st.vbat, link_quality=st.link_quality, sent=st.sent,
+            acked=st.acked, dropped=st.dropped, cmd_rate_hz=st.cmd_rate_hz, link_ok=st.link_ok,
+            owner=self.owners[vid] or "", stale_cmd=ch.took_over))

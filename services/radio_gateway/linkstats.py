@@ -15,6 +15,8 @@ from services.radio_gateway import crtp
 
 Event = tuple[str, str]
 """(kind, detail) of a `VehicleEvent` to publish."""
+LINK_EVENTS = frozenset({"link_lost", "link_up"})
+"""The events that change `Telemetry.link_ok`."""
 
 _WATCHDOG_FLAGS = ((crtp.FLAG_WATCHDOG_CUT, "firmware watchdog stopped the motors (no setpoint for 2 s)"),
                    (crtp.FLAG_WATCHDOG_LEVEL, "firmware watchdog levelled the attitude (no setpoint for 0.5 s)"),
