@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from service_logs import service_warnings
 
 from common.compose import interpolate
 from common.zsession import free_tcp_endpoint
@@ -16,13 +17,6 @@ from services.mission.demo import free_udp_port
 
 REPO = Path(__file__).resolve().parents[1]
 FLEET = [sys.executable, "-m", "common.cli"]
-
-
-def _service_warnings(run_dir: Path) -> str:
-    """The services' own warnings (stalls, watchdogs, take-overs), to say why a mission failed."""
-    lines = [f"{log.stem}: {line}" for log in sorted((run_dir / "logs").glob("*.log"))
-             for line in log.read_text(errors="replace").splitlines() if "WARNING" in line or "ERROR" in line]
-    return "\nservice warnings:\n" + "\n".join(lines[-80:])
 
 
 @pytest.mark.timeout(300)
@@ -49,7 +43,7 @@ def test_fleet_up_mission_down(tmp_path) -> None:
         down = subprocess.run([*FLEET, "down", "--run-dir", str(run_dir)], cwd=REPO, capture_output=True, text=True,
                               timeout=120)
     print(mission.stdout[-3000:])
-    assert mission.returncode == 0, mission.stdout[-3000:] + mission.stderr[-3000:] + _service_warnings(run_dir)
+    assert mission.returncode == 0, mission.stdout[-3000:] + mission.stderr[-3000:] + service_warnings(run_dir / "logs")
     assert "OK (every vehicle arrived)" in mission.stdout and "contacts: 0" in mission.stdout
     assert down.returncode == 0, down.stdout
     assert down.stdout.count("stopped") == 11, down.stdout

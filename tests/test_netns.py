@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from service_logs import service_warnings
 
 from common.compose import Process
 from common.credentials import Credentials, make_credentials
@@ -228,7 +229,8 @@ def test_executor_host_cut_off_mid_flight_its_vehicles_pass_to_the_other_host(ho
     print(f"cut {cut}; result {result}")
     assert result, "the driver ended without a result: " + (run_dir / "driver.log").read_text()[-3000:]
     assert cut, "no vehicle was seen flying"
-    assert result["ok"], f"{result['reason']}; modes: {result['modes']}; events: {result['events']}"
+    assert result["ok"], (f"{result['reason']}; modes: {result['modes']}; events: {result['events']}"
+                          + service_warnings(run_dir))
     assert result["contacts"] == 0 and all(result["arrived"].values())
     other = next(e for e in hosts.executors if e != cut["owner"])
     assert result["owners"][cut["vid"]] == other
