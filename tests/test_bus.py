@@ -259,6 +259,28 @@ def test_liveliness_set_follows_tokens_appearing_and_disappearing(zsession: Sess
     asyncio.run(scenario())
 
 
+@pytest.mark.timeout(10)
+def test_a_wrong_gone_is_corrected_from_the_routers_snapshot(zsession: Sessions) -> None:
+    """Under load zenoh once told a surviving executor that its own token had gone instead of its
+    killed peer's: every "gone" is followed by a liveliness query whose answer wins."""
+    watcher, first, second = zsession(), zsession(), zsession()
+
+    async def scenario() -> None:
+        changes: list[tuple[str, bool]] = []
+        mine, peer = declare_alive(first, KEYS, "executor", "e1"), declare_alive(second, KEYS, "executor", "e2")
+        executors = await watch_alive(watcher, KEYS, "executor", lambda i, alive, _s: changes.append((i, alive)))
+        await executors.wait_until(lambda s: s == {"e1", "e2"}, 2)
+        second.close()  # e2 really goes...
+        executors._apply(KEYS.alive("executor", "e1"), False)  # ...and zenoh says e1 (as it did once)
+        assert await executors.wait_until(lambda s: s == {"e1"}, 2) == {"e1"}
+        assert changes[-1] in (("e1", True), ("e2", False)), changes
+        assert ("e1", False) in changes and changes.count(("e2", False)) == 1
+        executors.close()
+        del mine, peer
+
+    asyncio.run(scenario())
+
+
 CHILD_WITH_TOKEN = """
 import sys, time
 from common.keys import Keys
