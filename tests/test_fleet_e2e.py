@@ -11,20 +11,16 @@ import signal
 import time
 
 import pytest
+from fleet_faults import TOWN_TASKS
 from service_logs import service_warnings
 
-from common.planfile import Task
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from services.planner.loading import load_graph
 from services.radio_gateway.config import LinkModel
 
-TASKS = {
-    "cf1": Task(start="WP1", goal="EP4"),   # flies west -> east
-    "cf2": Task(start="EP1", goal="WP6"),   # flies east -> west
-    "cf3": Task(start="WP9", goal="WP2"),   # drives in the west
-    "cf4": Task(start="EP8", goal="EP3"),   # drives in the east
-}
+TASKS = TOWN_TASKS
+"""Two flyers and a driver with 16 s plans (tests/fleet_faults.py)."""
 
 
 def _pid_of(run_dir, instance: str) -> int:
@@ -77,7 +73,7 @@ def test_ten_percent_packet_loss_keeps_tracking_within_bounds(tmp_path) -> None:
     """Issue 5: with 10 % of radio packets lost, tracking stays within issue 4's bounds (RMS 3 cm on
     the ground, 5 cm in the air), measured by the executors against their references."""
     graph = load_graph("town")
-    tasks = {k: TASKS[k] for k in ("cf1", "cf3")}
+    tasks = {k: TASKS[k] for k in ("cf1", "cf3")}  # a flyer and a driver
     spec = MissionSpec(map="town", tasks=tasks, planner="sipp", time_limit=20)
     with local_fleet(graph, tasks, tmp_path / "run", executors=1, fleet="lossy",
                      link=LinkModel(loss=0.10, seed=3)) as fleet:
