@@ -169,3 +169,13 @@ def test_motors_reported_running_after_the_stops_were_lost_are_stopped_again() -
     assert ch.on_status(_status(ch, 0), 0.6) == [] and not ch.wants_flight_slot  # stopped: nothing more
     _run(chans, sched, 0.1, lambda c, now: HOVER, t0=0.6)
     assert ch.on_status(_status(ch, crtp.FLAG_MOTORS), 0.7) == [] and ch.mode == Drive.FLIGHT  # flying: its own
+
+
+def test_a_driver_taking_off_gets_its_wheels_zeroed_repeatedly() -> None:
+    chans, sched = _radio(1, 0)
+    (ch,) = chans
+    _run(chans, sched, 0.3, lambda c, now: WheelSetpoint(left=0.1, right=0.1))
+    sent, _ = _run(chans, sched, 0.3, lambda c, now: HOVER, t0=0.3)
+    wheels = [p for _t, p in sent[ch.vid] if isinstance(p, crtp.Wheels)]
+    assert len(wheels) == 3 and all(w.left_mm_s == 0 and w.right_mm_s == 0 for w in wheels)
+    assert ch.mode == Drive.FLIGHT

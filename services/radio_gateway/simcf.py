@@ -177,7 +177,7 @@ class SimCrazyflie(asyncio.DatagramProtocol):
         car = self.car
         flags = self._latched_flags
         self._latched_flags = 0
-        if car.thrust > 1e-3 or car.flight_command()[3] > 0:
+        if car.flight_command()[3] > 0:  # what the firmware commands, not the props spinning down
             flags |= crtp.FLAG_MOTORS
         if car.airborne:
             flags |= crtp.FLAG_FLYING

@@ -106,6 +106,9 @@ class VehicleChannel:
             elif self.mode != Drive.FLIGHT:
                 self._unlock = True
                 self._thrusts.clear()  # a new flight
+                if self.mode == Drive.DRIVE:  # a driver taking off: zero wheels, repeated like a stop
+                    self._wheels = (0.0, 0.0)
+                    self._wheel_zeros_left = self.params.stop_repeats
             self._flight, self._flight_raw = setpoint, raw
             if setpoint.thrust >= FIRMWARE_MIN_THRUST:
                 self._thrusts.append(thrust_newtons(setpoint.thrust) * math.cos(math.radians(setpoint.roll))
