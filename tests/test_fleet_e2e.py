@@ -1,4 +1,4 @@
-"""End to end over real zenoh and processes (issue 6): a 4-vehicle town mission flown by two
+"""End to end over real zenoh and processes (issue 6): a 3-vehicle town mission flown by two
 executor processes, one killed mid-flight; every vehicle still arrives without contact, the killed
 executor's vehicles pass to the other within a second and the gateways obey the new owner."""
 
@@ -19,9 +19,6 @@ from services.mission.runner import MissionRunner, MissionSpec
 from services.planner.loading import load_graph
 from services.radio_gateway.config import LinkModel
 
-TASKS = TOWN_TASKS
-"""Two flyers and a driver with 16 s plans (tests/fleet_faults.py)."""
-
 
 def _pid_of(run_dir, instance: str) -> int:
     procs = json.loads((run_dir / "up.json").read_text())
@@ -31,9 +28,9 @@ def _pid_of(run_dir, instance: str) -> int:
 @pytest.mark.timeout(240)
 def test_executor_killed_mid_flight_its_vehicles_still_arrive(tmp_path) -> None:
     graph = load_graph("town")
-    spec = MissionSpec(map="town", tasks=TASKS, planner="sipp", time_limit=20)
+    spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
     killed: dict[str, object] = {}
-    with local_fleet(graph, TASKS, tmp_path / "run", executors=2, fleet="e2e") as fleet:
+    with local_fleet(graph, TOWN_TASKS, tmp_path / "run", executors=2, fleet="e2e") as fleet:
         runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
 
         async def kill_when_flying() -> None:
@@ -73,7 +70,7 @@ def test_ten_percent_packet_loss_keeps_tracking_within_bounds(tmp_path) -> None:
     """Issue 5: with 10 % of radio packets lost, tracking stays within issue 4's bounds (RMS 3 cm on
     the ground, 5 cm in the air), measured by the executors against their references."""
     graph = load_graph("town")
-    tasks = {k: TASKS[k] for k in ("cf1", "cf3")}  # a flyer and a driver
+    tasks = {k: TOWN_TASKS[k] for k in ("cf1", "cf3")}  # a flyer and a driver
     spec = MissionSpec(map="town", tasks=tasks, planner="sipp", time_limit=20)
     with local_fleet(graph, tasks, tmp_path / "run", executors=1, fleet="lossy",
                      link=LinkModel(loss=0.10, seed=3)) as fleet:

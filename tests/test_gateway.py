@@ -14,6 +14,7 @@ from collections.abc import Callable
 import msgspec
 import pytest
 import zenoh
+from fleet_faults import until
 
 from common.bus import subscribe
 from common.keys import Keys
@@ -43,15 +44,6 @@ class Watch:
 
     def kinds(self, vid: str) -> list[str]:
         return [e.kind for e in self.events if e.vid == vid]
-
-
-async def until(predicate: Callable[[], bool], timeout: float, what: str) -> None:
-    try:
-        async with asyncio.timeout(timeout):
-            while not predicate():
-                await asyncio.sleep(0.02)
-    except TimeoutError:
-        raise AssertionError(f"timed out waiting for {what}") from None
 
 
 def _starts(vids: list[str]) -> dict[str, tuple[float, float, float]]:
