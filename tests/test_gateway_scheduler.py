@@ -26,8 +26,9 @@ def _radio(flyers: int, drivers: int, budget: float = 500.0, params: GatewayPara
     return chans, Scheduler(chans, budget, params, 0.0)
 
 
-def _run(chans, sched, seconds: float, command=None, t0: float = 0.0):
-    """Tick for `seconds`; `command(ch, now)` gives each channel's setpoint (None: silent) every tick."""
+def _run(chans, sched, seconds: float, command=None, t0: float = 0.0, answered=None):
+    """Tick for `seconds`; `command(ch, now)` gives each channel's setpoint (None: silent) every tick;
+    a status request sent at `now` is answered (everything received) if `answered(now)`."""
     sent: dict[str, list[tuple[float, object]]] = {ch.vid: [] for ch in chans}
     events = []
     now = t0
@@ -41,7 +42,11 @@ def _run(chans, sched, seconds: float, command=None, t0: float = 0.0):
         batch, caused = sched.tick(now)
         events += caused
         for vid, raw in batch:
-            sent[vid].append((now, crtp.decode_uplink(raw)))
+            packet = crtp.decode_uplink(raw)
+            sent[vid].append((now, packet))
+            if isinstance(packet, crtp.StatusRequest) and answered and answered(now):
+                ch = sched._by_vid[vid]
+                events += [(vid, e) for e in ch.on_status(_status(ch, 0, echo=packet.sent), now + TICK / 2)]
     return sent, events
 
 
@@ -123,7 +128,7 @@ def test_a_stop_goes_out_three_times_with_zero_wheels_then_only_status() -> None
 
 
 def test_link_stats_from_status_replies() -> None:
-    stats = LinkStats(started=0.0, timeout_s=1.0)
+    stats = LinkStats(started=0.0, timeout_s=1.0, lost_after=2)
     assert not stats.reporting(0.5) and stats.reporting(1.1)  # silent past the timeout: report it lost
     assert stats.on_status(crtp.Status(100, 90, 80, 3900, 0, 0, 0), 1.0) == [("link_up", "status after 0 packets sent")]
     events = stats.on_status(crtp.Status(200, 185, 170, 3890, 0, 0, crtp.FLAG_WATCHDOG_LEVEL), 1.5)
@@ -133,8 +138,38 @@ def test_link_stats_from_status_replies() -> None:
     assert stats.on_status(crtp.Status(150, 140, 130, 3900, 0, 0, 0), 1.6) == []  # older than the last
     assert stats.on_status(crtp.Status(300, 301, 0, 3900, 0, 0, 0), 1.6) == []  # impossible
     assert stats.stale_replies == 2 and stats.dropped == 15
-    assert stats.check(2.0) == [] and [e[0] for e in stats.check(2.6)] == ["link_lost"] and stats.check(3.0) == []
+    stats.sent = 200
+    stats.request(1.6)
+    assert stats.check(2.6) == []  # silent for 1.1 s, but only one request unanswered
+    stats.request(2.55)
+    assert stats.check(2.6) == []  # the second one could still be answered
+    assert [e[0] for e in stats.check(2.7)] == ["link_lost"] and stats.check(3.0) == []
     assert stats.link_quality == 0.0
+
+
+def test_a_silent_vehicle_is_probed_and_its_link_judged_lost_after_a_second() -> None:
+    chans, sched = _radio(1, 0)
+    (ch,) = chans
+    sent, events = _run(chans, sched, 1.75, answered=lambda now: now < 1.0)
+    assert [e[1][0] for e in events] == ["link_up"] and ch.stats.link_ok  # < 1 s since the last reply
+    later, lost = _run(chans, sched, 1.5, answered=lambda now: False, t0=1.75)
+    assert [e[1][0] for e in lost] == ["link_lost"] and not ch.stats.link_ok
+    requests = [t for t, p in sent[ch.vid] + later[ch.vid] if isinstance(p, crtp.StatusRequest)]
+    last_reply = max(t for t in requests if t < 1.0)
+    assert last_reply > 0.75
+    silent = [t for t in requests if last_reply < t <= last_reply + 1.0]
+    assert len(silent) >= GatewayParams().lost_after_requests + 1  # probed at 20 Hz, not 5 Hz
+    judged = [t for t in requests if t > last_reply + 1.2]
+    assert len(judged) <= 5 * (3.25 - last_reply - 1.2) + 1  # lost: back to 5 Hz
+
+
+def test_a_stalled_gateway_does_not_take_its_stall_for_a_lost_link() -> None:
+    """The process slept 1.5 s (a loaded machine): no requests went out, so no replies are missing."""
+    chans, sched = _radio(1, 0)
+    (ch,) = chans
+    _, events = _run(chans, sched, 1.0, answered=lambda now: True)
+    _, after = _run(chans, sched, 0.5, answered=lambda now: True, t0=2.5)
+    assert [e[1][0] for e in events + after] == ["link_up"] and ch.stats.link_ok
 
 
 def test_a_stop_followed_at_once_by_driving_still_stops_the_motors() -> None:
@@ -149,9 +184,9 @@ def test_a_stop_followed_at_once_by_driving_still_stops_the_motors() -> None:
     assert ch.mode == Drive.DRIVE and not ch.wants_flight_slot
 
 
-def _status(ch: VehicleChannel, flags: int) -> crtp.Status:
-    """A reply to a request sent now, everything received."""
-    sent = ch.stats.sent + 1
+def _status(ch: VehicleChannel, flags: int, echo: int | None = None) -> crtp.Status:
+    """A reply to request `echo` (default: one sent now), everything received."""
+    sent = ch.stats.sent + 1 if echo is None else echo
     return crtp.Status(echo_sent=sent, received=sent, setpoints=0, vbat_mv=3900, wheel_left_mm_s=0,
                        wheel_right_mm_s=0, flags=flags)
 

@@ -83,16 +83,20 @@ class GatewayParams(msgspec.Struct, **_Strict):
     tick_hz: scheduling ticks per second: each flying vehicle gets at most one flight setpoint per
     tick, batched; drive_hz: wheel packets per second through the driving command switch, all
     drivers together; wheel_refresh_s: an unchanged wheel command is resent this often (the wheel
-    watchdog stops after 0.5 s); status_hz: status requests per vehicle per second; stale_s: a cmd
-    older than this is stale; link_timeout_s: no status for this long means the link is lost;
+    watchdog stops after 0.5 s); status_hz: status requests per vehicle per second; probe_hz: the
+    request rate for a vehicle that missed two replies, until its link is judged; stale_s: a cmd
+    older than this is stale; link_timeout_s, lost_after_requests: no status for this long, with at
+    least this many requests unanswered, means the link is lost (docs/radio.md);
     stop_repeats: how many times a stop (motors off, and zero wheels) is sent."""
 
     tick_hz: Positive = 100.0
     drive_hz: Positive = 50.0
     wheel_refresh_s: Positive = 0.1
     status_hz: Positive = 5.0
+    probe_hz: Positive = 20.0
     stale_s: Positive = 0.2
     link_timeout_s: Positive = 1.0
+    lost_after_requests: Annotated[int, msgspec.Meta(ge=1)] = 10
     stop_repeats: Annotated[int, msgspec.Meta(ge=1)] = 3
     landing: LandingParams = LandingParams()
 

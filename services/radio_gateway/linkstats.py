@@ -5,6 +5,12 @@ that count; the vehicle answers with it (`echo_sent`) and with how many packets 
 to and including the request. Packets stay in order on the link, so every packet sent before the
 request was either received by then or lost: `dropped = echo_sent - received` exactly, whatever the
 latency. Rates and link quality come from the replies of the last `window_s`.
+
+A link is lost when no reply came for `timeout_s` *and* at least `lost_after` status requests went
+unanswered for `reply_wait_s`. Silence alone is not enough: a gateway whose process stalled for a
+second sent no requests meanwhile, and must not take its own stall for the vehicle's (docs/radio.md).
+The scheduler probes a silent vehicle faster (`GatewayParams.probe_hz`), so a lossy link that is
+still up answers one of many requests before the timeout.
 """
 
 from __future__ import annotations
@@ -26,8 +32,11 @@ _WATCHDOG_FLAGS = ((crtp.FLAG_WATCHDOG_CUT, "firmware watchdog stopped the motor
 class LinkStats:
     """Counts, battery and health of one vehicle's link; `started` opens the first timeout."""
 
-    def __init__(self, started: float, timeout_s: float, window_s: float = 1.0) -> None:
+    def __init__(self, started: float, timeout_s: float, lost_after: int = 1, reply_wait_s: float = 0.1,
+                 window_s: float = 1.0) -> None:
         self.timeout_s = timeout_s
+        self.lost_after = lost_after
+        self.reply_wait_s = reply_wait_s
         self.window_s = window_s
         self.sent = 0
         self.acked = 0
@@ -40,6 +49,13 @@ class LinkStats:
         self._started = self._since = started
         self._echo = -1
         self._window: deque[tuple[float, int, int, int]] = deque()  # t, echo_sent, received, setpoints
+        self._asked: deque[tuple[int, float]] = deque()  # (sent, t) of the requests not answered yet
+
+    def request(self, now: float) -> int:
+        """Count a status request sent at `now`; the `sent` it carries."""
+        self.sent += 1
+        self._asked.append((self.sent, now))
+        return self.sent
 
     def on_status(self, st: crtp.Status, now: float) -> list[Event]:
         """Fold in a reply received at `now`; the events it causes."""
@@ -47,6 +63,8 @@ class LinkStats:
             self.stale_replies += 1  # an old or impossible reply: nothing new in it
             return []
         self._echo = st.echo_sent
+        while self._asked and self._asked[0][0] <= st.echo_sent:
+            self._asked.popleft()
         self.acked = st.received
         self.dropped = st.echo_sent - st.received
         self.vbat = st.vbat_mv / 1000.0
@@ -62,12 +80,19 @@ class LinkStats:
             events.append(("link_up", f"status after {self.sent} packets sent"))
         return events
 
+    def silent_for(self, now: float) -> float:
+        """Seconds since the last reply (or since `started`)."""
+        return now - self._since
+
     def check(self, now: float) -> list[Event]:
-        """The link-lost event, once, when no reply came for `timeout_s`."""
-        if self.link_ok and now - self._since > self.timeout_s:
-            self.link_ok = False
-            return [("link_lost", f"no status for {now - self._since:.2f} s")]
-        return []
+        """The link-lost event, once: no reply for `timeout_s` and `lost_after` requests unanswered."""
+        if not self.link_ok or now - self._since <= self.timeout_s:
+            return []
+        unanswered = sum(1 for _, t in self._asked if now - t >= self.reply_wait_s)
+        if unanswered < self.lost_after:
+            return []
+        self.link_ok = False
+        return [("link_lost", f"no status for {now - self._since:.2f} s, {unanswered} requests unanswered")]
 
     def reporting(self, now: float) -> bool:
         """Telemetry is worth publishing: a reply came, or the first timeout passed without one."""

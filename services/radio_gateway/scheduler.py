@@ -6,7 +6,8 @@ holds at most two ticks' worth) and spends them, as one batch, in this order:
 
 1. the driving command switch: one FIFO of vehicles whose wheel command is due, served at most
    `drive_hz` packets per second for all drivers together, one packet at a time;
-2. status requests, `status_hz` per vehicle, staggered;
+2. status requests, `status_hz` per vehicle, staggered; `probe_hz` for a vehicle that missed two
+   replies, until a reply comes or its link is judged lost (`LinkStats`);
 3. flight: one commander packet per flying (or landing, or stopping) vehicle, round-robin from where
    the last tick stopped, with the slots left. When the budget is short, every flying vehicle's
    rate drops equally instead of some starving.
@@ -41,6 +42,8 @@ class Scheduler:
         self._status_period = 1.0 / params.status_hz
         n = max(len(self.channels), 1)
         self._status_due = {ch.vid: now + i * self._status_period / n for i, ch in enumerate(self.channels)}
+        self._probe_period = 1.0 / params.probe_hz
+        self._asked_at = dict.fromkeys(self._status_due, -float("inf"))
         self._rr = 0
         self._by_vid = {ch.vid: ch for ch in self.channels}
         self.flight_skipped = 0
@@ -80,9 +83,14 @@ class Scheduler:
     def _status(self, now: float, batch: list[Packet]) -> None:
         for ch in self.channels:
             due = self._status_due[ch.vid]
-            if now >= due and self._take():
-                batch.append((ch.vid, ch.status_request()))
-                self._status_due[ch.vid] = max(due + self._status_period, now)
+            regular = now >= due
+            probe = (ch.stats.link_ok and ch.stats.silent_for(now) > 2 * self._status_period
+                     and now - self._asked_at[ch.vid] >= self._probe_period)
+            if (regular or probe) and self._take():
+                batch.append((ch.vid, ch.status_request(now)))
+                self._asked_at[ch.vid] = now
+                if regular:
+                    self._status_due[ch.vid] = max(due + self._status_period, now)
 
     def _flight(self, now: float, batch: list[Packet], events: list[tuple[str, Event]]) -> None:
         n = len(self.channels)

@@ -74,7 +74,7 @@ class VehicleChannel:
         self.vid = vid
         self.params = params
         self.mode = Drive.IDLE
-        self.stats = LinkStats(now, params.link_timeout_s)
+        self.stats = LinkStats(now, params.link_timeout_s, params.lost_after_requests)
         self.landing: SafeLanding | None = None
         self.cmd_at = -float("inf")
         self.took_over = False
@@ -231,9 +231,8 @@ class VehicleChannel:
                 self.mode = Drive.IDLE
         return self._count(crtp.encode_wheels(*self._wheels))
 
-    def status_request(self) -> bytes:
-        self.stats.sent += 1
-        return crtp.encode_status_request(self.stats.sent)
+    def status_request(self, now: float) -> bytes:
+        return crtp.encode_status_request(self.stats.request(now))
 
     def _count(self, raw: bytes) -> bytes:
         self.stats.sent += 1
