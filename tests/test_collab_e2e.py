@@ -45,7 +45,7 @@ def split_executors() -> tuple[str, str]:
 
 
 class Observer:
-    """Every action sent and every status reported, in the order a bystander receives them."""
+    """Every action sent and every status reported, as a bystander receives them."""
 
     def __init__(self, session) -> None:
         self.log: list[TeamAction | ActionStatus] = []
@@ -55,8 +55,9 @@ class Observer:
     def _add(self, msg, _key: str) -> None:
         self.log.append(msg)
 
-    def first(self, pred: Callable[[TeamAction | ActionStatus], bool]) -> int:
-        return next(i for i, m in enumerate(self.log) if pred(m))
+    def first_t(self, pred: Callable[[TeamAction | ActionStatus], bool]) -> float:
+        """The earliest `t` (the sender's clock) of the messages that match."""
+        return min(m.t for m in self.log if pred(m))
 
     def close(self) -> None:
         for sub in self.subs:
@@ -108,17 +109,18 @@ def test_team_plan_runs_end_to_end_through_two_executors(zenoh_router: str) -> N
         for i in range(len(steps)):
             dones = {m.t for m in obs.log if isinstance(m, ActionStatus) and (m.vid, m.index, m.status) == (vid, i, "done")}
             assert len(dones) == 1, (vid, i)
-    # sync points, in the order a bystander saw the messages: a waiting step is sent only after the
-    # partner reported the steps it waits for done
+    # sync points: a waiting step is sent only after the partner reported the steps it waits for
+    # done, by the messages' own clocks (one host here); the order two subscriptions deliver in is
+    # not causal order (zenoh orders per publisher, not across them)
     synced = 0
     for vid, partner, steps in ((DRONE, UGV, plan.drone), (UGV, DRONE, plan.ugv)):
         for i, step in enumerate(steps):
-            sent = obs.first(lambda m, vid=vid, i=i: isinstance(m, TeamAction) and (m.vid, m.index) == (vid, i))
+            sent = obs.first_t(lambda m, vid=vid, i=i: isinstance(m, TeamAction) and (m.vid, m.index) == (vid, i))
             if step.wait_for:
                 synced += 1
-                awaited = obs.first(lambda m, p=partner, n=step.wait_for - 1: isinstance(m, ActionStatus)
-                                    and (m.vid, m.index, m.status) == (p, n, "done"))
-                assert awaited < sent, f"{vid} step {i} sent before {partner} step {step.wait_for - 1} was done"
+                awaited = obs.first_t(lambda m, p=partner, n=step.wait_for - 1: isinstance(m, ActionStatus)
+                                      and (m.vid, m.index, m.status) == (p, n, "done"))
+                assert awaited < sent, f"{vid} step {i} sent {awaited - sent:.3f} s before {partner} step {step.wait_for - 1} was done"
     assert synced == result.sync_points >= 4 and not result.sync_violations
     assert "sync points honoured: " in result.summary() and "FAILED" not in result.summary()
 
