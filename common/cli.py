@@ -15,17 +15,16 @@ from importlib import import_module
 from common.errors import InputError
 from common.planfile import PlanFileError
 
-# Modules that contribute subcommands: each has `register(subparsers)`.
+# Modules that contribute subcommands: each has `register(subparsers)` and imports little (a
+# service's handler is a `lazy_handler`): every service process builds this whole parser.
 _COMMAND_MODULES = (
     "services.planner.cli",
-    "services.planner.service",
     "services.planner.collab.cli",
     "services.mission.cli",
-    "services.mission.demo",
-    "services.executor.service",
+    "services.executor.cli",
     "services.radio_gateway.cli",
     "services.mocap_bridge.cli",
-    "services.telemetry.service",
+    "services.telemetry.cli",
     "common.router",
     "common.deploy_cli",
 )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 from common.launcher import DEFAULT_RUN_DIR
@@ -15,6 +16,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--set", action="append", default=[], metavar="VAR=VALUE",
                    help="override a ${VAR} of the compose file (repeatable)")
     p.add_argument("--only", help="start only these services, comma-separated")
+    p.add_argument("--wait", type=float, default=60.0, metavar="S",
+                   help="seconds to wait for every service to serve (0: return once started)")
     p.set_defaults(handler=cmd_up)
     p = sub.add_parser("down", help="stop what `fleet up` started")
     p.add_argument("--run-dir", type=Path, default=DEFAULT_RUN_DIR)
@@ -28,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_up(args: argparse.Namespace) -> int:
     from common.compose import load_compose
     from common.errors import InputError
-    from common.launcher import start
+    from common.launcher import start, wait_ready
 
     overrides = {}
     for item in args.set:
@@ -48,6 +51,15 @@ def cmd_up(args: argparse.Namespace) -> int:
     for p in started:
         print(f"started {p['instance']:<16} pid {p['pid']}")
     print(f"logs in {args.run_dir / 'logs'}; stop with `fleet down`")
+    if args.wait <= 0:
+        return 0
+    t0 = time.monotonic()
+    missing = wait_ready(args.run_dir, args.wait)
+    for instance, why in missing.items():
+        print(f"fleet up: {instance} {why} after {time.monotonic() - t0:.0f} s: see {args.run_dir / 'logs' / instance}.log")
+    if missing:
+        return 1
+    print(f"all {len(started)} services serving after {time.monotonic() - t0:.1f} s")
     return 0
 
 

@@ -29,6 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_router(args: argparse.Namespace) -> int:
     import zenoh
 
+    from common.readiness import mark_ready
     from common.svcargs import credentials
     from common.zsession import ZenohConfig, open_session
 
@@ -46,6 +47,7 @@ def cmd_router(args: argparse.Namespace) -> int:
         signal.signal(sig, lambda *_: done.set())
     where = listen or f"the endpoints of {args.config}"
     print(f"router {session.zid()} listening on {where}" + (f", config {args.config}" if args.config else ""), flush=True)
+    mark_ready()
     done.wait()
     session.close()
     return 0

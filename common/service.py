@@ -39,6 +39,7 @@ from common.bus import (
 )
 from common.keys import Keys
 from common.liveliness import AliveSet, ChangeCallback, declare_alive, watch_alive
+from common.readiness import mark_ready
 from common.zsession import ZenohConfig, open_session
 
 log = logging.getLogger(__name__)
@@ -144,6 +145,7 @@ class Service:
                 return 1
             self._closers.append(declare_alive(self.session, self.keys, self.name, self.instance).undeclare)
             log.info("%s/%s running", self.name, self.instance)
+            mark_ready()
             self.spawn(self._watch_loop(), name="loop-watch")
             main = self.spawn(self.main(), name="main")
             stop = asyncio.create_task(self._stop.wait())

@@ -13,6 +13,8 @@ import argparse
 import asyncio
 import os
 import socket
+from collections.abc import Callable
+from importlib import import_module
 from pathlib import Path
 
 from common.errors import InputError
@@ -71,6 +73,18 @@ def keys_from_args(args: argparse.Namespace) -> Keys:
         return Keys(args.fleet)
     except ValueError as exc:
         raise InputError("--fleet", "", str(exc)) from None
+
+
+def lazy_handler(target: str) -> Callable[[argparse.Namespace], int]:
+    """The command handler ``module:function``, imported only when its command runs. Every `fleet`
+    process builds the whole parser; importing each service's dependencies for it (filterpy and
+    scipy, rerun, networkx) took 3 s of CPU per process, 0.3 s without."""
+    module, _, function = target.partition(":")
+
+    def handler(args: argparse.Namespace) -> int:
+        return getattr(import_module(module), function)(args)
+
+    return handler
 
 
 def run_service(service: Service) -> int:

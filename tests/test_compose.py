@@ -9,7 +9,7 @@ import pytest
 
 from common.cli import main
 from common.compose import interpolate, load_compose
-from common.launcher import start, status, stop
+from common.launcher import start, status, stop, wait_ready
 
 
 def test_interpolation_like_compose() -> None:
@@ -73,3 +73,23 @@ services:
     assert [how for _, how in outcome] == ["stopped", "stopped"]
     assert time.monotonic() - t < 5
     assert status(run) == []
+
+
+def test_wait_ready_names_the_processes_that_never_served(tmp_path) -> None:
+    path = tmp_path / "compose.yaml"
+    path.write_text("""
+services:
+  server:
+    command: ["python3", "-c", "import os, pathlib, time; time.sleep(0.5); pathlib.Path(os.environ['FLEET_READY_FILE']).touch(); time.sleep(60)"]
+  crasher:
+    command: ["python3", "-c", "raise SystemExit(3)"]
+""")
+    run = tmp_path / "run"
+    start(load_compose(path), run, settle_s=0.0)
+    try:
+        t = time.monotonic()
+        assert wait_ready(run, timeout_s=20.0) == {"crasher": "exited"}
+        assert time.monotonic() - t < 10.0  # returned once the server served, not at the timeout
+        assert (run / "ready" / "server").exists()
+    finally:
+        stop(run, grace_s=2)

@@ -44,7 +44,7 @@ from common.messages import (
 from common.ownership import owner_of
 from common.service import Service
 from common.stats import publish_stats
-from common.svcargs import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
+from common.svcargs import keys_from_args, run_service, zconfig_from_args
 from services.executor.modes import Mode
 from services.executor.team import TeamExecutor
 from services.executor.vehicle_controller import VehicleController
@@ -338,14 +338,6 @@ class ExecutorService(Service):
         if kind is not None:
             self._publisher(self._event, vid, "event", VehicleEvent).put(
                 VehicleEvent(vid=vid, t=now, kind=kind, detail=detail, node=node))
-
-
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("executor", help="run an executor: control loops for the vehicles it owns")
-    p.add_argument("--rate", type=float, default=100.0, help="control rate (Hz)")
-    p.add_argument("--state-rate", type=float, default=20.0, help="state publication rate (Hz)")
-    add_zenoh_args(p, default_instance="executor")
-    p.set_defaults(handler=cmd_executor)
 
 
 def cmd_executor(args: argparse.Namespace) -> int:

@@ -1,4 +1,5 @@
-"""`fleet mission run SCENARIO`: plan, hand out, start together, watch, summarise."""
+"""`fleet mission run SCENARIO`: plan, hand out, start together, watch, summarise; `fleet demo`
+(`services/mission/demo.py`)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from pathlib import Path
 
 from common.errors import InputError
 from common.mapfile import decode_yaml, read_text
-from common.svcargs import add_zenoh_args, keys_from_args, zconfig_from_args
+from common.svcargs import add_zenoh_args, keys_from_args, lazy_handler, zconfig_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,6 +25,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--keep-going", action="store_true", help="do not abort the mission on a vehicle fault")
     add_zenoh_args(p, default_instance="mission")
     p.set_defaults(handler=cmd_mission_run)
+    _register_demo(sub)
+
+
+def _register_demo(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="plan and fly the 8-vehicle town mission in simulation, one command")
+    p.add_argument("--scenario", help="scenario YAML (default: maps/scenarios/town_8.yaml)")
+    p.add_argument("--planner", choices=["sipp", "ilp"], default="sipp")
+    p.add_argument("--mu", type=float, default=0.5)
+    p.add_argument("--time-limit", type=float, default=30.0)
+    p.add_argument("--executors", type=int, default=2)
+    p.add_argument("--per-radio", type=int, default=2, help="simulated Crazyflies per radio (paper: 2)")
+    p.add_argument("--out", default="out/demo")
+    p.add_argument("--viewer", action="store_true", help="spawn the rerun viewer")
+    p.add_argument("--web", action="store_true", help="serve the rerun web viewer")
+    p.set_defaults(handler=lazy_handler("services.mission.demo:run_demo"))
 
 
 def spec_from_args(args: argparse.Namespace):

@@ -142,11 +142,12 @@ def local_fleet(graph: FleetGraph, tasks: dict[str, Task], run_dir: Path, execut
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    scenario: ScenarioFile = decode_yaml(read_text(Path(args.scenario)), ScenarioFile, str(args.scenario))
+    path = Path(args.scenario or DEMO_SCENARIO)
+    scenario: ScenarioFile = decode_yaml(read_text(path), ScenarioFile, str(path))
     map_name = scenario.map or "town"
     graph = load_graph(map_name)
     tasks = dict(scenario.tasks)
-    check_tasks(tasks, graph, str(args.scenario))
+    check_tasks(tasks, graph, str(path))
     out = Path(args.out)
     spec = MissionSpec(map=map_name, tasks=tasks, planner=args.planner, mu=args.mu, time_limit=args.time_limit)
     try:
@@ -166,15 +167,3 @@ def run_demo(args: argparse.Namespace) -> int:
     return 0 if result.ok else 1
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="plan and fly the 8-vehicle town mission in simulation, one command")
-    p.add_argument("--scenario", default=str(DEMO_SCENARIO))
-    p.add_argument("--planner", choices=["sipp", "ilp"], default="sipp")
-    p.add_argument("--mu", type=float, default=0.5)
-    p.add_argument("--time-limit", type=float, default=30.0)
-    p.add_argument("--executors", type=int, default=2)
-    p.add_argument("--per-radio", type=int, default=2, help="simulated Crazyflies per radio (paper: 2)")
-    p.add_argument("--out", default="out/demo")
-    p.add_argument("--viewer", action="store_true", help="spawn the rerun viewer")
-    p.add_argument("--web", action="store_true", help="serve the rerun web viewer")
-    p.set_defaults(handler=run_demo)

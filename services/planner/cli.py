@@ -1,4 +1,5 @@
-"""`fleet map ...`, `fleet plan`, `fleet validate`: the planner's command-line face."""
+"""`fleet map ...`, `fleet plan`, `fleet validate`, `fleet planner` (the service): the planner's
+command-line face."""
 
 from __future__ import annotations
 
@@ -8,6 +9,13 @@ import time
 from pathlib import Path
 
 from common.errors import InputError
+from common.svcargs import add_zenoh_args, lazy_handler
+
+
+def _register_service(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("planner", help="run the planner service (zenoh queryable planner/plan)")
+    add_zenoh_args(p, default_instance="planner")
+    p.set_defaults(handler=lazy_handler("services.planner.service:cmd_planner"))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -51,6 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="independently check a plan file")
     p.add_argument("plan")
     p.set_defaults(handler=cmd_validate)
+    _register_service(sub)
 
 
 def cmd_map_check(args: argparse.Namespace) -> int:

@@ -13,7 +13,7 @@ import logging
 from common.errors import InputError
 from common.messages import PlanReply, PlanRequest
 from common.service import Service
-from common.svcargs import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
+from common.svcargs import keys_from_args, run_service, zconfig_from_args
 from common.vehicleplan import PlanPublisher, vehicle_plans
 from services.planner.collab.request import TeamPlanPublisher, robot_plans
 
@@ -71,12 +71,6 @@ class PlannerService(Service):
         if reply.ok and req.mission and reply.team_plan is not None and req.team and self._team_plans is not None:
             self._team_plans.put(robot_plans(reply.team_plan, req.team, req.mission))
         return reply
-
-
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("planner", help="run the planner service (zenoh queryable planner/plan)")
-    add_zenoh_args(p, default_instance="planner")
-    p.set_defaults(handler=cmd_planner)
 
 
 def cmd_planner(args: argparse.Namespace) -> int:

@@ -14,7 +14,7 @@ from common.mapfile import load_map
 from common.messages import SimTruth, Telemetry, VehiclePlan, VehicleState
 from common.priority import lower_priority
 from common.service import Service
-from common.svcargs import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
+from common.svcargs import keys_from_args, run_service, zconfig_from_args
 from services.telemetry.rerun_log import FleetRecording
 
 log = logging.getLogger(__name__)
@@ -83,18 +83,6 @@ class TelemetryService(Service):
         except InputError as exc:
             log.warning("telemetry: cannot draw map %s: %s", plan.map, exc)
         log.info("recording mission %s to %s", plan.mission, path)
-
-
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("telemetry", help="record the fleet to rerun (.rrd per mission, live viewer optional)")
-    p.add_argument("--out", type=Path, default=Path("out/recordings"), help="directory for .rrd files")
-    p.add_argument("--viewer", action="store_true", help="spawn the rerun viewer")
-    p.add_argument("--web", action="store_true", help="serve the rerun web viewer")
-    p.add_argument("--max-hz", type=float, default=20.0, help="most samples drawn per second per vehicle and stream")
-    p.add_argument("--nice", type=int, default=10,
-                   help="lower the recorder's CPU priority by this much (it must not delay the control loops)")
-    add_zenoh_args(p, default_instance="telemetry")
-    p.set_defaults(handler=cmd_telemetry)
 
 
 def cmd_telemetry(args: argparse.Namespace) -> int:

@@ -1,0 +1,15 @@
+"""`fleet executor`: the command line of the executor service (`services/executor/service.py`)."""
+
+from __future__ import annotations
+
+import argparse
+
+from common.svcargs import add_zenoh_args, lazy_handler
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("executor", help="run an executor: control loops for the vehicles it owns")
+    p.add_argument("--rate", type=float, default=100.0, help="control rate (Hz)")
+    p.add_argument("--state-rate", type=float, default=20.0, help="state publication rate (Hz)")
+    add_zenoh_args(p, default_instance="executor")
+    p.set_defaults(handler=lazy_handler("services.executor.service:cmd_executor"))
