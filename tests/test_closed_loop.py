@@ -163,20 +163,31 @@ def test_abort_lands_a_flying_vehicle_and_stops_a_driving_one() -> None:
     assert records[-1].truth.x == pytest.approx(records[-60].truth.x, abs=0.002)  # stopped
 
 
+def link_lost_during(start: float, end: float) -> Hook:
+    def hook(ctrl: VehicleController, now: float) -> None:
+        ctrl.on_telemetry(Telemetry(vid="cf1", t=now, gateway="sim", vbat=4.0, link_quality=1.0, sent=0, acked=0,
+                                    dropped=0, cmd_rate_hz=100.0, link_ok=not start <= now < end), now)
+    return hook
+
+
 def test_lost_link_on_the_ground_holds_then_resumes() -> None:
     lost = (T0 + 4.0, T0 + 5.0)
-
-    def link(ctrl: VehicleController, now: float) -> None:
-        ok = not lost[0] <= now < lost[1]
-        ctrl.on_telemetry(Telemetry(vid="cf1", t=now, gateway="sim", vbat=4.0, link_quality=1.0,
-                                                sent=0, acked=0, dropped=0, cmd_rate_hz=100.0, link_ok=ok), now)
-
-    ctrl, sim, records = fly_plan(until=T0 + 12.0, hook=link, telemetry_every=0)
+    ctrl, sim, records = fly_plan(until=T0 + 12.0, hook=link_lost_during(*lost), telemetry_every=0)
     assert ctrl.machine.sequence()[:4] == [Mode.PARKED, Mode.DRIVING, Mode.HOLDING, Mode.DRIVING]
     held = [r for r in records if r.mode == Mode.HOLDING]
     assert held[0].t == pytest.approx(lost[0], abs=0.02) and held[-1].t == pytest.approx(lost[1], abs=0.02)
     assert math.dist(position(held[-1]), position(held[10])) < 0.005  # stood still
     assert math.dist(position(records[-1])[:2], (records[-1].ref.x, records[-1].ref.y)) < 0.02  # caught up
+
+
+def test_a_vehicle_held_up_past_its_plans_end_drives_on_to_its_goal() -> None:
+    """Held on the last road leg until after the plan ended (as the gateway stops a driver whose
+    executor was cut off, and the next owner resumes it late): it still parks on its goal."""
+    end = T0 + STEPS[-1].t
+    ctrl, sim, records = fly_plan(until=end + 6.0, hook=link_lost_during(end - 1.5, end + 0.5), telemetry_every=0)
+    assert [tr.reason for tr in ctrl.machine.history][-2:] == ["behind the plan: driving on to the goal", "plan"]
+    assert ctrl.mode == Mode.DONE and math.dist((sim.x, sim.y), STEPS[-1].pos[:2]) < 0.05
+    assert ctrl.tick(sim.t)[1].arrived
 
 
 def test_stale_pose_on_the_ground_gives_up_after_the_longest_hold() -> None:

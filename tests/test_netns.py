@@ -46,8 +46,6 @@ TASKS = {
     "cf4": Task(start="EP1", goal="EP3"),   # drives in the east
 }
 """Plans of 9 to 16 s: the flyers are airborne from about 4 s to 12 s."""
-CUT_OFF_GOAL_ERROR_M = 0.25
-"""m from its goal node a vehicle of the cut-off host may end (resumed from a blind landing)."""
 SUBNET = "10.231.7"
 """Private addresses, only ever configured inside the test's namespaces."""
 ROUTER_PORT = 7447
@@ -247,13 +245,12 @@ def test_executor_host_cut_off_mid_flight_its_vehicles_pass_to_the_other_host(ho
     other = next(e for e in hosts.executors if e != cut["owner"])
     assert result["owners"][cut["vid"]] == other, why
     assert cut["handover_s"] < 3.0
-    # The cut host's vehicles went stale 0.2 s after the cut and their gateways began to land them
-    # blind; the other host resumes them after the 0.8 s lease, lower and behind their plans. They
-    # finish their plans and land, but may end outside the 5 cm that counts as arrived (1 CI run in 5).
+    # The cut host's vehicles went stale 0.2 s after the cut and their gateways began to land or
+    # stop them; the other host resumes them after the 0.8 s lease, lower and behind their plans:
+    # they catch up, or drive on to their goals after their plans end.
     cut_off = {vid for vid, owner in cut["owners"].items() if owner == cut["owner"]}
     for vid, arrived in result["arrived"].items():
-        assert result["modes"][vid].startswith("done"), why
-        assert arrived or (vid in cut_off and result["goal_error"][vid] < CUT_OFF_GOAL_ERROR_M), why
+        assert result["modes"][vid].startswith("done") and arrived, why
     print(f"goal errors of the cut host's vehicles {sorted(cut_off)}:",
           {vid: round(result["goal_error"][vid], 3) for vid in cut_off})
 

@@ -40,12 +40,15 @@ class ControlParams:
     """dt: control period (s); touchdown_height: height above the landing node (m) below which,
     with the reference there too, a landing is complete and the motors stop; liftoff_height:
     height above which the flight integrators run; arrive_radius: m from the goal that counts as
-    arrived."""
+    arrived; finish_s: s past the plan's end that a vehicle on the ground but short of its goal
+    (stopped by the gateway while its executor was cut off, resumed behind its plan) drives on
+    to the goal before it is done."""
 
     dt: float = 0.01
     touchdown_height: float = 0.02
     liftoff_height: float = 0.01
     arrive_radius: float = 0.05
+    finish_s: float = 10.0
     trajectory: TrajectoryParams = field(default_factory=TrajectoryParams)
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     pursuit: PursuitParams = field(default_factory=PursuitParams)
@@ -202,7 +205,7 @@ class VehicleController:
                 return
             if self._fault_landing or (m.mode == Mode.LANDING and rel >= self._landing_end):
                 return  # a landing lasts until touchdown (see `_control`), even past its plan time
-            self._follow_plan(now, rel)
+            self._follow_plan(now, rel, est)
             return
         if self._abort or low:
             m.request(Mode.DONE, now, self._abort or "low battery")
@@ -214,18 +217,28 @@ class VehicleController:
             elif now - (self._hold_since or now) > self.params.faults.max_hold_s:
                 m.request(Mode.DONE, now, "held too long, plan given up")
             return
-        self._follow_plan(now, rel)
+        self._follow_plan(now, rel, est)
 
-    def _follow_plan(self, now: float, rel: float) -> None:
+    def _follow_plan(self, now: float, rel: float, est: Estimate) -> None:
         traj = self._active
         assert traj is not None
         planned = traj.modes[traj.segment(rel)]
+        if planned == Mode.DONE and not self.machine.airborne and self._short_of_goal(rel, est):
+            self.machine.request(Mode.DRIVING, now, "behind the plan: driving on to the goal")
+            return
         if planned == Mode.LANDING:
             if not self.machine.airborne:
                 return  # touched down before the plan's landing ended
             if self.machine.mode != Mode.LANDING:
                 self._enter_landing(traj, rel)
         self.machine.request(planned, now, "plan")
+
+    def _short_of_goal(self, rel: float, est: Estimate) -> bool:
+        """Past the plan's end by less than `finish_s`, but not at the goal yet."""
+        traj = self._active
+        assert traj is not None
+        return (not self._fault_landing and traj is self.trajectory and rel < traj.end_time + self.params.finish_s
+                and math.dist((est.x, est.y), traj.nodes[-1][:2]) >= self.params.arrive_radius)
 
     def _enter_landing(self, traj: Trajectory, rel: float) -> None:
         """Remember where and when the landing that starts now ends."""
@@ -260,7 +273,7 @@ class VehicleController:
                 self.estimator.set_input((0.0, 0.0, 0.0), now)
                 return WheelSetpoint(left=0.0, right=0.0)  # wheels off for the takeoff
             if mode == Mode.LANDING and self._touched_down(est, ref):
-                self._after_touchdown(now, ref.t)
+                self._after_touchdown(now, ref.t, est)
                 self.estimator.set_input((0.0, 0.0, 0.0), now)
                 return StopSetpoint()
             aloft = est.z - self._ground_z > self.params.liftoff_height
@@ -279,13 +292,15 @@ class VehicleController:
         h = self.params.touchdown_height
         return est.z - self._ground_z < h and ref.z - self._ground_z < h
 
-    def _after_touchdown(self, now: float, rel: float) -> None:
+    def _after_touchdown(self, now: float, rel: float, est: Estimate) -> None:
         if self._fault_landing:
             self.machine.request(Mode.DONE, now, "landed after fault")
             return
         traj = self._active
         assert traj is not None
         nxt = traj.modes[traj.segment(max(rel, self._landing_end))]
+        if nxt == Mode.DONE and self._short_of_goal(max(rel, self._landing_end), est):
+            nxt = Mode.DRIVING  # landed behind its plan, off the goal: drive onto it
         self.machine.request(Mode.DRIVING if nxt == Mode.LANDING else nxt, now, "touchdown")
 
     def _emergency(self, now: float, est: Estimate) -> Setpoint:
