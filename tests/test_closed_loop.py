@@ -190,6 +190,14 @@ def test_a_vehicle_held_up_past_its_plans_end_drives_on_to_its_goal() -> None:
     assert ctrl.tick(sim.t)[1].arrived
 
 
+def test_a_vehicle_far_from_its_goal_at_its_plans_end_does_not_drive_off_the_roads() -> None:
+    end = T0 + STEPS[-1].t
+    ctrl, sim, _ = fly_plan(until=end + 3.0, hook=link_lost_during(end - 4.0, end + 0.5), telemetry_every=0)
+    miss = math.dist((sim.x, sim.y), STEPS[-1].pos[:2])
+    assert ctrl.mode == Mode.DONE and miss > ctrl.params.finish_radius
+    assert "behind the plan: driving on to the goal" not in [tr.reason for tr in ctrl.machine.history]
+
+
 def test_stale_pose_on_the_ground_gives_up_after_the_longest_hold() -> None:
     ctrl, sim, _ = fly_plan(noise=MocapNoise(dropouts=((T0 + 4.0, 1e9),)), until=T0 + 9.0)
     assert ctrl.machine.sequence() == [Mode.PARKED, Mode.DRIVING, Mode.HOLDING, Mode.DONE]

@@ -40,15 +40,17 @@ class ControlParams:
     """dt: control period (s); touchdown_height: height above the landing node (m) below which,
     with the reference there too, a landing is complete and the motors stop; liftoff_height:
     height above which the flight integrators run; arrive_radius: m from the goal that counts as
-    arrived; finish_s: s past the plan's end that a vehicle on the ground but short of its goal
-    (stopped by the gateway while its executor was cut off, resumed behind its plan) drives on
-    to the goal before it is done."""
+    arrived; finish_s, finish_radius: a vehicle on the ground at its plan's end but short of its
+    goal by less than `finish_radius` m (held up by the gateway while its executor was cut off,
+    resumed behind its plan) drives on to the goal for up to `finish_s` s before it is done
+    (straight: farther away, a straight line may leave the roads)."""
 
     dt: float = 0.01
     touchdown_height: float = 0.02
     liftoff_height: float = 0.01
     arrive_radius: float = 0.05
     finish_s: float = 10.0
+    finish_radius: float = 0.3
     trajectory: TrajectoryParams = field(default_factory=TrajectoryParams)
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     pursuit: PursuitParams = field(default_factory=PursuitParams)
@@ -234,11 +236,12 @@ class VehicleController:
         self.machine.request(planned, now, "plan")
 
     def _short_of_goal(self, rel: float, est: Estimate) -> bool:
-        """Past the plan's end by less than `finish_s`, but not at the goal yet."""
+        """Past the plan's end by less than `finish_s`, near the goal but not at it yet."""
         traj = self._active
         assert traj is not None
+        miss = math.dist((est.x, est.y), traj.nodes[-1][:2])
         return (not self._fault_landing and traj is self.trajectory and rel < traj.end_time + self.params.finish_s
-                and math.dist((est.x, est.y), traj.nodes[-1][:2]) >= self.params.arrive_radius)
+                and self.params.arrive_radius <= miss < self.params.finish_radius)
 
     def _enter_landing(self, traj: Trajectory, rel: float) -> None:
         """Remember where and when the landing that starts now ends."""
