@@ -8,8 +8,9 @@ import math
 import msgspec
 import pytest
 
-from common.messages import Pose
-from common.model import VehicleModel
+from common.messages import FlightSetpoint, Pose
+from common.model import G, VehicleModel
+from common.thrust import thrust_command
 from services.executor.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
 from services.executor.modes import AIRBORNE, Mode
 from services.executor.vehicle_controller import VehicleController
@@ -83,3 +84,29 @@ def test_unknown_mode_is_taken_as_parked() -> None:
     _, state = VehicleController("cf1", MODEL).tick(0.0)
     b.take_over(msgspec.structs.replace(state, mode="warp"), 0.1)
     assert b.mode == Mode.PARKED
+
+
+def test_take_over_after_a_partition_starts_from_the_latest_pose_at_rest() -> None:
+    """The first owner's last state is a lease (here 1.2 s) old: meanwhile its last setpoint was held
+    0.2 s, then the vehicle sank level (as under the gateway's safety landing). The new owner gets
+    that state and the latest pose; fusing the pose after the state read the 0.3-0.5 m moved
+    meanwhile as a velocity, and the chase of it threw the vehicle around (seen in a cross-host run:
+    up to 1.5 m, down 1.5 m off the map)."""
+    sim, plan, a, mocap = first_owner(5)
+    run(a, sim, T0 + FLY - 1.2, mocap)
+    _, last_state = a.tick(sim.t)
+    assert last_state.mode == "flying"
+    sim.step(0.2)  # the dead owner's last setpoint, held
+    sim.apply(FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=thrust_command(0.9 * MODEL.mass * G)), sim.t)
+    for _ in range(110):
+        sim.step(0.01)
+    latest = mocap.observe(sim.truth())
+    assert latest is not None and math.dist((latest.x, latest.y, latest.z), (last_state.x, last_state.y, last_state.z)) > 0.15
+    b = VehicleController("cf1", MODEL, owner="exec-b")
+    b.load(plan)
+    b.take_over(last_state, sim.t, latest)
+    est = b.estimator.estimate(sim.t)
+    assert math.dist((est.x, est.y, est.z), (sim.x, sim.y, sim.z)) < 0.01 and math.hypot(est.vx, est.vy, est.vz) < 0.05
+    second = run(b, sim, T0 + STEPS[-1].t + 3.0, mocap)
+    assert max(r.truth.z for r in second) < max(s.pos[2] for s in STEPS) + 0.15
+    assert b.mode == Mode.DONE and math.dist((sim.x, sim.y, sim.z), STEPS[-1].pos) < 0.05

@@ -208,10 +208,7 @@ class ExecutorService(Service):
             ctl.start(t0)
         prev = self.last_state.get(vid)
         if prev is not None and prev.mission == plan.mission and prev.owner != self.instance:
-            ctl.take_over(prev, time.time())
-            pose = self.last_pose.get(vid)
-            if pose is not None and pose.t > prev.t:  # after a partition the last state is a lease (~1 s) old
-                ctl.on_pose(pose)
+            ctl.take_over(prev, time.time(), self.last_pose.get(vid))
             log.warning("%s: took over %s from %s in mode %s", self.instance, vid, prev.owner, prev.mode)
         if plan.mission in self.aborts:
             ctl.abort(self.aborts[plan.mission])

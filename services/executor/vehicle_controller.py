@@ -112,18 +112,23 @@ class VehicleController:
         self.machine.request(Mode.PARKED, self.estimator.t or 0.0, "plan loaded")
         return True
 
-    def take_over(self, state: VehicleState, now: float) -> None:
+    def take_over(self, state: VehicleState, now: float, pose: Pose | None = None) -> None:
         """Continue controlling a vehicle another executor was controlling (it died): adopt its
-        mode and charge estimate, and seed the estimator with its last estimate so the first ticks
-        are not blind. A fault landing in progress is restarted towards the nearest safe point."""
+        mode and charge estimate, and start the estimator at rest from the newer of its last state
+        and `pose` (its latest motion-capture pose), so the first ticks are not blind. After a
+        partition the state is a lease old: fusing the pose after it would read the vehicle's
+        displacement meanwhile (the gateway landing it) as a velocity, and the controller chased
+        that velocity (a resumed vehicle climbed to 1.5 m and landed 1.5 m off the map). A fault
+        landing in progress is restarted towards the nearest safe point."""
         try:
             mode = Mode(state.mode)
         except ValueError:
             log.warning("%s: unknown mode %r at take-over; assuming parked", self.vid, state.mode)
             mode = Mode.PARKED
         self.charge_used_ah = state.charge_used_ah
-        self.estimator.update(Pose(vid=self.vid, t=state.t, x=state.x, y=state.y, z=state.z, yaw=state.yaw,
-                                   source="take-over"))
+        self.estimator.reset(pose if pose is not None and pose.t > state.t else
+                             Pose(vid=self.vid, t=state.t, x=state.x, y=state.y, z=state.z, yaw=state.yaw,
+                                  source="take-over"))
         rel = None if self.t0 is None or self._active is None else now - self.t0
         planned = None if rel is None else self._active.modes[self._active.segment(rel)]
         fault_landing = mode == Mode.LANDING and planned != Mode.LANDING
