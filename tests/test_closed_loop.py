@@ -192,7 +192,7 @@ def test_a_vehicle_held_up_past_its_plans_end_drives_on_to_its_goal() -> None:
 
 def test_a_vehicle_far_from_its_goal_at_its_plans_end_does_not_drive_off_the_roads() -> None:
     end = T0 + STEPS[-1].t
-    ctrl, sim, _ = fly_plan(until=end + 3.0, hook=link_lost_during(end - 4.0, end + 0.5), telemetry_every=0)
+    ctrl, sim, _ = fly_plan(until=end + 3.0, hook=link_lost_during(end - 7.0, end + 0.5), telemetry_every=0)
     miss = math.dist((sim.x, sim.y), STEPS[-1].pos[:2])
     assert ctrl.mode == Mode.DONE and miss > ctrl.params.finish_radius
     assert "behind the plan: driving on to the goal" not in [tr.reason for tr in ctrl.machine.history]

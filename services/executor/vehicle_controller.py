@@ -50,7 +50,7 @@ class ControlParams:
     liftoff_height: float = 0.01
     arrive_radius: float = 0.05
     finish_s: float = 10.0
-    finish_radius: float = 0.3
+    finish_radius: float = 0.5
     trajectory: TrajectoryParams = field(default_factory=TrajectoryParams)
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     pursuit: PursuitParams = field(default_factory=PursuitParams)
