@@ -89,6 +89,22 @@ def test_a_real_jump_is_reacquired() -> None:
     assert est.estimate(1.3).x == pytest.approx(0.5, abs=0.01)
 
 
+def test_a_prediction_gone_wrong_is_reacquired_moving_as_the_rejected_poses_did() -> None:
+    """Accelerations fed in that the vehicle never got (commands over a lost link): the prediction
+    leaves the poses, which are rejected until the filter restarts from them, at their velocity,
+    not at rest (at rest, the controller chased a vehicle it believed still)."""
+    est = PoseEstimator()
+    track(est, 0.0, 1.0, vel=(0.0, 0.0, 0.0))
+    est.set_input((0.0, 0.0, -20.0), 1.0)  # believed: falling hard; truth: climbing at 0.8 m/s
+    t = 1.0
+    while est.rejected < est.params.reacquire_after:  # until the restart
+        t += 0.01
+        est.update(Pose(vid="cf1", t=t, x=0.0, y=0.0, z=0.8 * (t - 1.0), yaw=0.0))
+        assert t < 1.5, "never reacquired"
+    e = est.estimate(t)
+    assert e.vz == pytest.approx(0.8, abs=0.05) and e.z == pytest.approx(0.8 * (t - 1.0), abs=0.005)
+
+
 def test_yaw_crossing_pi_is_smooth() -> None:
     est = PoseEstimator()
     *_, yaw_rate = mean_velocity(est, 0.0, 2.0, vel=(0.0, 0.0, 0.0), yaw_rate=1.0, yaw0=math.pi - 1.5)

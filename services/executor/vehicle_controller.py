@@ -284,9 +284,11 @@ class VehicleController:
                 self._after_touchdown(now, ref.t, est)
                 self.estimator.set_input((0.0, 0.0, 0.0), now)
                 return StopSetpoint()
-            aloft = est.z - self._ground_z > self.params.liftoff_height
-            sp = self.lqr.command(est, ref, integrate=aloft)
-            self.estimator.set_input(self.lqr.expected_accel if aloft else (0.0, 0.0, 0.0), now)
+            # commands over a lost link do not reach the vehicle: neither learn from them (the
+            # integrators wound up and threw it up on reconnection) nor predict with them
+            effective = est.z - self._ground_z > self.params.liftoff_height and not self.faults.link_lost(now)
+            sp = self.lqr.command(est, ref, integrate=effective)
+            self.estimator.set_input(self.lqr.expected_accel if effective else (0.0, 0.0, 0.0), now)
             return sp
         if mode == Mode.EMERGENCY_LANDING:
             return self._emergency(now, est)
