@@ -8,7 +8,7 @@ from collections import Counter
 
 import pytest
 
-from common.messages import FlightSetpoint, Pose, StopSetpoint, WheelSetpoint
+from common.messages import FlightSetpoint, StopSetpoint, WheelSetpoint
 from services.radio_gateway import crtp
 from services.radio_gateway.config import GatewayParams
 from services.radio_gateway.linkstats import LinkStats
@@ -214,17 +214,3 @@ def test_a_driver_taking_off_gets_its_wheels_zeroed_repeatedly() -> None:
     wheels = [p for _t, p in sent[ch.vid] if isinstance(p, crtp.Wheels)]
     assert len(wheels) == 3 and all(w.left_mm_s == 0 and w.right_mm_s == 0 for w in wheels)
     assert ch.mode == Drive.FLIGHT
-
-
-def test_a_safety_landing_starts_under_position_control_from_the_poses_seen_in_flight() -> None:
-    """The gateway subscribes to a flying vehicle's poses: the landing that begins when its
-    commands stop has one from its first tick, instead of hovering level and blind meanwhile."""
-    chans, sched = _radio(1, 0)
-    (ch,) = chans
-    _run(chans, sched, 0.3, lambda c, now: HOVER)
-    for k in range(10):
-        t = 0.2 + 0.01 * k
-        ch.on_pose(Pose(vid=ch.vid, t=t, x=0.3, y=0.1, z=0.5, yaw=0.0), t)
-    _, events = _run(chans, sched, 0.25, t0=0.3)
-    assert [e[1][0] for e in events] == ["stale_cmd_landing"]
-    assert ch.mode == Drive.LANDING and ch.landing is not None and ch.landing.closed_loop

@@ -32,7 +32,7 @@ from services.radio_gateway.config import RadiosFile
 from services.radio_gateway.link import CrtpLink, RadioSender
 from services.radio_gateway.linkstats import LINK_EVENTS, Event
 from services.radio_gateway.scheduler import Scheduler
-from services.radio_gateway.vehicle import Drive, Refused, VehicleChannel
+from services.radio_gateway.vehicle import Refused, VehicleChannel
 
 log = logging.getLogger(__name__)
 
@@ -193,15 +193,12 @@ class RadioGateway(Service):
                 "packets_dropped": sum(ch.stats.dropped for ch in chans)}
 
     def _sync_pose_subscriptions(self) -> None:
-        """Poses only matter for a safety landing: subscribe while a vehicle flies or lands, so
-        that a landing has them from its first tick (subscribing when it begins left a vehicle
-        that was accelerating into its cruise open loop, level, carried on 0.7 m)."""
+        """Poses only matter during a safety landing: subscribe while one lasts."""
         for vid, ch in self.channels.items():
-            airborne = ch.mode in (Drive.FLIGHT, Drive.LANDING)
-            if airborne and vid not in self._poses:
+            if ch.landing is not None and vid not in self._poses:
                 self._poses[vid] = subscribe(self.session, self.keys.vehicle(vid, "pose"), Pose, self._on_pose,
                                              counters=self.counters)
-            elif not airborne and vid in self._poses:
+            elif ch.landing is None and vid in self._poses:
                 self._poses.pop(vid).close()
 
     def _publish_events(self, vid: str, events: list[Event]) -> None:

@@ -89,7 +89,6 @@ class VehicleChannel:
         self._wheels_sent_at = -float("inf")
         self._wheel_zeros_left = 0
         self._last_stop_sent = 0  # `stats.sent` when the last commander stop went out
-        self._pose: tuple[Pose, float] | None = None  # the last pose and when it was received
 
     # ---- commands -------------------------------------------------------------------------
 
@@ -162,9 +161,6 @@ class VehicleChannel:
         return events
 
     def on_pose(self, pose: Pose, now: float) -> None:
-        """A pose received at `now`: for the safety landing, and kept in flight so that one
-        starts under position control from its first tick."""
-        self._pose = (pose, now)
         if self.landing is not None:
             self.landing.on_pose(pose, now)
 
@@ -174,8 +170,6 @@ class VehicleChannel:
         age = now - self.cmd_at
         if self.mode == Drive.FLIGHT and self.stale(now):
             self.landing = SafeLanding(now, self._hover_setpoint(), self.params.landing, 1.0 / self.params.tick_hz)
-            if self._pose is not None:
-                self.landing.on_pose(*self._pose)
             self.mode = Drive.LANDING
             self.took_over = True
             events.append(("stale_cmd_landing", f"no command for {age:.2f} s in flight: hover, then land"))
