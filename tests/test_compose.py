@@ -55,9 +55,15 @@ def test_bad_compose_files_name_the_field(tmp_path, capsys, text: str, field: st
     assert field in err and str(path) in err and "Traceback" not in err
 
 
-def test_up_then_down_stops_every_process_cleanly(tmp_path) -> None:
+def _compose(tmp_path, text: str):
+    """`text` as tmp_path/compose.yaml; its path."""
     path = tmp_path / "compose.yaml"
-    path.write_text("""
+    path.write_text(text)
+    return path
+
+
+def test_up_then_down_stops_every_process_cleanly(tmp_path) -> None:
+    path = _compose(tmp_path, """
 services:
   sleeper:
     command: ["python3", "-c", "import signal, sys, time; signal.signal(signal.SIGTERM, lambda *a: sys.exit(0)); time.sleep(60)"]
@@ -76,8 +82,7 @@ services:
 
 
 def test_wait_ready_names_the_processes_that_never_served(tmp_path) -> None:
-    path = tmp_path / "compose.yaml"
-    path.write_text("""
+    path = _compose(tmp_path, """
 services:
   server:
     command: ["python3", "-c", "import os, pathlib, time; time.sleep(0.5); pathlib.Path(os.environ['FLEET_READY_FILE']).touch(); time.sleep(60)"]

@@ -52,9 +52,11 @@ class LinkStats:
         self._asked: deque[tuple[int, float]] = deque()  # (sent, t) of the requests not answered yet
 
     def request(self, now: float) -> int:
-        """Count a status request sent at `now`; the `sent` it carries."""
+        """Count a status request sent at `now`; the `sent` it carries. Only a live link's requests
+        are kept for `check` (a lost one's would pile up for as long as the vehicle is gone)."""
         self.sent += 1
-        self._asked.append((self.sent, now))
+        if self.link_ok:
+            self._asked.append((self.sent, now))
         return self.sent
 
     def on_status(self, st: crtp.Status, now: float) -> list[Event]:
@@ -92,6 +94,7 @@ class LinkStats:
         if unanswered < self.lost_after:
             return []
         self.link_ok = False
+        self._asked.clear()
         return [("link_lost", f"no status for {now - self._since:.2f} s, {unanswered} requests unanswered")]
 
     def reporting(self, now: float) -> bool:
