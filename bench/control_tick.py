@@ -1,6 +1,6 @@
 """Cost of one control tick (pose fusion + state machine + controller) of `VehicleController`.
 
-Flies the town-like reference path (services/executor/closed_loop.py) once in the simulator with
+Flies the town-like reference path (tests/support/closed_loop.py) once in the simulator with
 noisy 100 Hz mocap, timing `on_pose` + `tick` of every tick in thread CPU time (the simulator is not
 timed), and prints per mode class the mean / median / 99th-percentile cost and how many vehicles
 one core runs at 100 Hz (1 s / (100 x mean cost)); also the mission's tracking figures. Saves a PNG.
@@ -21,12 +21,12 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from common.messages import Pose  # noqa: E402
-from common.model import VehicleModel  # noqa: E402
-from services.executor.closed_loop import Mocap, MocapNoise, plan_for, reference_steps  # noqa: E402
-from services.executor.modes import AIRBORNE, Mode  # noqa: E402
+from common.bus.messages import Pose  # noqa: E402
+from common.domain.vehicle_model import VehicleModel  # noqa: E402
+from common.flight.modes import AIRBORNE, Mode  # noqa: E402
 from services.executor.vehicle_controller import VehicleController  # noqa: E402
-from services.radio_gateway.physics import SimFlyingCar  # noqa: E402
+from services.sim.crazyflie.physics import SimFlyingCar  # noqa: E402
+from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps  # noqa: E402
 
 RATE_HZ = 100.0
 

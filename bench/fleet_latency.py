@@ -21,13 +21,13 @@ from collections import defaultdict
 import numpy as np
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
-from common.bus import Publisher, subscribe
-from common.keys import Keys
-from common.liveliness import watch_alive
-from common.messages import Cmd, PlanStep, Pose, VehiclePlan
-from common.model import VehicleModel
-from common.planfile import PlanModel
-from common.zsession import InProcessRouter, ZenohConfig, open_session
+from common.bus.keys import Keys
+from common.bus.liveliness import watch_alive
+from common.bus.messages import Cmd, PlanStep, Pose, VehiclePlan
+from common.bus.pubsub import Publisher, subscribe
+from common.bus.session import InProcessRouter, ZenohConfig, open_session
+from common.domain.planfile import PlanModel
+from common.domain.vehicle_model import VehicleModel
 
 KEYS = Keys("bench")
 SPEED = 0.1
@@ -45,7 +45,7 @@ def drive_plan(vid: str, y: float, t0: float) -> VehiclePlan:
 async def measure(endpoint: str, n: int, executors: int, seconds: float) -> dict[str, float]:
     session = open_session(ZenohConfig.client(endpoint))
     env = {**os.environ, "FLEET_ZENOH_CONNECT": endpoint, "FLEET_NAME": KEYS.fleet}
-    procs = [subprocess.Popen([sys.executable, "-m", "common.cli", "executor"], env={**env, "FLEET_INSTANCE": f"ex{i}"},
+    procs = [subprocess.Popen([sys.executable, "-m", "services.cli", "executor"], env={**env, "FLEET_INSTANCE": f"ex{i}"},
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for i in range(executors)]
     try:
         alive = await watch_alive(session, KEYS, "executor")

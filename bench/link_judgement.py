@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
-from services.radio_gateway import crtp
-from services.radio_gateway.config import GatewayParams
+from common.crazyflie import crtp
+from common.deploy.radios import GatewayParams
 from services.radio_gateway.scheduler import Scheduler
 from services.radio_gateway.vehicle import VehicleChannel
 

@@ -15,10 +15,10 @@ from __future__ import annotations
 import numpy as np
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
-from common.mapfile import MAPS_DIR
-from services.planner.loading import Problem, load_graph
-from services.planner.planners import run_planner
-from services.planner.scenario import load_scenario
+from common.domain.mapfile import MAPS_DIR
+from services.planner.maps.loading import Problem, load_graph
+from services.planner.maps.scenario import load_scenario
+from services.planner.registry import run_planner
 from services.planner.validate import validate_plan
 
 

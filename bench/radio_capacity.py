@@ -20,12 +20,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench.tables import bench_parser, format_table, new_figure
-from common.keys import Keys
-from common.zsession import InProcessRouter
-from services.radio_gateway.config import GatewayParams, LinkModel, simulated_radios
+from common.bus.keys import Keys
+from common.bus.session import InProcessRouter
+from common.deploy.radios import GatewayParams, LinkModel, simulated_radios
 from services.radio_gateway.gateway import RadioGateway
-from services.radio_gateway.loadgen import LoadCommander, running
-from services.radio_gateway.simservice import SimService
+from services.sim.crazyflie.service import SimService
+from tests.support.loadgen import LoadCommander, running
 
 TARGET_HZ = 50.0
 PAPER_CAPACITY = 2

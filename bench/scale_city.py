@@ -16,12 +16,12 @@ import statistics
 import time
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
-from common.planfile import Task
-from services.planner.graph import FleetGraph
-from services.planner.loading import load_graph
+from common.domain.planfile import Task
+from services.planner.graph.fleet_graph import FleetGraph
+from services.planner.maps.loading import load_graph
+from services.planner.maps.scenario import random_tasks
 from services.planner.result import to_plan
-from services.planner.scenario import random_tasks
-from services.planner.sipp import plan_sipp
+from services.planner.sipp.planner import plan_sipp
 from services.planner.validate import validate_plan
 
 

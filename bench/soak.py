@@ -5,7 +5,7 @@ simulated Crazyflies), sized for a large fleet: gateways with `--subscribe-each`
 ground truth at `--truth-hz`, no telemetry recorder. Missions on the city934 map follow each other:
 each starts where the last one left the vehicles, with fresh goals. Collected while it runs:
 
-- every service's `stats/<service>/<instance>` (common/stats.py): dropped messages, refusals,
+- every service's `stats/<service>/<instance>` (common/bus/stats.py): dropped messages, refusals,
   the executors' missed control deadlines and pose-to-command latency, the simulator's lag;
 - each process's resident memory and CPU time from /proc, every `--sample-s` seconds.
 
@@ -29,18 +29,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
-from common.bus import subscribe
-from common.credentials import make_credentials
-from common.keys import Keys
-from common.launcher import start, stop
-from common.messages import ServiceStats
-from common.planfile import Task
-from common.zsession import InProcessRouter, open_session
+from common.bus.keys import Keys
+from common.bus.messages import ServiceStats
+from common.bus.pubsub import subscribe
+from common.bus.session import InProcessRouter, open_session
+from common.deploy.credentials import make_credentials
+from common.deploy.launcher import start, stop
+from common.deploy.radios import dump_radios
+from common.domain.planfile import Task
 from services.mission.demo import LocalFleet, demo_radios, fleet_processes, wait_for_services
 from services.mission.runner import MissionResult, MissionRunner, MissionSpec
-from services.planner.graph import FleetGraph
-from services.planner.loading import load_graph
-from services.radio_gateway.config import dump_radios
+from services.planner.graph.fleet_graph import FleetGraph
+from services.planner.maps.loading import load_graph
 
 MAP = "city934"
 SERVICES = ("executor", "gateway", "sim", "mocap", "planner")

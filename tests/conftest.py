@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from common.zsession import InProcessRouter, ZenohConfig, open_session
+from common.bus.session import InProcessRouter, ZenohConfig, open_session
 
 
 @pytest.fixture

@@ -16,7 +16,10 @@ import msgspec
 import pytest
 import zenoh
 
-from common.bus import (
+from common.bus.keys import Keys
+from common.bus.liveliness import declare_alive, watch_alive
+from common.bus.messages import MAX_MESSAGE_BYTES, Codec, PlanReply, PlanRequest, Pose, Telemetry
+from common.bus.pubsub import (
     Counters,
     Publisher,
     QueryError,
@@ -26,11 +29,8 @@ from common.bus import (
     serve,
     subscribe,
 )
-from common.keys import Keys
-from common.liveliness import declare_alive, watch_alive
-from common.messages import MAX_MESSAGE_BYTES, Codec, PlanReply, PlanRequest, Pose, Telemetry
-from common.planfile import Task
-from common.zsession import LEASE_MS
+from common.bus.session import LEASE_MS
+from common.domain.planfile import Task
 
 REPO = Path(__file__).resolve().parents[1]
 KEYS = Keys("test")
@@ -99,7 +99,7 @@ def test_malformed_messages_are_dropped_counted_logged_once_and_the_next_good_on
         sub.close()
         return msg
 
-    with caplog.at_level(logging.WARNING, logger="common.bus"):
+    with caplog.at_level(logging.WARNING, logger="common.bus.pubsub"):
         assert asyncio.run(scenario()) == pose(7)
     assert dict(counters) == {drop_name("malformed", Pose, POSE_KEY): len(bad_payloads)}
     assert len([r for r in caplog.records if "malformed" in r.getMessage()]) == 1
@@ -283,9 +283,9 @@ def test_a_wrong_gone_is_corrected_from_the_routers_snapshot(zsession: Sessions)
 
 CHILD_WITH_TOKEN = """
 import sys, time
-from common.keys import Keys
-from common.liveliness import declare_alive
-from common.zsession import ZenohConfig, open_session
+from common.bus.keys import Keys
+from common.bus.liveliness import declare_alive
+from common.bus.session import ZenohConfig, open_session
 session = open_session(ZenohConfig.client(sys.argv[1]))
 token = declare_alive(session, Keys("test"), "executor", "child")
 time.sleep(60)

@@ -10,13 +10,13 @@ HEAVY = ("filterpy", "scipy", "rerun", "networkx", "highspy", "numpy", "cflib")
 
 
 def test_building_the_parser_imports_no_service_dependency() -> None:
-    probe = ("import sys; from common.cli import build_parser; build_parser(); "
+    probe = ("import sys; from services.cli import build_parser; build_parser(); "
              f"print(' '.join(m for m in {HEAVY!r} if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.split() == []
 
 
 def test_a_lazy_handler_runs_its_command() -> None:
-    out = subprocess.run([sys.executable, "-m", "common.cli", "demo", "--scenario", "no/such.yaml"],
+    out = subprocess.run([sys.executable, "-m", "services.cli", "demo", "--scenario", "no/such.yaml"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "no/such.yaml" in out.stderr and "Traceback" not in out.stderr

@@ -13,12 +13,12 @@ from collections.abc import Callable, Sequence
 
 import pytest
 
-from common.messages import PlanStep, Pose, Telemetry
-from common.model import VehicleModel
-from services.executor.closed_loop import Mocap, MocapNoise, Record, plan_for, reference_steps, run
-from services.executor.modes import AIRBORNE, Mode
+from common.bus.messages import PlanStep, Pose, Telemetry
+from common.domain.vehicle_model import VehicleModel
+from common.flight.modes import AIRBORNE, Mode
 from services.executor.vehicle_controller import VehicleController
-from services.radio_gateway.physics import PhysicsParams, SimFlyingCar
+from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
+from tests.support.closed_loop import Mocap, MocapNoise, Record, plan_for, reference_steps, run
 
 MODEL = VehicleModel()
 STEPS = reference_steps(MODEL)

@@ -6,8 +6,8 @@ import argparse
 
 import pytest
 
+from common.domain.team_plan import read_plan
 from common.errors import InputError
-from common.teamplan import read_plan
 from services.planner.collab.cli import register
 
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from services.planner.collab import controllers as ctl
-from services.planner.collab.env import LandmarkSpec, grid_env
-from services.planner.collab.model import TeamModel
-from services.planner.collab.sensing import Sensing
+from common.team import controllers as ctl
+from common.team.env import LandmarkSpec, grid_env
+from common.team.sensing import Sensing
+from common.team.team_model import TeamModel
 
 E, NE, N, W, S = 0, 1, 2, 4, 6
 

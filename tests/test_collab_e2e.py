@@ -12,21 +12,21 @@ from collections.abc import Awaitable, Callable
 
 import pytest
 
-from common import teamplan as tp
-from common.bus import query, subscribe
-from common.keys import Keys
-from common.messages import ActionStatus, PlanReply, PlanRequest, TeamAction, TeamTask, VehicleTeamPlan
-from common.ownership import owner_of
-from common.zsession import ZenohConfig, open_session
+from common.bus.keys import Keys
+from common.bus.messages import ActionStatus, PlanReply, PlanRequest, TeamAction, TeamTask, VehicleTeamPlan
+from common.bus.pubsub import query, subscribe
+from common.bus.session import ZenohConfig, open_session
+from common.domain import team_plan as tp
+from common.domain.ownership import owner_of
+from common.team.maps import load_env
+from common.team.sensing import Sensing
+from common.team.team_model import TeamModel
 from services.executor.service import ExecutorService
 from services.executor.team import RESEND_S, TeamRobot
-from services.planner.collab.maps import load_env
-from services.planner.collab.mission import TeamMission, TeamMissionSpec
-from services.planner.collab.model import TeamModel
-from services.planner.collab.sensing import Sensing
-from services.planner.collab.sim import TeamWorld
-from services.planner.collab.simservice import CollabSimService
+from services.mission.team import TeamMission, TeamMissionSpec
 from services.planner.service import PlannerService
+from services.sim.team.service import CollabSimService
+from services.sim.team.world import TeamWorld
 
 KEYS = Keys("collab-test")
 DRONE, UGV = "drone1", "ugv1"

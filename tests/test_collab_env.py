@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from common.errors import InputError
-from services.planner.collab.env import load_movingai_map, load_yaml_map
-from services.planner.collab.maps import load_env, map_names
-from services.planner.collab.model import TeamModel
-from services.planner.collab.officegen import OFFICE_MAPS
-from services.planner.collab.sensing import Sensing
+from common.team.env import load_movingai_map, load_yaml_map
+from common.team.maps import load_env, map_names
+from common.team.officegen import OFFICE_MAPS
+from common.team.sensing import Sensing
+from common.team.team_model import TeamModel
 
 MOVINGAI = Path(__file__).resolve().parents[2] / "shared" / "benchmarks" / "movingai"
 GOOD = """\

@@ -9,13 +9,13 @@ import math
 import numpy as np
 import pytest
 
+from common.team.env import LandmarkSpec, grid_env
+from common.team.maps import load_env
+from common.team.sensing import Sensing
+from common.team.team_model import TeamModel
 from services.planner.collab.arastar import weighted_astar
-from services.planner.collab.env import LandmarkSpec, grid_env
 from services.planner.collab.lattice import Lattice, ugv_area
-from services.planner.collab.maps import load_env
-from services.planner.collab.model import TeamModel
 from services.planner.collab.pad import HybridGraph, PadConfig, Regions, pad
-from services.planner.collab.sensing import Sensing
 
 # Two rooms the UGV may use, joined through a hallway it may not enter; no optical flow in rooms.
 TWO_ROOMS = [

@@ -12,11 +12,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from common.team.env import grid_env
+from common.team.sensing import Sensing
+from common.team.team_model import TeamModel
 from services.planner.collab.arastar import arastar, weighted_astar
-from services.planner.collab.env import grid_env
 from services.planner.collab.lattice import Lattice, ugv_area
-from services.planner.collab.model import TeamModel
-from services.planner.collab.sensing import Sensing
 
 
 def grid_graph(free: np.ndarray, weights: np.ndarray):

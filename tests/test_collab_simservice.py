@@ -8,16 +8,16 @@ import time
 
 import pytest
 
-from common import teamplan as tp
-from common.bus import Publisher, subscribe
-from common.keys import Keys
-from common.messages import ActionStatus, SimTruth, TeamAction
-from common.zsession import ZenohConfig, open_session
-from services.planner.collab.maps import load_env
-from services.planner.collab.model import TeamModel
-from services.planner.collab.sensing import Sensing
-from services.planner.collab.sim import TeamWorld
-from services.planner.collab.simservice import CollabSimService
+from common.bus.keys import Keys
+from common.bus.messages import ActionStatus, SimTruth, TeamAction
+from common.bus.pubsub import Publisher, subscribe
+from common.bus.session import ZenohConfig, open_session
+from common.domain import team_plan as tp
+from common.team.maps import load_env
+from common.team.sensing import Sensing
+from common.team.team_model import TeamModel
+from services.sim.team.service import CollabSimService
+from services.sim.team.world import TeamWorld
 
 KEYS = Keys("collab-sim-test")
 CLIMB = tp.Step(tp.Altitude(2.0), (1.25, 1.25, 2.0), 1.0)

@@ -9,14 +9,14 @@ import msgspec
 import numpy as np
 import pytest
 
-from common import teamplan as tp
+from common.domain import team_plan as tp
 from common.errors import InputError
-from services.planner.collab.env import Env
-from services.planner.collab.maps import load_env
-from services.planner.collab.model import TeamModel
+from common.team.env import Env
+from common.team.maps import load_env
+from common.team.sensing import Sensing
+from common.team.team_model import TeamModel
 from services.planner.collab.planner import Problem, TeamPlanner
-from services.planner.collab.sensing import Sensing
-from services.planner.collab.sim import TeamSim
+from services.sim.team.world import TeamSim
 
 # demo-room: the drone starts next to the UGV in the room's corner; the goal is over the middle of
 # the room, out of IR range of every wall and far from the landmark: only the UGV can guide it there.

@@ -7,9 +7,9 @@ import time
 
 import pytest
 
-from common.cli import main
-from common.compose import interpolate, load_compose
-from common.launcher import start, status, stop, wait_ready
+from common.deploy.compose import interpolate, load_compose
+from common.deploy.launcher import start, status, stop, wait_ready
+from services.cli import main
 
 
 def test_interpolation_like_compose() -> None:
@@ -35,7 +35,7 @@ services:
     procs = load_compose(path)
     assert [p.instance for p in procs] == ["router", "worker-1", "worker-2", "worker-3"]
     worker = procs[1]
-    assert worker.argv[:3] == [sys.executable, "-m", "common.cli"]
+    assert worker.argv[:3] == [sys.executable, "-m", "services.cli"]
     assert worker.argv[-1] == "tcp/127.0.0.1:7447"
     assert worker.env == {"FLEET_NAME": "lab", "FLEET_INSTANCE": "worker-1"}
     assert procs[0].argv[3:] == ["router"]

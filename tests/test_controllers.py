@@ -8,9 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from common.messages import PlanStep
-from common.model import G, VehicleModel
-from common.thrust import (
+from common.bus.messages import PlanStep
+from common.crazyflie.thrust import (
     THRUST_CMD_MAX,
     THRUST_CMD_MIN,
     WheelBase,
@@ -21,12 +20,13 @@ from common.thrust import (
     thrust_newtons,
     to_flight_setpoint,
 )
-from services.executor.estimator import Estimate
-from services.executor.lqr import FlightLqr, FlightModel, LqrWeights, continuous_model, discretise, lqr_gain
-from services.executor.modes import Mode
+from common.domain.vehicle_model import G, VehicleModel
+from common.flight.estimator import Estimate
+from common.flight.lqr import FlightLqr, FlightModel, LqrWeights, continuous_model, discretise, lqr_gain
+from common.flight.modes import Mode
 from services.executor.pure_pursuit import PurePursuit
 from services.executor.trajectory import RefSample, Trajectory
-from services.radio_gateway.physics import PhysicsParams, SimFlyingCar
+from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
 
 MODEL = VehicleModel()
 

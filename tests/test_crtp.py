@@ -12,8 +12,8 @@ from cflib.crazyflie.appchannel import Appchannel
 from cflib.crazyflie.commander import Commander
 from cflib.crtp.crtpstack import CRTPPacket
 
-from common.messages import FlightSetpoint
-from services.radio_gateway import crtp
+from common.bus.messages import FlightSetpoint
+from common.crazyflie import crtp
 from services.radio_gateway.link import CrtpLink
 
 

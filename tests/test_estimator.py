@@ -9,8 +9,8 @@ import random
 import numpy as np
 import pytest
 
-from common.messages import Pose
-from services.executor.estimator import PoseEstimator
+from common.bus.messages import Pose
+from common.flight.estimator import PoseEstimator
 
 
 def track(est: PoseEstimator, t0: float, t1: float, vel: tuple[float, float, float] = (0.2, -0.1, 0.05),

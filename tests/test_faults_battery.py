@@ -9,15 +9,15 @@ from __future__ import annotations
 import math
 
 import pytest
-from fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
 
-from common.messages import SimFault
-from common.model import VehicleModel
-from common.vehicleplan import vehicle_plans
+from common.bus.messages import SimFault
+from common.bus.vehicle_plans import vehicle_plans
+from common.domain.vehicle_model import VehicleModel
 from services.executor.faults import landing_nodes
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from services.planner.loading import load_graph
+from services.planner.maps.loading import load_graph
+from tests.support.fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
 
 MODEL = VehicleModel()
 NEARLY_EMPTY_AH = MODEL.capacity_ah - 0.5 * MODEL.reserve_ah

@@ -11,14 +11,14 @@ import contextlib
 
 import pytest
 
-from common.messages import FlightSetpoint, Pose, Setpoint, StopSetpoint, WheelSetpoint
-from common.model import VehicleModel
-from services.executor.closed_loop import Mocap, MocapNoise, plan_for, reference_steps
+from common.bus.messages import FlightSetpoint, Pose, Setpoint, StopSetpoint, WheelSetpoint
+from common.crazyflie import crtp
+from common.deploy.radios import GatewayParams
+from common.domain.vehicle_model import VehicleModel
 from services.executor.vehicle_controller import VehicleController
-from services.radio_gateway import crtp
-from services.radio_gateway.config import GatewayParams
-from services.radio_gateway.physics import PhysicsParams, SimFlyingCar
 from services.radio_gateway.vehicle import Refused, VehicleChannel
+from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
+from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps
 
 MODEL = VehicleModel()
 STEPS = reference_steps(MODEL)

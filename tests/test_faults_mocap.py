@@ -11,16 +11,16 @@ from collections.abc import Callable
 
 import pytest
 import zenoh
-from fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
 
-from common.bus import Publisher
-from common.messages import SimFault, SimTruth
-from common.zsession import ZenohConfig
+from common.bus.messages import SimFault, SimTruth
+from common.bus.pubsub import Publisher
+from common.bus.session import ZenohConfig
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from services.mocap_bridge.bridge import MocapBridge
 from services.mocap_bridge.config import MocapConfig, SimNoise
-from services.planner.loading import load_graph
+from services.planner.maps.loading import load_graph
+from tests.support.fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
 
 SHORT, LONG = 0.3, 2.0
 

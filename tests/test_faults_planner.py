@@ -12,12 +12,12 @@ import sys
 import time
 
 import pytest
-from fleet_faults import TOWN_TASKS
 
-from common.keys import Keys
-from common.liveliness import declare_alive, watch_alive
-from common.zsession import InProcessRouter, open_session
+from common.bus.keys import Keys
+from common.bus.liveliness import declare_alive, watch_alive
+from common.bus.session import InProcessRouter, open_session
 from services.mission.runner import MissionResult, MissionRunner, MissionSpec
+from tests.support.fleet_faults import TOWN_TASKS
 
 KEYS = Keys("plannerfault")
 FAST_S = 3.0
@@ -44,7 +44,7 @@ def test_a_mission_without_a_reachable_planner_fails_within_seconds() -> None:
             assert not result.ok and "no planner is alive" in result.reason and took < FAST_S
 
             env = {**os.environ, "FLEET_ZENOH_CONNECT": router.endpoint, "FLEET_NAME": KEYS.fleet}
-            planner = subprocess.Popen([sys.executable, "-m", "common.cli", "planner"], env=env,
+            planner = subprocess.Popen([sys.executable, "-m", "services.cli", "planner"], env=env,
                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             try:
                 async def wait_planner() -> None:

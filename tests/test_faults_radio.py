@@ -19,20 +19,20 @@ from collections.abc import Callable
 
 import pytest
 import zenoh
-from fleet_faults import TOWN_TASKS, Watch, fly, until
 
-from common.messages import PlanStep, SimFault
-from common.model import VehicleModel
-from common.zsession import ZenohConfig
+from common.bus.messages import PlanStep, SimFault
+from common.bus.session import ZenohConfig
+from common.deploy.radios import simulated_radios
+from common.domain.vehicle_model import VehicleModel
 from services.executor.faults import safe_landing_steps
 from services.executor.trajectory import Trajectory
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from services.planner.loading import load_graph
-from services.radio_gateway.config import simulated_radios
+from services.planner.maps.loading import load_graph
 from services.radio_gateway.gateway import RadioGateway
-from services.radio_gateway.loadgen import LoadCommander, running
-from services.radio_gateway.simservice import SimService
+from services.sim.crazyflie.service import SimService
+from tests.support.fleet_faults import TOWN_TASKS, Watch, fly, until
+from tests.support.loadgen import LoadCommander, running
 
 
 @pytest.mark.timeout(60)

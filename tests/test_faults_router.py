@@ -10,20 +10,20 @@ import asyncio
 import time
 
 import pytest
-from fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
 
-from common.launcher import stop as stop_services
-from common.messages import Pose
-from common.model import G, VehicleModel
-from common.thrust import thrust_command, to_flight_setpoint
-from common.zsession import InProcessRouter
-from services.executor.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
-from services.executor.modes import Mode
+from common.bus.messages import Pose
+from common.bus.session import InProcessRouter
+from common.crazyflie.thrust import thrust_command, to_flight_setpoint
+from common.deploy.launcher import stop as stop_services
+from common.domain.vehicle_model import G, VehicleModel
+from common.flight.modes import Mode
 from services.executor.vehicle_controller import VehicleController
 from services.mission.demo import local_fleet, wait_for_services
 from services.mission.runner import MissionRunner, MissionSpec
-from services.planner.loading import load_graph
-from services.radio_gateway.physics import SimFlyingCar
+from services.planner.maps.loading import load_graph
+from services.sim.crazyflie.physics import SimFlyingCar
+from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
+from tests.support.fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
 
 DOWN_S = 0.5
 BLIND_TOUCHDOWN = 1.0

@@ -11,13 +11,13 @@ import signal
 import time
 
 import pytest
-from fleet_faults import TOWN_TASKS
-from service_logs import service_warnings
 
+from common.deploy.radios import LinkModel
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from services.planner.loading import load_graph
-from services.radio_gateway.config import LinkModel
+from services.planner.maps.loading import load_graph
+from tests.support.fleet_faults import TOWN_TASKS
+from tests.support.service_logs import service_warnings
 
 
 def _pid_of(run_dir, instance: str) -> int:

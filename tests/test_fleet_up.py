@@ -9,14 +9,14 @@ import sys
 from pathlib import Path
 
 import pytest
-from service_logs import service_warnings
 
-from common.compose import interpolate
-from common.zsession import free_tcp_endpoint
+from common.bus.session import free_tcp_endpoint
+from common.deploy.compose import interpolate
 from services.mission.demo import free_udp_port
+from tests.support.service_logs import service_warnings
 
 REPO = Path(__file__).resolve().parents[1]
-FLEET = [sys.executable, "-m", "common.cli"]
+FLEET = [sys.executable, "-m", "services.cli"]
 
 
 @pytest.mark.timeout(300)

@@ -23,22 +23,22 @@ import zenoh
 from hypothesis import HealthCheck, given, reject, settings
 from hypothesis import strategies as st
 
-import common.messages as messages
-from common.bus import BadPayload, decode_payload, drop_name, subscribe
-from common.compose import load_compose
+from common.bus import messages
+from common.bus.keys import Keys
+from common.bus.messages import MAX_MESSAGE_BYTES, Codec, PlanStep, VehiclePlan, VehicleState
+from common.bus.pubsub import BadPayload, decode_payload, drop_name, subscribe
+from common.bus.session import ZenohConfig, open_session
+from common.deploy.compose import load_compose
+from common.deploy.radios import load_radios
+from common.domain.mapfile import MAPS_DIR, load_map
+from common.domain.planfile import PlanFileError, PlanModel, Task, decode_plan, encode_plan
 from common.errors import InputError
-from common.keys import Keys
-from common.mapfile import MAPS_DIR, load_map
-from common.messages import MAX_MESSAGE_BYTES, Codec, PlanStep, VehiclePlan, VehicleState
-from common.planfile import PlanFileError, PlanModel, Task, decode_plan, encode_plan
-from common.zsession import ZenohConfig, open_session
 from services.executor.service import ExecutorService
 from services.mocap_bridge.config import load_mocap
-from services.planner.graph import build_graph
-from services.planner.loading import load_graph, problem_from_request
-from services.planner.planners import run_planner
-from services.planner.scenario import load_scenario
-from services.radio_gateway.config import load_radios
+from services.planner.graph.fleet_graph import build_graph
+from services.planner.maps.loading import load_graph, problem_from_request
+from services.planner.maps.scenario import load_scenario
+from services.planner.registry import run_planner
 
 REPO = Path(__file__).resolve().parents[1]
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

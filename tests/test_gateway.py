@@ -14,19 +14,19 @@ from collections.abc import Callable
 import msgspec
 import pytest
 import zenoh
-from fleet_faults import until
 
-from common.bus import subscribe
-from common.keys import Keys
-from common.messages import Cmd, FlightSetpoint, Telemetry, VehicleEvent
-from common.ownership import owner_of
-from common.zsession import ZenohConfig
+from common.bus.keys import Keys
+from common.bus.messages import Cmd, FlightSetpoint, Telemetry, VehicleEvent
+from common.bus.pubsub import subscribe
+from common.bus.session import ZenohConfig
+from common.deploy.radios import LinkModel, RadiosFile, RadioSpec, VehicleLink, simulated_radios
+from common.domain.ownership import owner_of
 from services.mocap_bridge.bridge import MocapBridge
 from services.mocap_bridge.config import MocapConfig
-from services.radio_gateway.config import LinkModel, RadiosFile, RadioSpec, VehicleLink, simulated_radios
 from services.radio_gateway.gateway import RadioGateway
-from services.radio_gateway.loadgen import LoadCommander, running
-from services.radio_gateway.simservice import SimService
+from services.sim.crazyflie.service import SimService
+from tests.support.fleet_faults import until
+from tests.support.loadgen import LoadCommander, running
 
 KEYS = Keys()
 FLYERS = ["cf0", "cf1", "cf2", "cf3"]

@@ -8,15 +8,15 @@ from pathlib import Path
 
 import pytest
 
-from common.errors import InputError
-from services.radio_gateway import cli
-from services.radio_gateway.config import (
+from common.deploy.radios import (
     GatewayParams,
     LinkModel,
     dump_radios,
     load_radios,
     simulated_radios,
 )
+from common.errors import InputError
+from services.radio_gateway import cli
 
 GOOD = """
 radios:

@@ -8,11 +8,11 @@ import random
 
 import pytest
 
-from common.messages import FlightSetpoint, Pose
-from common.thrust import hover_command
-from services.radio_gateway.config import LandingParams
+from common.bus.messages import FlightSetpoint, Pose
+from common.crazyflie.thrust import hover_command
+from common.deploy.radios import LandingParams
 from services.radio_gateway.landing import OpenLoopDescent, SafeLanding
-from services.radio_gateway.physics import PhysicsParams, SimFlyingCar
+from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
 
 DT = 0.01
 HOVER = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=hover_command(0.041))

@@ -8,9 +8,9 @@ from collections import Counter
 
 import pytest
 
-from common.messages import FlightSetpoint, StopSetpoint, WheelSetpoint
-from services.radio_gateway import crtp
-from services.radio_gateway.config import GatewayParams
+from common.bus.messages import FlightSetpoint, StopSetpoint, WheelSetpoint
+from common.crazyflie import crtp
+from common.deploy.radios import GatewayParams
 from services.radio_gateway.linkstats import LinkStats
 from services.radio_gateway.scheduler import Scheduler
 from services.radio_gateway.vehicle import Drive, VehicleChannel

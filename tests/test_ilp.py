@@ -11,21 +11,21 @@ import msgspec
 import numpy as np
 import pytest
 
-from common.cli import main as fleet_main
-from common.mapfile import MAPS_DIR, MapSpec, ParkingSpot, RoadNode, Roads, load_map
-from common.planfile import Task, read_plan
-from services.planner.graph import FleetGraph, build_graph
-from services.planner.ilp import decode, plan_ilp
-from services.planner.ilp_arcs import arc_table
-from services.planner.ilp_network import Fleet, carry_over, vehicle_columns
-from services.planner.ilp_solve import HorizonResult, solve_horizon
-from services.planner.loading import Problem, load_graph
-from services.planner.planners import run_planner
+from common.domain.mapfile import MAPS_DIR, MapSpec, ParkingSpot, RoadNode, Roads, load_map
+from common.domain.planfile import Task, read_plan
+from services.cli import main as fleet_main
+from services.planner.graph.fleet_graph import FleetGraph, build_graph
+from services.planner.ilp.arcs import arc_table
+from services.planner.ilp.network import Fleet, carry_over, vehicle_columns
+from services.planner.ilp.planner import decode, plan_ilp
+from services.planner.ilp.solve import HorizonResult, solve_horizon
+from services.planner.maps.loading import Problem, load_graph
+from services.planner.maps.scenario import load_scenario, random_tasks
+from services.planner.registry import run_planner
 from services.planner.result import PlanResult, to_plan
-from services.planner.scenario import load_scenario, random_tasks
 from services.planner.validate import ValidationReport, validate_plan
 
-HAVE_SIPP = importlib.util.find_spec("services.planner.sipp") is not None
+HAVE_SIPP = importlib.util.find_spec("services.planner.sipp.planner") is not None
 
 
 def plan_valid(graph: FleetGraph, tasks: dict[str, Task], mu: float = 0.5, time_limit: float = 30.0) -> PlanResult:
@@ -182,7 +182,7 @@ def on_grid(result: PlanResult, dt: float) -> bool:
     return bool(np.allclose(times / dt, np.round(times / dt)))
 
 
-@pytest.mark.skipif(not HAVE_SIPP, reason="services/planner/sipp.py is not there yet")
+@pytest.mark.skipif(not HAVE_SIPP, reason="services/planner/sipp/planner.py is not there yet")
 def test_ilp_costs_no_more_than_sipp_on_grid125() -> None:
     """Both on the uniform graph, costs as the validator recomputes them. The ILP is optimal among
     plans on its time grid; SIPP may wait a fraction of a step (continuous time) and then be a little

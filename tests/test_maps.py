@@ -8,13 +8,13 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from common.cli import main
-from common.mapfile import MAPS_DIR, load_map
-from common.model import G, VehicleModel
-from services.planner.graph import build_graph
-from services.planner.loading import load_graph
-from services.planner.mapgen import GENERATORS, to_yaml
-from services.planner.scenario import load_scenario, random_tasks
+from common.domain.mapfile import MAPS_DIR, load_map
+from common.domain.vehicle_model import G, VehicleModel
+from services.cli import main
+from services.planner.graph.fleet_graph import build_graph
+from services.planner.maps.generate import GENERATORS, to_yaml
+from services.planner.maps.loading import load_graph
+from services.planner.maps.scenario import load_scenario, random_tasks
 
 SHIPPED = ["town", "grid125", "city934"]
 

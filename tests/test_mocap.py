@@ -15,17 +15,17 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from common.bus import subscribe
+from common.bus.keys import Keys
+from common.bus.messages import Pose, SimTruth, VehicleEvent
+from common.bus.pubsub import subscribe
+from common.bus.session import ZenohConfig
+from common.deploy.radios import simulated_radios
 from common.errors import InputError
-from common.keys import Keys
-from common.messages import Pose, SimTruth, VehicleEvent
-from common.zsession import ZenohConfig
 from services.mocap_bridge.bridge import MocapBridge
 from services.mocap_bridge.config import MocapConfig, SimNoise, load_mocap
 from services.mocap_bridge.tracker import BodyTracker, yaw_of
-from services.radio_gateway.config import simulated_radios
-from services.radio_gateway.loadgen import running
-from services.radio_gateway.simservice import SimService
+from services.sim.crazyflie.service import SimService
+from tests.support.loadgen import running
 
 KEYS = Keys()
 

@@ -8,7 +8,7 @@ import logging
 
 import pytest
 
-from services.executor.modes import AIRBORNE, GROUNDED, TRANSITIONS, Mode, ModeMachine, segment_mode
+from common.flight.modes import AIRBORNE, GROUNDED, TRANSITIONS, Mode, ModeMachine, segment_mode
 
 
 def test_every_mode_has_a_row_and_no_self_loops() -> None:
@@ -44,7 +44,7 @@ def test_request_obeys_the_table(src: Mode, dst: Mode) -> None:
 
 def test_refused_transition_is_logged_once_per_target_until_the_mode_changes(caplog) -> None:
     machine = ModeMachine("cf7")
-    with caplog.at_level(logging.WARNING, logger="services.executor.modes"):
+    with caplog.at_level(logging.WARNING, logger="common.flight.modes"):
         for _ in range(5):
             assert not machine.request(Mode.FLYING, 0.0, "plan")
         assert machine.refused == 5

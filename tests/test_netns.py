@@ -24,18 +24,18 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from service_logs import service_warnings
 
-from common.compose import Process
-from common.credentials import Credentials, make_credentials
-from common.keys import Keys
-from common.launcher import start, stop
-from common.planfile import Task
-from common.zsession import ZenohConfig
+from common.bus.keys import Keys
+from common.bus.session import ZenohConfig
+from common.deploy.compose import Process
+from common.deploy.credentials import Credentials, make_credentials
+from common.deploy.launcher import start, stop
+from common.deploy.radios import dump_radios
+from common.domain.planfile import Task
 from services.mission.demo import demo_radios, fleet_processes, wait_for_services
 from services.mission.runner import MissionRunner, MissionSpec
-from services.planner.loading import load_graph
-from services.radio_gateway.config import dump_radios
+from services.planner.maps.loading import load_graph
+from tests.support.service_logs import service_warnings
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -176,7 +176,7 @@ def _processes(hosts: Hosts, creds: Credentials, run_dir: Path) -> tuple[Process
     radios = demo_radios(graph, TASKS, per_radio=2)
     radios_path = run_dir / "radios.yaml"
     radios_path.write_text(dump_radios(radios))
-    router = Process("router", "router", [sys.executable, "-m", "common.cli", "router", "--config",
+    router = Process("router", "router", [sys.executable, "-m", "services.cli", "router", "--config",
                                           creds.router_options()["config_file"], "--listen", hosts.router_endpoint,
                                           "--users", str(creds.users_file)])
     services = []
@@ -209,7 +209,7 @@ def test_executor_host_cut_off_mid_flight_its_vehicles_pass_to_the_other_host(ho
     _wait_for_router(run_dir / "router" / "logs" / "router.log", 60.0)
     start(services, run_dir / "fleet", settle_s=0.2)
     driver = subprocess.Popen(
-        ["ip", "netns", "exec", hosts.router, sys.executable, __file__, hosts.router_endpoint,
+        ["ip", "netns", "exec", hosts.router, sys.executable, "-m", "tests.test_netns", hosts.router_endpoint,
          str(creds.password_file("mission")), json.dumps(counts)],
         cwd=REPO, stdout=subprocess.PIPE, stderr=(run_dir / "driver.log").open("w"), text=True)
     cut: dict[str, object] = {}
@@ -242,7 +242,7 @@ def test_executor_host_cut_off_mid_flight_its_vehicles_pass_to_the_other_host(ho
     assert result, "the driver ended without a result: " + (run_dir / "driver.log").read_text()[-3000:]
     assert cut, "no vehicle was seen flying"
     why = (f"{result['reason']}; modes: {result['modes']}; goal errors: {result['goal_error']}; "
-           f"events: {result['events']}" + service_warnings(run_dir, last=150, also="services.executor.modes"))
+           f"events: {result['events']}" + service_warnings(run_dir, last=150, also="common.flight.modes"))
     assert result["contacts"] == 0, why
     other = next(e for e in hosts.executors if e != cut["owner"])
     assert result["owners"][cut["vid"]] == other, why

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections import Counter
 
-from common.ownership import assignment, owner_of
+from common.domain.ownership import assignment, owner_of
 
 VIDS = [f"cf{i:03d}" for i in range(400)]
 

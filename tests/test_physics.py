@@ -7,10 +7,10 @@ import math
 
 import pytest
 
-from common.messages import FlightSetpoint, StopSetpoint, WheelSetpoint
-from common.model import G, VehicleModel
-from common.thrust import WheelBase, hover_command
-from services.radio_gateway.physics import (
+from common.bus.messages import FlightSetpoint, StopSetpoint, WheelSetpoint
+from common.crazyflie.thrust import WheelBase, hover_command
+from common.domain.vehicle_model import G, VehicleModel
+from services.sim.crazyflie.physics import (
     WATCHDOG_CUT_S,
     WATCHDOG_LEVEL_S,
     PhysicsParams,

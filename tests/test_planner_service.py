@@ -7,11 +7,11 @@ import asyncio
 
 import pytest
 
-from common.bus import QueryError, query, subscribe
-from common.keys import Keys
-from common.messages import PlanReply, PlanRequest, VehiclePlan
-from common.planfile import Task
-from common.zsession import ZenohConfig, open_session
+from common.bus.keys import Keys
+from common.bus.messages import PlanReply, PlanRequest, VehiclePlan
+from common.bus.pubsub import QueryError, query, subscribe
+from common.bus.session import ZenohConfig, open_session
+from common.domain.planfile import Task
 from services.planner.service import PlannerService
 from services.planner.validate import validate_plan
 

@@ -1,5 +1,5 @@
 """Authentication and access control of the shipped router configuration, over real zenoh sessions:
-sessions without valid credentials are refused; each role may only do what common/acl.py grants
+sessions without valid credentials are refused; each role may only do what common/deploy/acl.py grants
 (only executors command vehicles, only the planner serves planner/plan, only gateways publish
 telemetry, only executors hold executor tokens); TLS with a CA made at test time."""
 
@@ -15,15 +15,15 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from common.acl import ROUTER_CONFIG, render
-from common.bus import Publisher, QueryError, query, serve, subscribe
-from common.credentials import Credentials, make_credentials
+from common.bus.args import credentials
+from common.bus.keys import Keys
+from common.bus.liveliness import declare_alive, watch_alive
+from common.bus.messages import Cmd, PlanReply, PlanRequest, StopSetpoint, Telemetry
+from common.bus.pubsub import Publisher, QueryError, query, serve, subscribe
+from common.bus.session import InProcessRouter, ZenohConfig, free_tcp_endpoint, open_session
+from common.deploy.acl import ROUTER_CONFIG, render
+from common.deploy.credentials import Credentials, make_credentials
 from common.errors import InputError
-from common.keys import Keys
-from common.liveliness import declare_alive, watch_alive
-from common.messages import Cmd, PlanReply, PlanRequest, StopSetpoint, Telemetry
-from common.svcargs import credentials
-from common.zsession import InProcessRouter, ZenohConfig, free_tcp_endpoint, open_session
 
 KEYS = Keys("sec")
 REFUSE_MS = 500
@@ -73,7 +73,7 @@ async def eventually(predicate: Callable[[], bool], timeout: float = 3.0) -> Non
 
 
 def test_shipped_router_config_is_the_role_table() -> None:
-    assert ROUTER_CONFIG.read_text() == render(), "regenerate: python -m common.acl > deploy/router.json5"
+    assert ROUTER_CONFIG.read_text() == render(), "regenerate: python -m common.deploy.acl > deploy/router.json5"
 
 
 @pytest.mark.parametrize("options", [

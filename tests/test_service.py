@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from common.bus import Publisher, QueryError, drop_name, query, subscribe
-from common.keys import Keys
-from common.liveliness import watch_alive
-from common.messages import PlanReply, PlanRequest, Pose, VehicleState
-from common.service import Service
-from common.zsession import ZenohConfig, free_tcp_endpoint
+from common.bus.keys import Keys
+from common.bus.liveliness import watch_alive
+from common.bus.messages import PlanReply, PlanRequest, Pose, VehicleState
+from common.bus.pubsub import Publisher, QueryError, drop_name, query, subscribe
+from common.bus.service import Service
+from common.bus.session import ZenohConfig, free_tcp_endpoint
 
 REPO = Path(__file__).resolve().parents[1]
 KEYS = Keys("test")
@@ -114,9 +114,9 @@ def test_no_router_gives_exit_code_1_without_hanging() -> None:
 
 CHILD_SERVICE = """
 import asyncio, sys
-from common.keys import Keys
-from common.service import Service
-from common.zsession import ZenohConfig
+from common.bus.keys import Keys
+from common.bus.service import Service
+from common.bus.session import ZenohConfig
 sys.exit(asyncio.run(Service("trivial", "t1", ZenohConfig.client(sys.argv[1]), Keys("test")).run()))
 """
 

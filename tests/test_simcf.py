@@ -9,14 +9,14 @@ import time
 
 import pytest
 
-from common.messages import FlightSetpoint
-from common.thrust import hover_command
-from services.radio_gateway import crtp
-from services.radio_gateway.config import LinkModel, free_udp_ports
+from common.bus.messages import FlightSetpoint
+from common.crazyflie import crtp
+from common.crazyflie.thrust import hover_command
+from common.deploy.radios import LinkModel, free_udp_ports
 from services.radio_gateway.link import CrtpLink
-from services.radio_gateway.physics import SimFlyingCar
-from services.radio_gateway.simcf import SimCrazyflie
-from services.radio_gateway.simradio import SimRadio
+from services.sim.crazyflie.endpoint import SimCrazyflie
+from services.sim.crazyflie.physics import SimFlyingCar
+from services.sim.crazyflie.radio import SimRadio
 
 
 def test_link_model_budget_loss_and_latency() -> None:

@@ -11,16 +11,25 @@ import msgspec
 import numpy as np
 import pytest
 
-from common.cli import main as fleet_main
-from common.mapfile import MAPS_DIR, AirRegion, Helipad, MapSpec, ParkingSpot, RoadNode, Roads, load_map
-from common.planfile import Task, read_plan
-from services.planner.graph import FleetGraph, build_graph
-from services.planner.loading import load_graph, load_scenario
-from services.planner.movingai import load_movingai, load_scen
+from common.domain.mapfile import (
+    MAPS_DIR,
+    AirRegion,
+    Helipad,
+    MapSpec,
+    ParkingSpot,
+    RoadNode,
+    Roads,
+    load_map,
+)
+from common.domain.planfile import Task, read_plan
+from services.cli import main as fleet_main
+from services.planner.graph.fleet_graph import FleetGraph, build_graph
+from services.planner.maps.loading import load_graph, load_scenario
+from services.planner.maps.movingai import load_movingai, load_scen
 from services.planner.result import PlanResult, to_plan
-from services.planner.safe_intervals import carve
-from services.planner.sipp import plan_sipp
-from services.planner.sipp_windows import edge_pair_windows
+from services.planner.sipp.planner import plan_sipp
+from services.planner.sipp.safe_intervals import carve
+from services.planner.sipp.windows import edge_pair_windows
 from services.planner.validate import validate_plan
 
 MOVINGAI = str(Path(__file__).resolve().parents[2] / "shared" / "benchmarks" / "movingai" / "random-32-32-10")
@@ -75,7 +84,7 @@ def test_goals_on_other_vehicles_starts_including_a_cycle() -> None:
 
 @pytest.mark.parametrize("uniform", [False, True], ids=["base", "uniform"])
 def test_random_scenarios_on_grid125_validate(uniform: bool) -> None:
-    from services.planner.scenario import random_tasks
+    from services.planner.maps.scenario import random_tasks
 
     graph = load_graph("grid125", uniform=uniform)
     for seed in range(4):
@@ -268,7 +277,7 @@ def test_edge_pair_windows_are_exact() -> None:
 def test_cost_to_go_is_exact_and_enters_spots_only_as_the_goal() -> None:
     import networkx as nx
 
-    from services.planner.sipp_heuristic import CostToGo
+    from services.planner.sipp.heuristic import CostToGo
 
     graph = load_graph("town")
     cost = graph.edge_cost(0.5)

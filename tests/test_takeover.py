@@ -8,13 +8,13 @@ import math
 import msgspec
 import pytest
 
-from common.messages import FlightSetpoint, Pose
-from common.model import G, VehicleModel
-from common.thrust import thrust_command
-from services.executor.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
-from services.executor.modes import AIRBORNE, Mode
+from common.bus.messages import FlightSetpoint, Pose
+from common.crazyflie.thrust import thrust_command
+from common.domain.vehicle_model import G, VehicleModel
+from common.flight.modes import AIRBORNE, Mode
 from services.executor.vehicle_controller import VehicleController
-from services.radio_gateway.physics import SimFlyingCar
+from services.sim.crazyflie.physics import SimFlyingCar
+from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
 
 MODEL = VehicleModel()
 STEPS = reference_steps(MODEL)

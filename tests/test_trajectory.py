@@ -9,11 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from common.messages import PlanStep
-from common.model import VehicleModel
-from services.executor.closed_loop import reference_steps
-from services.executor.modes import Mode
+from common.bus.messages import PlanStep
+from common.domain.vehicle_model import VehicleModel
+from common.flight.modes import Mode
 from services.executor.trajectory import Trajectory, TrajectoryParams, wrap_angle
+from tests.support.closed_loop import reference_steps
 
 MODEL = VehicleModel()
 STEPS = reference_steps(MODEL)

@@ -10,9 +10,9 @@ import msgspec
 import numpy as np
 import pytest
 
-from common.cli import main as fleet_main
-from common.geometry import contact_intervals
-from common.planfile import GraphNode, PathEntry, Plan, PlanGraph, PlanModel, Task, write_plan
+from common.domain.geometry import contact_intervals
+from common.domain.planfile import GraphNode, PathEntry, Plan, PlanGraph, PlanModel, Task, write_plan
+from services.cli import main as fleet_main
 from services.planner import validate
 from services.planner.validate import closest_horizontal, validate_plan
 
@@ -315,7 +315,7 @@ def walks(n: int, steps: int, side: int = 8, seed: int = 0) -> tuple[list[np.nda
 
 
 def brute_force_episodes(times, points, radius, height) -> dict[tuple[int, int], int]:
-    """Oracle: every pair on every interval of the union of entry times, by common.geometry."""
+    """Oracle: every pair on every interval of the union of entry times, by common.domain.geometry."""
     grid = np.unique(np.concatenate(times))
     grid = np.append(grid, grid[-1] + 1.0)
     pos = np.stack([np.stack([np.interp(grid, t, p[:, c]) for c in range(3)], axis=1) for t, p in zip(times, points, strict=True)])

@@ -19,8 +19,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from common.messages import PlanStep, Telemetry
-from common.model import VehicleModel
+from common.bus.messages import PlanStep, Telemetry
+from common.domain.vehicle_model import VehicleModel
 
 _MIN_DESCENT = 0.01
 """m: the descent of a safe landing is timed as at least this long, so that its last two entries are

@@ -17,9 +17,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from common.messages import WheelSetpoint
-from common.thrust import WheelBase
-from services.executor.estimator import Estimate
+from common.bus.messages import WheelSetpoint
+from common.crazyflie.thrust import WheelBase
+from common.flight.estimator import Estimate
 from services.executor.trajectory import RefSample, wrap_angle
 
 

@@ -1,7 +1,7 @@
 """The executor service (paper 000 §VI-C, Fig. 4: trajectory generator, state machine, driving and
 flying controllers): one asyncio process running one control loop over the vehicles it owns.
 
-Ownership is rendezvous hashing over the live executors (`common.ownership`), seen through
+Ownership is rendezvous hashing over the live executors (`common.domain.ownership`), seen through
 liveliness tokens: every executor computes the same assignment, so when one dies its vehicles pass
 to the others as soon as its token disappears (under 1 s), and the gateways obey the new owner. A
 vehicle taken over mid-mission resumes from the last state its previous owner published.
@@ -29,9 +29,9 @@ from collections import deque
 
 import numpy as np
 
-from common.bus import Publisher, Subscription
-from common.liveliness import AliveSet
-from common.messages import (
+from common.bus.args import keys_from_args, run_service, zconfig_from_args
+from common.bus.liveliness import AliveSet
+from common.bus.messages import (
     Cmd,
     MissionAbort,
     MissionStart,
@@ -41,11 +41,11 @@ from common.messages import (
     VehiclePlan,
     VehicleState,
 )
-from common.ownership import owner_of
-from common.service import Service
-from common.stats import publish_stats
-from common.svcargs import keys_from_args, run_service, zconfig_from_args
-from services.executor.modes import Mode
+from common.bus.pubsub import Publisher, Subscription
+from common.bus.service import Service
+from common.bus.stats import publish_stats
+from common.domain.ownership import owner_of
+from common.flight.modes import Mode
 from services.executor.team import TeamExecutor
 from services.executor.vehicle_controller import VehicleController
 

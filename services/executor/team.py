@@ -20,8 +20,7 @@ import math
 import time
 from typing import Any
 
-from common.bus import Publisher
-from common.messages import (
+from common.bus.messages import (
     ActionStatus,
     MissionAbort,
     MissionStart,
@@ -30,9 +29,10 @@ from common.messages import (
     VehicleState,
     VehicleTeamPlan,
 )
-from common.ownership import owner_of
-from common.service import Service
-from common.teamplan import PlanProgress, Vec3, action_name
+from common.bus.pubsub import Publisher
+from common.bus.service import Service
+from common.domain.ownership import owner_of
+from common.domain.team_plan import PlanProgress, Vec3, action_name
 
 log = logging.getLogger(__name__)
 

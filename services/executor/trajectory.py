@@ -20,8 +20,8 @@ from bisect import bisect_right
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from common.messages import PlanStep
-from services.executor.modes import AIRBORNE, Mode, segment_mode
+from common.bus.messages import PlanStep
+from common.flight.modes import AIRBORNE, Mode, segment_mode
 
 _EPS = 1e-9
 

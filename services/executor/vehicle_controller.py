@@ -13,7 +13,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 
-from common.messages import (
+from common.bus.messages import (
     Cmd,
     Pose,
     Setpoint,
@@ -23,12 +23,12 @@ from common.messages import (
     VehicleState,
     WheelSetpoint,
 )
-from common.model import G, VehicleModel
-from common.thrust import WheelBase, thrust_command, to_flight_setpoint
-from services.executor.estimator import Estimate, EstimatorParams, PoseEstimator
+from common.crazyflie.thrust import WheelBase, thrust_command, to_flight_setpoint
+from common.domain.vehicle_model import G, VehicleModel
+from common.flight.estimator import Estimate, EstimatorParams, PoseEstimator
+from common.flight.lqr import FlightLqr, LqrWeights
+from common.flight.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
 from services.executor.faults import FaultMonitor, FaultParams, safe_landing_steps
-from services.executor.lqr import FlightLqr, LqrWeights
-from services.executor.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
 from services.executor.pure_pursuit import PurePursuit, PursuitParams
 from services.executor.trajectory import RefSample, Trajectory, TrajectoryParams
 

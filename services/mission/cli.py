@@ -7,9 +7,9 @@ import argparse
 import asyncio
 from pathlib import Path
 
+from common.bus.args import add_zenoh_args, keys_from_args, lazy_handler, zconfig_from_args
+from common.domain.mapfile import decode_yaml, read_text
 from common.errors import InputError
-from common.mapfile import decode_yaml, read_text
-from common.svcargs import add_zenoh_args, keys_from_args, lazy_handler, zconfig_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,7 +44,7 @@ def _register_demo(sub: argparse._SubParsersAction) -> None:
 
 def spec_from_args(args: argparse.Namespace):
     from services.mission.runner import MissionSpec
-    from services.planner.scenario import ScenarioFile
+    from services.planner.maps.scenario import ScenarioFile
 
     scen: ScenarioFile = decode_yaml(read_text(Path(args.scenario)), ScenarioFile, args.scenario)
     map_name = args.map or scen.map

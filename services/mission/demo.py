@@ -17,19 +17,19 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from common.compose import Process
-from common.credentials import Credentials, make_credentials
-from common.keys import Keys
-from common.launcher import start, stop
-from common.liveliness import watch_alive
-from common.mapfile import MAPS_DIR, decode_yaml, read_text
-from common.planfile import Task
-from common.zsession import InProcessRouter, ZenohConfig, open_session
+from common.bus.keys import Keys
+from common.bus.liveliness import watch_alive
+from common.bus.session import InProcessRouter, ZenohConfig, open_session
+from common.deploy.compose import Process
+from common.deploy.credentials import Credentials, make_credentials
+from common.deploy.launcher import start, stop
+from common.deploy.radios import LinkModel, RadiosFile, RadioSpec, VehicleLink, dump_radios
+from common.domain.mapfile import MAPS_DIR, decode_yaml, read_text
+from common.domain.planfile import Task
 from services.mission.runner import MissionRunner, MissionSpec
-from services.planner.graph import FleetGraph
-from services.planner.loading import load_graph
-from services.planner.scenario import ScenarioFile, check_tasks
-from services.radio_gateway.config import LinkModel, RadiosFile, RadioSpec, VehicleLink, dump_radios
+from services.planner.graph.fleet_graph import FleetGraph
+from services.planner.maps.loading import load_graph
+from services.planner.maps.scenario import ScenarioFile, check_tasks
 
 DEMO_SCENARIO = MAPS_DIR / "scenarios" / "town_8.yaml"
 
@@ -64,7 +64,7 @@ def parked_yaw(graph: FleetGraph, spot: str) -> float:
 def fleet_processes(radios_path: Path, radios: RadiosFile, executors: int, rrd_dir: Path,
                     viewer: bool = False, web: bool = False) -> list[Process]:
     """The services of one fleet, as local processes of this Python."""
-    cli = [sys.executable, "-m", "common.cli"]
+    cli = [sys.executable, "-m", "services.cli"]
     cfg = ["--config", str(radios_path)]
     procs = [Process("planner", "planner", [*cli, "planner"])]
     procs += [Process("executor", f"executor-{i + 1}", [*cli, "executor"], {"FLEET_INSTANCE": f"executor-{i + 1}"})

@@ -18,8 +18,7 @@ import time
 import uuid
 from dataclasses import dataclass, field
 
-from common.bus import QueryError, QueryTimeout, query
-from common.messages import (
+from common.bus.messages import (
     MissionAbort,
     MissionStart,
     PlanReply,
@@ -28,9 +27,10 @@ from common.messages import (
     VehicleEvent,
     VehicleState,
 )
-from common.planfile import Plan, Task
-from common.service import Service
-from common.vehicleplan import PlanPublisher, vehicle_plans
+from common.bus.pubsub import QueryError, QueryTimeout, query
+from common.bus.service import Service
+from common.bus.vehicle_plans import PlanPublisher, vehicle_plans
+from common.domain.planfile import Plan, Task
 from services.mission.separation import SeparationMonitor
 
 log = logging.getLogger(__name__)

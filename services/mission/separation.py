@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from common.messages import SimTruth
+from common.bus.messages import SimTruth
 
 
 @dataclass

@@ -22,8 +22,8 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 
-from common.bus import call_in_loop
-from common.messages import SimTruth
+from common.bus.messages import SimTruth
+from common.bus.pubsub import call_in_loop
 from services.mocap_bridge.config import SimNoise
 from services.mocap_bridge.tracker import BodyPose, yaw_of
 

@@ -18,12 +18,12 @@ import logging
 import time
 from collections.abc import Mapping
 
-from common.bus import Publisher
-from common.keys import Keys
-from common.messages import Pose, SimFault, SimTruth, VehicleEvent
-from common.service import Service
-from common.stats import publish_stats
-from common.zsession import ZenohConfig
+from common.bus.keys import Keys
+from common.bus.messages import Pose, SimFault, SimTruth, VehicleEvent
+from common.bus.pubsub import Publisher
+from common.bus.service import Service
+from common.bus.session import ZenohConfig
+from common.bus.stats import publish_stats
 from services.mocap_bridge.backends import LibBackend, SimBackend
 from services.mocap_bridge.config import MocapConfig, check_mocap
 from services.mocap_bridge.tracker import BodyPose, BodyTracker, Event

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from common.svcargs import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
+from common.bus.args import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -20,9 +20,9 @@ from typing import Annotated, Literal
 
 import msgspec
 
+from common.bus.keys import check_chunk
+from common.domain.mapfile import decode_yaml, read_text
 from common.errors import InputError
-from common.keys import check_chunk
-from common.mapfile import decode_yaml, read_text
 
 _Strict = {"frozen": True, "forbid_unknown_fields": True}
 Positive = Annotated[float, msgspec.Meta(gt=0)]

@@ -13,8 +13,8 @@ import logging
 import math
 from collections.abc import Mapping
 
-from common.keys import check_chunk
-from common.messages import Pose
+from common.bus.keys import check_chunk
+from common.bus.messages import Pose
 
 log = logging.getLogger(__name__)
 

@@ -8,8 +8,8 @@ import sys
 import time
 from pathlib import Path
 
+from common.bus.args import add_zenoh_args, lazy_handler
 from common.errors import InputError
-from common.svcargs import add_zenoh_args, lazy_handler
 
 
 def _register_service(sub: argparse._SubParsersAction) -> None:
@@ -63,7 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_map_check(args: argparse.Namespace) -> int:
-    from services.planner.loading import load_graph
+    from services.planner.maps.loading import load_graph
 
     for dt in [None] + ([args.dt] if args.dt else []):
         graph = load_graph(args.map, dt)
@@ -81,8 +81,8 @@ def cmd_map_check(args: argparse.Namespace) -> int:
 
 
 def cmd_map_show(args: argparse.Namespace) -> int:
-    from services.planner.loading import load_graph
-    from services.planner.mapview import draw_map
+    from services.planner.maps.draw import draw_map
+    from services.planner.maps.loading import load_graph
 
     graph = load_graph(args.map)
     draw_map(graph, Path(args.out))
@@ -93,7 +93,7 @@ def cmd_map_show(args: argparse.Namespace) -> int:
 def cmd_map_export(args: argparse.Namespace) -> int:
     import msgspec
 
-    from services.planner.loading import load_graph
+    from services.planner.maps.loading import load_graph
 
     graph = load_graph(args.map, uniform=args.uniform)
     Path(args.out).write_bytes(msgspec.json.format(msgspec.json.encode(graph.to_plan_graph()), indent=1))
@@ -102,8 +102,8 @@ def cmd_map_export(args: argparse.Namespace) -> int:
 
 
 def cmd_map_generate(args: argparse.Namespace) -> int:
-    from common.mapfile import MAPS_DIR
-    from services.planner.mapgen import GENERATORS, to_yaml
+    from common.domain.mapfile import MAPS_DIR
+    from services.planner.maps.generate import GENERATORS, to_yaml
 
     out = Path(args.out) if args.out else MAPS_DIR / f"{args.name}.yaml"
     out.write_text(to_yaml(GENERATORS[args.name]()))
@@ -112,15 +112,15 @@ def cmd_map_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from common.planfile import write_plan
-    from services.planner.loading import load_problem
+    from common.domain.planfile import write_plan
+    from services.planner.maps.loading import load_problem
 
     if not 0.0 <= args.mu <= 1.0:
         raise InputError("--mu", "", f"must be in [0, 1], got {args.mu}")
     if args.time_limit <= 0:
         raise InputError("--time-limit", "", "must be positive")
     problem = load_problem(args)
-    from services.planner.planners import run_planner
+    from services.planner.registry import run_planner
     from services.planner.validate import validate_plan
 
     t0 = time.perf_counter()
@@ -146,7 +146,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    from common.planfile import read_plan
+    from common.domain.planfile import read_plan
     from services.planner.validate import validate_plan
 
     plan = read_plan(args.plan)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from common.planfile import PathEntry, Plan, Task
-from services.planner.graph import FleetGraph
+from common.domain.planfile import PathEntry, Plan, Task
+from services.planner.graph.fleet_graph import FleetGraph
 
 
 @dataclass

@@ -10,11 +10,11 @@ import argparse
 import asyncio
 import logging
 
+from common.bus.args import keys_from_args, run_service, zconfig_from_args
+from common.bus.messages import PlanReply, PlanRequest
+from common.bus.service import Service
+from common.bus.vehicle_plans import PlanPublisher, vehicle_plans
 from common.errors import InputError
-from common.messages import PlanReply, PlanRequest
-from common.service import Service
-from common.svcargs import keys_from_args, run_service, zconfig_from_args
-from common.vehicleplan import PlanPublisher, vehicle_plans
 from services.planner.collab.request import TeamPlanPublisher, robot_plans
 
 log = logging.getLogger(__name__)
@@ -22,8 +22,8 @@ log = logging.getLogger(__name__)
 
 def solve(req: PlanRequest) -> PlanReply:
     """Plan and validate (blocking: run it in a worker thread)."""
-    from services.planner.loading import problem_from_request
-    from services.planner.planners import run_planner
+    from services.planner.maps.loading import problem_from_request
+    from services.planner.registry import run_planner
     from services.planner.validate import validate_plan
 
     if not 0.0 <= req.mu <= 1.0:

@@ -25,10 +25,10 @@ from itertools import pairwise
 
 import numpy as np
 
-from common.geometry import EPS
-from common.model import CostScale, EdgeKind
-from common.planfile import PathEntry, Plan, PlanGraph, Task
-from services.planner.graph import airborne_mask
+from common.domain.geometry import EPS
+from common.domain.planfile import PathEntry, Plan, PlanGraph, Task
+from common.domain.vehicle_model import CostScale, EdgeKind
+from services.planner.graph.fleet_graph import airborne_mask
 
 SPEED_RTOL = 1e-6  # a move may be this much (relative) faster than its edge kind's speed
 COST_RTOL, COST_ATOL = 1e-6, 1e-9  # reported vs recomputed cost
@@ -314,7 +314,7 @@ def closest_horizontal(d0: np.ndarray, d1: np.ndarray, height: float) -> tuple[n
     """For relative positions moving linearly d(s) = d0 + s (d1 - d0), s in [0, 1] (rows of (N, 3)):
     the s at which the horizontal distance |d_xy| is smallest among the s where the bodies overlap
     vertically (|d_z| < h), and that distance; (0, inf) for rows that never overlap vertically.
-    Bodies of radius r touch iff the distance is below 2r (§IV, common.geometry)."""
+    Bodies of radius r touch iff the distance is below 2r (§IV, common.domain.geometry)."""
     dz0, vz = d0[:, 2], d1[:, 2] - d0[:, 2]
     h = height - EPS
     moving = np.abs(vz) > EPS

@@ -1,14 +1,14 @@
 """`fleet gateway` (one radio's gateway) and `fleet sim` (the simulated Crazyflies) over a radios file
-(services/radio_gateway/config.py, docs/radio.md)."""
+(common/deploy/radios.py, docs/radio.md)."""
 
 from __future__ import annotations
 
 import argparse
 import os
 
+from common.bus.args import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
+from common.deploy.radios import RadiosFile, load_radios
 from common.errors import InputError
-from common.svcargs import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
-from services.radio_gateway.config import RadiosFile, load_radios
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -45,7 +45,7 @@ def _gateway(args: argparse.Namespace) -> int:
 
 
 def _sim(args: argparse.Namespace) -> int:
-    from services.radio_gateway.simservice import SimService
+    from services.sim.crazyflie.service import SimService
 
     spec = _load(args.config, args.radio or [])
     if args.truth_hz <= 0:

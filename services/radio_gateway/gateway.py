@@ -20,15 +20,15 @@ import asyncio
 import logging
 import time
 
-from common.bus import Publisher, Subscription, call_in_loop, subscribe
-from common.keys import Keys
-from common.messages import Cmd, Pose, Telemetry, VehicleEvent
-from common.ownership import owner_of
-from common.service import Service
-from common.stats import publish_stats
-from common.zsession import ZenohConfig
-from services.radio_gateway import crtp
-from services.radio_gateway.config import RadiosFile
+from common.bus.keys import Keys
+from common.bus.messages import Cmd, Pose, Telemetry, VehicleEvent
+from common.bus.pubsub import Publisher, Subscription, call_in_loop, subscribe
+from common.bus.service import Service
+from common.bus.session import ZenohConfig
+from common.bus.stats import publish_stats
+from common.crazyflie import crtp
+from common.deploy.radios import RadiosFile
+from common.domain.ownership import owner_of
 from services.radio_gateway.link import CrtpLink, RadioSender
 from services.radio_gateway.linkstats import LINK_EVENTS, Event
 from services.radio_gateway.scheduler import Scheduler

@@ -21,15 +21,15 @@ import logging
 import math
 from dataclasses import dataclass
 
-from common.messages import FlightSetpoint, Pose
-from common.model import G
-from common.thrust import DRAG, thrust_command, thrust_newtons, to_flight_setpoint
-from services.executor.estimator import Estimate, PoseEstimator
-from services.executor.lqr import FlightLqr
-from services.executor.modes import Mode
+from common.bus.messages import FlightSetpoint, Pose
+from common.crazyflie.thrust import DRAG, thrust_command, thrust_newtons, to_flight_setpoint
+from common.deploy.radios import LandingParams
+from common.domain.vehicle_model import G
+from common.flight.estimator import Estimate, PoseEstimator
+from common.flight.lqr import FlightLqr
+from common.flight.modes import Mode
 from services.executor.trajectory import RefSample
-from services.radio_gateway.config import LandingParams
-from services.radio_gateway.physics import FIRMWARE_MIN_THRUST
+from services.sim.crazyflie.physics import FIRMWARE_MIN_THRUST
 
 log = logging.getLogger(__name__)
 
@@ -159,7 +159,7 @@ class SafeLanding:
             self._open_loop = (now, self._plan_descent(now))
         start, plan = self._open_loop
         accel = plan.accel_at(now - start)
-        # the thrust also makes up for the drag of the planned descent (common.thrust.DRAG)
+        # the thrust also makes up for the drag of the planned descent (common.crazyflie.thrust.DRAG)
         return None if accel is None else self._level(accel - DRAG / self.params.mass * plan.speed_at(now - start))
 
     def _plan_descent(self, now: float) -> OpenLoopDescent:

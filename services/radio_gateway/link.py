@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 import cflib.crtp
 from cflib.crtp.crtpstack import CRTPPacket
 
-from common.bus import Counters
+from common.bus.pubsub import Counters
 
 log = logging.getLogger(__name__)
 

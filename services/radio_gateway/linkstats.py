@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections import deque
 
-from services.radio_gateway import crtp
+from common.crazyflie import crtp
 
 Event = tuple[str, str]
 """(kind, detail) of a `VehicleEvent` to publish."""

@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 
-from services.radio_gateway.config import GatewayParams
+from common.deploy.radios import GatewayParams
 from services.radio_gateway.linkstats import Event
 from services.radio_gateway.vehicle import VehicleChannel
 

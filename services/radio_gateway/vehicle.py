@@ -31,13 +31,13 @@ import statistics
 from collections import deque
 from enum import StrEnum
 
-from common.messages import FlightSetpoint, Pose, Setpoint, StopSetpoint, WheelSetpoint
-from common.thrust import thrust_command, thrust_newtons
-from services.radio_gateway import crtp
-from services.radio_gateway.config import GatewayParams
+from common.bus.messages import FlightSetpoint, Pose, Setpoint, StopSetpoint, WheelSetpoint
+from common.crazyflie import crtp
+from common.crazyflie.thrust import thrust_command, thrust_newtons
+from common.deploy.radios import GatewayParams
 from services.radio_gateway.landing import SafeLanding
 from services.radio_gateway.linkstats import Event, LinkStats
-from services.radio_gateway.physics import FIRMWARE_MIN_THRUST
+from services.sim.crazyflie.physics import FIRMWARE_MIN_THRUST
 
 _UNLOCK = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=0)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from common.svcargs import add_zenoh_args, lazy_handler
+from common.bus.args import add_zenoh_args, lazy_handler
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from common.mapfile import MapSpec
-from common.messages import SimTruth, Telemetry, VehiclePlan, VehicleState
-from common.planfile import PlanGraph
+from common.bus.messages import SimTruth, Telemetry, VehiclePlan, VehicleState
+from common.domain.mapfile import MapSpec
+from common.domain.planfile import PlanGraph
 
 EDGE_RGB = {"drive": (90, 90, 90), "takeoff": (40, 170, 60), "fly": (60, 120, 220), "land": (240, 150, 40)}
 NODE_RGB = {

@@ -9,12 +9,12 @@ import logging
 import time
 from pathlib import Path
 
+from common.bus.args import keys_from_args, run_service, zconfig_from_args
+from common.bus.messages import SimTruth, Telemetry, VehiclePlan, VehicleState
+from common.bus.priority import lower_priority
+from common.bus.service import Service
+from common.domain.mapfile import load_map
 from common.errors import InputError
-from common.mapfile import load_map
-from common.messages import SimTruth, Telemetry, VehiclePlan, VehicleState
-from common.priority import lower_priority
-from common.service import Service
-from common.svcargs import keys_from_args, run_service, zconfig_from_args
 from services.telemetry.rerun_log import FleetRecording
 
 log = logging.getLogger(__name__)
@@ -76,7 +76,7 @@ class TelemetryService(Service):
         self.recording = FleetRecording(plan.mission or "fleet", path, viewer=self.viewer, web=self.web)
         self.files.append(path)
         try:
-            from services.planner.loading import load_graph
+            from services.planner.maps.loading import load_graph
 
             graph = load_graph(plan.map)
             self.recording.log_map(graph.to_plan_graph(), load_map(plan.map))

@@ -7,8 +7,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from common.bus.args import add_zenoh_args
 from common.errors import InputError
-from common.svcargs import add_zenoh_args
 
 # The demo room's problem (maps/collab/demo-room.yaml): the drone needs the UGV to reach the goal.
 ROOM_MAP, ROOM_START, ROOM_UGV, ROOM_GOAL = "demo-room", "1.25,1.25,1", "0.75,1.25,0", "5.75,3.75,2"
@@ -103,8 +103,7 @@ def _problem(args: argparse.Namespace, planner):
 
 def format_plan(plan) -> str:
     """A readable listing of a team plan: one line per step, sync points as 'after <robot> <n>'."""
-    from common import teamplan as tp
-
+    from common.domain import team_plan as tp
     lines = [f"team plan on {plan.map} ({plan.planner}): cost {plan.cost:.2f} (within {plan.epsilon:.2f} x optimal), "
              f"{plan.planning_time_s:.2f} s, {plan.expansions} expansions",
              f"drone start {plan.drone_start}, UGV start {plan.ugv_start}, goal {plan.goal}"]
@@ -132,8 +131,8 @@ def _short(v):
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from common.teamplan import encode_json
-    from services.planner.collab.maps import load_env
+    from common.domain.team_plan import encode_json
+    from common.team.maps import load_env
     from services.planner.collab.planner import TeamPlanner
 
     planner = TeamPlanner(load_env(args.map))
@@ -152,17 +151,17 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from common.teamplan import read_plan
-    from services.planner.collab.maps import load_env
-    from services.planner.collab.model import TeamModel
-    from services.planner.collab.sensing import Sensing
+    from common.domain.team_plan import read_plan
+    from common.team.maps import load_env
+    from common.team.sensing import Sensing
+    from common.team.team_model import TeamModel
 
     plan = read_plan(args.plan)
     return _simulate(Sensing(load_env(args.map or plan.map), TeamModel()), plan)
 
 
 def _simulate(sensing, plan) -> int:
-    from services.planner.collab.sim import TeamSim
+    from services.sim.team.world import TeamSim
 
     report = TeamSim(sensing, plan).run()
     for e in report.events:
@@ -175,11 +174,11 @@ def _simulate(sensing, plan) -> int:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
-    from common.svcargs import keys_from_args, run_service, zconfig_from_args
-    from services.planner.collab.maps import load_env
+    from common.bus.args import keys_from_args, run_service, zconfig_from_args
+    from common.team.maps import load_env
     from services.planner.collab.planner import TeamPlanner
-    from services.planner.collab.sim import TeamWorld
-    from services.planner.collab.simservice import CollabSimService
+    from services.sim.team.service import CollabSimService
+    from services.sim.team.world import TeamWorld
 
     if args.time_scale <= 0 or args.truth_rate <= 0:
         raise InputError("fleet collab sim", "--time-scale/--truth-rate", "must be positive")
@@ -195,10 +194,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
 def cmd_mission(args: argparse.Namespace) -> int:
     import asyncio
 
-    from common.messages import TeamTask
-    from common.svcargs import keys_from_args, zconfig_from_args
+    from common.bus.args import keys_from_args, zconfig_from_args
+    from common.bus.messages import TeamTask
+    from services.mission.team import TeamMission, TeamMissionSpec
     from services.planner.collab.local import local_team
-    from services.planner.collab.mission import TeamMission, TeamMissionSpec
 
     source = "fleet collab mission"
     if args.executors < 1 or args.time_scale <= 0:

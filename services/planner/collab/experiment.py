@@ -11,8 +11,8 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from common.team.maps import load_env
 from services.planner.collab.instances import sample_problem
-from services.planner.collab.maps import load_env
 from services.planner.collab.planner import Method, Outcome, Problem, TeamPlanner
 
 MAPS = ("office-conference", "office-cubicles")

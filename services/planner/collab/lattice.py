@@ -22,8 +22,8 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
-from services.planner.collab import controllers as ctl
-from services.planner.collab.sensing import DIRS, Sensing, line_offsets
+from common.team import controllers as ctl
+from common.team.sensing import DIRS, Sensing, line_offsets
 
 ANY_HEADING = 8
 Edge = tuple[int, float]

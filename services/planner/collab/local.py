@@ -2,7 +2,7 @@
 to end): an in-process zenoh router, and the planner, the executors and the collab simulator as
 processes of this Python, up and alive; stopped on exit.
 
-The router runs without access control: the role table (`common/acl.py`) has no rows for the team
+The router runs without access control: the role table (`common/deploy/acl.py`) has no rows for the team
 keys (`vehicle/<vid>/{team_plan,action,action_status}`) yet.
 """
 
@@ -14,11 +14,11 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from common.compose import Process
-from common.keys import Keys
-from common.launcher import start, stop
-from common.messages import TeamTask
-from common.zsession import InProcessRouter, ZenohConfig
+from common.bus.keys import Keys
+from common.bus.messages import TeamTask
+from common.bus.session import InProcessRouter, ZenohConfig
+from common.deploy.compose import Process
+from common.deploy.launcher import start, stop
 from services.mission.demo import wait_for_services
 
 
@@ -28,7 +28,7 @@ def _xyz(v: tuple[float, float, float]) -> str:
 
 def team_processes(map_name: str, team: TeamTask, executors: int, time_scale: float) -> list[Process]:
     """The planner, `executors` executors and the simulated team (robots at the task's starts)."""
-    cli = [sys.executable, "-m", "common.cli"]
+    cli = [sys.executable, "-m", "services.cli"]
     procs = [Process("planner", "planner", [*cli, "planner"])]
     procs += [Process("executor", f"executor-{i + 1}", [*cli, "executor"], {"FLEET_INSTANCE": f"executor-{i + 1}"})
               for i in range(executors)]

@@ -8,15 +8,15 @@ import time
 from dataclasses import dataclass
 from typing import Literal
 
+from common.domain.team_plan import TeamPlan, Vec3
 from common.errors import InputError
-from common.teamplan import TeamPlan, Vec3
+from common.team.env import Env
+from common.team.sensing import Sensing
+from common.team.team_model import TeamModel
 from services.planner.collab.arastar import arastar
-from services.planner.collab.env import Env
 from services.planner.collab.lattice import Lattice, ugv_area
-from services.planner.collab.model import TeamModel
 from services.planner.collab.pad import PadConfig, pad
-from services.planner.collab.sensing import Sensing
-from services.planner.collab.teamplan import build_team_plan
+from services.planner.collab.plan_builder import build_team_plan
 
 Method = Literal["pad", "arastar"]
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.lines import Line2D
 
-from common.teamplan import GoToLandmarkDyn, TeamPlan
-from services.planner.collab.env import Env
+from common.domain.team_plan import GoToLandmarkDyn, TeamPlan
+from common.team.env import Env
 
 CONTROLLER_COLORS = {
     "WallFollowing": "tab:blue",

@@ -8,12 +8,12 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
-from common.bus import Publisher
+from common.bus.keys import check_chunk
+from common.bus.messages import PlanReply, PlanRequest, TeamTask, VehicleTeamPlan
+from common.bus.pubsub import Publisher
+from common.bus.service import Service
+from common.domain.team_plan import TeamPlan
 from common.errors import InputError
-from common.keys import check_chunk
-from common.messages import PlanReply, PlanRequest, TeamTask, VehicleTeamPlan
-from common.service import Service
-from common.teamplan import TeamPlan
 
 if TYPE_CHECKING:  # the planning modules load on the first team request, not with every `fleet` command
     from services.planner.collab.planner import TeamPlanner
@@ -26,7 +26,7 @@ _planners: dict[str, TeamPlanner] = {}
 
 def team_planner(map_name: str) -> TeamPlanner:
     """The planner of a map, kept across requests (it reuses the SLC graphs it has built)."""
-    from services.planner.collab.maps import load_env
+    from common.team.maps import load_env
     from services.planner.collab.planner import TeamPlanner
 
     if map_name not in _planners:

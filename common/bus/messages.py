@@ -1,0 +1,300 @@
+"""Wire messages of the fleet (DESIGN.md): frozen msgspec Structs, msgpack on the wire.
+
+Decoding is strict (`Codec.decode` raises `msgspec.DecodeError` or `ValidationError`); services
+decode through `common.bus.pubsub`, which drops, counts and logs a malformed message once, never raising.
+Times are seconds since the Unix epoch (``time.time()``) unless a field says otherwise.
+"""
+
+from __future__ import annotations
+
+from typing import Generic, Literal, TypeVar
+
+import msgspec
+
+from common.domain.planfile import Plan, PlanModel, Task
+from common.domain.team_plan import Robot, Step, TeamPlan, Vec3
+from common.domain.vehicle_model import EdgeKind, NodeKind
+
+MAX_MESSAGE_BYTES = 4 * 1024 * 1024
+"""Payloads above this are rejected before decoding (a plan for 120 vehicles is well under 1 MiB)."""
+
+
+class Pose(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Motion-capture pose of one rigid body (`vehicle/<vid>/pose`), stamped with its capture time."""
+
+    vid: str
+    t: float
+    x: float
+    y: float
+    z: float
+    yaw: float
+    seq: int = 0
+    source: str = "mocap"
+
+
+class FlightSetpoint(msgspec.Struct, frozen=True, tag="flight", forbid_unknown_fields=True):
+    """cflib `commander.send_setpoint` units: roll/pitch in degrees, yaw rate in deg/s, thrust 10001-60000."""
+
+    roll: float
+    pitch: float
+    yawrate: float
+    thrust: int
+
+
+class WheelSetpoint(msgspec.Struct, frozen=True, tag="wheels", forbid_unknown_fields=True):
+    """Wheel speeds in m/s at the wheel rim, positive forward (see docs/wheel_protocol.md)."""
+
+    left: float
+    right: float
+
+
+class StopSetpoint(msgspec.Struct, frozen=True, tag="stop", forbid_unknown_fields=True):
+    """Motors and wheels off: only for a vehicle on the ground (or an emergency cut)."""
+
+
+Setpoint = FlightSetpoint | WheelSetpoint | StopSetpoint
+
+
+class Cmd(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Executor -> gateway (`vehicle/<vid>/cmd`). `owner` is the executor instance that sent it."""
+
+    vid: str
+    owner: str
+    seq: int
+    t: float
+    setpoint: Setpoint
+    mode: str = ""
+
+
+class PlanStep(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One path entry with what an executor needs: node position and kind, and the kind of the edge
+    that arrives here ("" for the first entry and for waits). `t` is relative to the mission start."""
+
+    node: str
+    t: float
+    pos: tuple[float, float, float]
+    kind: NodeKind
+    edge: EdgeKind | Literal[""] = ""
+
+
+class VehiclePlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A vehicle's timed path (`vehicle/<vid>/plan`). `t0` is the mission's common start (epoch s);
+    0 means "not started yet" (the mission's start message sets it)."""
+
+    vid: str
+    mission: str
+    map: str
+    steps: list[PlanStep]
+    model: PlanModel
+    t0: float = 0.0
+
+
+class VehicleState(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Executor estimate, mode and progress (`vehicle/<vid>/state`)."""
+
+    vid: str
+    t: float
+    owner: str
+    mode: str
+    x: float
+    y: float
+    z: float
+    yaw: float
+    vx: float = 0.0
+    vy: float = 0.0
+    vz: float = 0.0
+    pose_ok: bool = True
+    mission: str = ""
+    step: int = 0
+    steps: int = 0
+    tracking_error: float = 0.0
+    charge_used_ah: float = 0.0
+    arrived: bool = False
+
+
+class Telemetry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Gateway -> everyone (`vehicle/<vid>/telemetry`): battery and link health."""
+
+    vid: str
+    t: float
+    gateway: str
+    vbat: float
+    link_quality: float
+    sent: int
+    acked: int
+    dropped: int
+    cmd_rate_hz: float
+    link_ok: bool = True
+    owner: str = ""
+    stale_cmd: bool = False
+
+
+class VehicleEvent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Something others must know (`vehicle/<vid>/event`): low battery, emergency landing, lost link."""
+
+    vid: str
+    t: float
+    kind: str
+    detail: str = ""
+    node: str = ""
+
+
+class SimTruth(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Ground truth of a simulated vehicle (`sim/truth/<vid>`)."""
+
+    vid: str
+    t: float
+    x: float
+    y: float
+    z: float
+    yaw: float
+    vx: float = 0.0
+    vy: float = 0.0
+    vz: float = 0.0
+    roll: float = 0.0
+    pitch: float = 0.0
+    airborne: bool = False
+    motors: bool = False
+    vbat: float = 0.0
+    charge_used_ah: float = 0.0
+
+
+SimFaultKind = Literal["mocap_dropout", "radio_blackout", "battery"]
+
+
+class SimFault(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Fault injection into the simulators (`sim/fault/<vid>`; docs/reliability.md). Only the
+    simulated motion capture and the simulated Crazyflies listen: real systems never see it.
+    `mocap_dropout`: the body is not seen for `duration_s`; `radio_blackout`: the simulated radio
+    loses every packet to and from the vehicle for `duration_s`; `battery`: the simulated battery
+    has used `charge_used_ah` from now on."""
+
+    vid: str
+    kind: SimFaultKind
+    duration_s: float = 0.0
+    charge_used_ah: float = 0.0
+
+
+class ServiceStats(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A service's health (`stats/<service>/<instance>`, every few seconds): `drops` is the total
+    of its dropped messages (`common.bus.pubsub` drop counters), `counters` all its named counters,
+    `figures` service-specific measurements (e.g. the executor's missed control deadlines)."""
+
+    service: str
+    instance: str
+    t: float
+    drops: int
+    counters: dict[str, int]
+    figures: dict[str, float] = {}
+
+
+class TeamTask(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A ground-air team's task (paper 002, `PlanRequest(planner="collab", team=...)`): the drone
+    `drone` from `drone_start` (x, y, z) to `goal` (x, y, z), helped by the UGV `ugv` starting at
+    `ugv_start` (x, y, heading_deg; 0 = +x, counter-clockwise). `method`: PAD (002 §IV) or the
+    full-dimensional ARA* baseline; `improve_s` bounds the improvement after the first solution."""
+
+    drone: str
+    ugv: str
+    drone_start: Vec3
+    ugv_start: Vec3
+    goal: Vec3
+    method: Literal["pad", "arastar"] = "pad"
+    improve_s: float = 1.0
+
+
+class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Query payload of `planner/plan`. `map` is a shipped map name or a path readable by the planner.
+    A team request (planner "collab") gives `team` and no `tasks`; `map` is a collab map."""
+
+    map: str
+    tasks: dict[str, Task]
+    planner: str = "sipp"
+    mu: float = 0.5
+    time_limit: float = 30.0
+    mission: str = ""
+    seed: int = 0
+    team: TeamTask | None = None
+
+
+class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    ok: bool
+    error: str = ""
+    plan: Plan | None = None
+    team_plan: TeamPlan | None = None
+
+
+class VehicleTeamPlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One robot's copy of a team plan (`vehicle/<vid>/team_plan`, paper 002 §IV-E): it executes
+    `plan.drone` or `plan.ugv` as `robot`, synchronised with `partner`. `t0` as in VehiclePlan."""
+
+    vid: str
+    mission: str
+    robot: Robot
+    partner: str
+    plan: TeamPlan
+    t0: float = 0.0
+
+
+class TeamAction(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Executor -> robot (`vehicle/<vid>/action`): run step `index` of the robot's sequence (the
+    controller action and the pose it should end in). Re-sent until the robot reports it done or
+    failed; a robot runs each (mission, index) once and answers repeats with its status."""
+
+    vid: str
+    owner: str
+    mission: str
+    index: int
+    step: Step
+    t: float
+
+
+ActionState = Literal["started", "done", "failed"]
+
+
+class ActionStatus(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Robot -> everyone (`vehicle/<vid>/action_status`): step `index` started, done or failed, and
+    the robot's pose then (drone x, y, z; UGV x, y, heading_deg)."""
+
+    vid: str
+    mission: str
+    index: int
+    status: ActionState
+    pose: Vec3
+    t: float
+    detail: str = ""
+
+
+class MissionStart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """`mission/<id>/start`: every executor starts its vehicles' plans at `t0` (epoch s)."""
+
+    mission: str
+    t0: float
+    vehicles: list[str]
+
+
+class MissionAbort(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """`mission/<id>/abort`: every vehicle lands (flying) or stops (driving)."""
+
+    mission: str
+    reason: str
+
+
+T = TypeVar("T")
+
+
+class Codec(Generic[T]):
+    """Strict msgpack codec for one message type."""
+
+    def __init__(self, typ: type[T]) -> None:
+        self.type = typ
+        self._enc = msgspec.msgpack.Encoder()
+        self._dec = msgspec.msgpack.Decoder(typ)
+
+    def encode(self, msg: T) -> bytes:
+        return self._enc.encode(msg)
+
+    def decode(self, data: bytes | bytearray | memoryview) -> T:
+        if len(data) > MAX_MESSAGE_BYTES:
+            raise msgspec.ValidationError(f"message of {len(data)} bytes exceeds {MAX_MESSAGE_BYTES}")
+        return self._dec.decode(data)

@@ -1,0 +1,142 @@
+"""compose.yaml -> local processes (`fleet up` / `fleet down`).
+
+This machine has no container engine, so `fleet up` runs each compose service as a local process:
+the service's `command` (a leading `fleet` becomes this Python's `-m services.cli`), its `environment`,
+`deploy.replicas` copies (each with FLEET_INSTANCE=<service>-<n>), in `depends_on` order. A service
+whose image is not ours (the zenoh router) declares its local stand-in under `x-fleet-local`.
+`${VAR:-default}` is interpolated as compose does; `fleet up` sets the *_HOST variables to 127.0.0.1
+so that container host names resolve to this machine, and SECRETS_DIR (the containers' /run/secrets)
+to FLEET_SECRETS, the host directory of the role credentials: given, or made in <run dir>/secrets.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import msgspec
+
+from common.bus.keys import check_chunk
+from common.deploy.credentials import ensure_credentials
+from common.domain.mapfile import decode_yaml, read_text
+from common.errors import InputError
+
+LOCAL_HOSTS = {"ROUTER_HOST": "127.0.0.1", "SIM_HOST": "127.0.0.1"}
+_VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::?-([^}]*))?\}")
+
+
+class Deploy(msgspec.Struct, frozen=True):
+    replicas: int = 1
+
+
+class ComposeService(msgspec.Struct, frozen=True):
+    """The compose fields `fleet up` uses; other compose keys (image, build, ports, ...) only matter
+    to a container engine and are ignored here."""
+
+    command: list[str] | str | None = None
+    environment: dict[str, str | int | float] | list[str] = {}
+    deploy: Deploy = Deploy()
+    depends_on: list[str] = []
+    x_fleet_local: list[str] | None = msgspec.field(default=None, name="x-fleet-local")
+
+
+class ComposeFile(msgspec.Struct, frozen=True):
+    services: dict[str, ComposeService]
+    name: str = "fleet"
+
+
+@dataclass
+class Process:
+    """One process to start: a compose service replica."""
+
+    service: str
+    instance: str
+    argv: list[str]
+    env: dict[str, str] = field(default_factory=dict)
+
+
+def interpolate(text: str, env: dict[str, str]) -> str:
+    """Compose's ${VAR}, ${VAR:-default} and ${VAR-default}."""
+    return _VAR.sub(lambda m: env.get(m.group(1)) or (m.group(2) or ""), text)
+
+
+def local_argv(argv: list[str]) -> list[str]:
+    """A container command run here: `fleet ...` becomes this interpreter's `-m services.cli ...`."""
+    if argv and argv[0] == "fleet":
+        return [sys.executable, "-m", "services.cli", *argv[1:]]
+    return argv
+
+
+def _order(services: dict[str, ComposeService], source: str) -> list[str]:
+    done: list[str] = []
+    visiting: set[str] = set()
+
+    def visit(name: str) -> None:
+        if name in done:
+            return
+        if name in visiting:
+            raise InputError(source, f"services.{name}.depends_on", "dependency cycle")
+        visiting.add(name)
+        for dep in services[name].depends_on:
+            if dep not in services:
+                raise InputError(source, f"services.{name}.depends_on", f"unknown service {dep!r}")
+            visit(dep)
+        visiting.discard(name)
+        done.append(name)
+
+    for name in services:
+        visit(name)
+    return done
+
+
+def local_env(overrides: dict[str, str] | None, run_dir: Path | None) -> dict[str, str]:
+    """Variables for interpolating compose.yaml here: the environment, the local hosts, the secrets
+    directory (FLEET_SECRETS, or credentials made in run_dir/secrets), then `overrides`."""
+    env = {**os.environ, **LOCAL_HOSTS, **(overrides or {})}
+    if "FLEET_SECRETS" not in env and run_dir is not None:
+        env["FLEET_SECRETS"] = str(ensure_credentials(run_dir / "secrets").dir.resolve())
+    if "FLEET_SECRETS" in env:
+        env = {"SECRETS_DIR": env["FLEET_SECRETS"], **env}
+    return env
+
+
+def load_compose(path: str | Path, overrides: dict[str, str] | None = None,
+                 run_dir: Path | None = None) -> list[Process]:
+    """Parse compose.yaml into processes, in start order (`run_dir`: where `fleet up` keeps its state)."""
+    source = str(path)
+    env = local_env(overrides, run_dir)
+    text = interpolate(read_text(Path(path)), env)
+    spec: ComposeFile = decode_yaml(text, ComposeFile, source)
+    procs: list[Process] = []
+    for name in _order(spec.services, source):
+        svc = spec.services[name]
+        argv = svc.x_fleet_local if svc.x_fleet_local is not None else svc.command
+        if argv is None:
+            raise InputError(source, f"services.{name}", "needs `command` (or `x-fleet-local` for foreign images)")
+        argv = argv.split() if isinstance(argv, str) else list(argv)
+        if not argv:
+            raise InputError(source, f"services.{name}.command", "is empty")
+        try:
+            check_chunk(name, "service name")
+        except ValueError as exc:  # it names the replicas' instances and log files
+            raise InputError(source, f"services.{name}", str(exc)) from None
+        service_env = _environment(svc.environment, source, f"services.{name}.environment")
+        if svc.deploy.replicas < 1:
+            raise InputError(source, f"services.{name}.deploy.replicas", "must be at least 1")
+        for i in range(svc.deploy.replicas):
+            instance = name if svc.deploy.replicas == 1 else f"{name}-{i + 1}"
+            procs.append(Process(name, instance, local_argv(argv), {**service_env, "FLEET_INSTANCE": instance}))
+    return procs
+
+
+def _environment(environment: dict[str, str | int | float] | list[str], source: str, field: str) -> dict[str, str]:
+    """Compose's two forms: a mapping, or a list of VAR=VALUE."""
+    if isinstance(environment, dict):
+        return {k: str(v) for k, v in environment.items()}
+    for item in environment:
+        if "=" not in item:
+            raise InputError(source, field, f"{item!r} is not VAR=VALUE")
+    return dict(item.split("=", 1) for item in environment)

@@ -1,0 +1,181 @@
+"""LQR flight controller (paper 000 §VI-B: "an LQR flight controller takes over, sending yaw, pitch,
+roll and thrust commands to the Crazyflie's on-board attitude controller").
+
+Design model: the quadrotor linearised about hover in the frame yawed with the vehicle (x forward,
+y left, z up). Small angles give v'x = g pitch, v'y = -g roll, v'z = a_z (thrust deviation over
+mass), each less the linear drag (`common.crazyflie.thrust.DRAG`); the on-board attitude loop is a first-order lag from the roll/pitch setpoint to the angle
+and from the yaw-rate setpoint to the yaw rate (`common.crazyflie.thrust`); integrators on the position
+error remove steady offsets (mass, thrust curve, drag). State (13):
+
+    [px, py, pz, vx, vy, vz, roll, pitch, yaw, yaw_rate, ix, iy, iz]
+
+inputs [roll_cmd, pitch_cmd, yaw_rate_cmd, a_z]. The model is discretised with a zero-order hold at
+the control period and the gain comes from the discrete algebraic Riccati equation
+(`scipy.linalg.solve_discrete_are`) with Bryson's-rule weights (1 / largest acceptable value^2).
+Roll and pitch are not measured (motion capture gives position and yaw), so the controller
+propagates them through the same lag model from its own commands. The reference's acceleration is
+fed forward as attitude and thrust; the thrust is divided by cos(roll) cos(pitch) and mapped to the
+PWM command through the shared thrust curve. The acceleration the command should produce is kept
+for the estimator's prediction (`expected_accel`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.linalg import expm, solve_discrete_are
+
+from common.bus.messages import FlightSetpoint
+from common.crazyflie.thrust import (
+    DRAG,
+    MAX_TILT_DEG,
+    TAU_ROLL_PITCH,
+    TAU_YAW_RATE,
+    max_thrust,
+    thrust_command,
+    to_flight_setpoint,
+)
+from common.domain.vehicle_model import G
+from common.flight.estimator import Estimate
+from services.executor.trajectory import RefSample, wrap_angle
+
+N_STATES = 13
+N_INPUTS = 4
+
+
+@dataclass(frozen=True, slots=True)
+class LqrWeights:
+    """Largest acceptable value of each state error and input (Bryson's rule)."""
+
+    pos: float = 0.05
+    vel: float = 0.3
+    tilt: float = 0.3
+    yaw: float = 0.1
+    yaw_rate: float = 1.0
+    integral: float = 0.05
+    tilt_cmd: float = 0.25
+    yaw_rate_cmd: float = 1.5
+    accel_cmd: float = 3.0
+
+
+@dataclass(frozen=True, slots=True)
+class FlightModel:
+    """The linearisation's parameters: control period (s), attitude-loop lags (s) and drag over
+    mass (1/s; the default is for Table I's 41 g)."""
+
+    dt: float = 0.01
+    tau_roll_pitch: float = TAU_ROLL_PITCH
+    tau_yaw_rate: float = TAU_YAW_RATE
+    drag_rate: float = DRAG / 0.041
+
+
+def continuous_model(model: FlightModel) -> tuple[np.ndarray, np.ndarray]:
+    """A, B of the linearised hover model (see module docstring)."""
+    a = np.zeros((N_STATES, N_STATES))
+    b = np.zeros((N_STATES, N_INPUTS))
+    for i in range(3):
+        a[i, 3 + i] = 1.0  # p' = v
+        a[10 + i, i] = 1.0  # integral' = p
+        a[3 + i, 3 + i] = -model.drag_rate  # drag
+    a[3, 7] = G  # vx' = g pitch
+    a[4, 6] = -G  # vy' = -g roll
+    b[5, 3] = 1.0  # vz' = a_z
+    a[6, 6] = a[7, 7] = -1.0 / model.tau_roll_pitch
+    b[6, 0] = b[7, 1] = 1.0 / model.tau_roll_pitch
+    a[8, 9] = 1.0  # yaw' = yaw rate
+    a[9, 9] = -1.0 / model.tau_yaw_rate
+    b[9, 2] = 1.0 / model.tau_yaw_rate
+    return a, b
+
+
+def discretise(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Zero-order-hold discretisation through the matrix exponential of [[A, B], [0, 0]] dt."""
+    n, m = b.shape
+    block = np.zeros((n + m, n + m))
+    block[:n, :n] = a
+    block[:n, n:] = b
+    e = expm(block * dt)
+    return e[:n, :n], e[:n, n:]
+
+
+@lru_cache(maxsize=16)
+def lqr_gain(model: FlightModel = FlightModel(), weights: LqrWeights = LqrWeights()) -> np.ndarray:
+    """K (4 x 13) minimising sum x'Qx + u'Ru of the discretised model: u = -K x."""
+    ad, bd = discretise(*continuous_model(model), model.dt)
+    w = weights
+    q = np.diag([1 / w.pos**2] * 3 + [1 / w.vel**2] * 3 + [1 / w.tilt**2] * 2
+                + [1 / w.yaw**2, 1 / w.yaw_rate**2] + [1 / w.integral**2] * 3)
+    r = np.diag([1 / w.tilt_cmd**2] * 2 + [1 / w.yaw_rate_cmd**2, 1 / w.accel_cmd**2])
+    p = solve_discrete_are(ad, bd, q, r)
+    k = np.linalg.solve(r + bd.T @ p @ bd, bd.T @ p @ ad)
+    k.setflags(write=False)
+    return k
+
+
+class FlightLqr:
+    """Roll, pitch, yaw rate and thrust setpoints for one vehicle of `mass` kg."""
+
+    def __init__(self, mass: float, dt: float = 0.01, weights: LqrWeights = LqrWeights(),
+                 integral_limit: float = 0.1) -> None:
+        self.mass = mass
+        self.model = model = FlightModel(dt=dt, drag_rate=DRAG / mass)
+        self.k = lqr_gain(model, weights)
+        self.integral_limit = integral_limit
+        self.max_tilt = math.radians(MAX_TILT_DEG)
+        self.max_accel = max_thrust() / mass * math.cos(self.max_tilt) - G
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the integrators and the propagated attitude (call when a flight starts)."""
+        self.integral = [0.0, 0.0, 0.0]
+        self.roll = self.pitch = self.yaw_rate = 0.0
+        self.expected_accel = (0.0, 0.0, 0.0)  # world frame, m/s^2, of the last command
+
+    def accel_bias(self) -> float:
+        """Vertical acceleration (m/s^2) the z integrator adds: the thrust-model error it learned."""
+        return -float(self.k[3, 12]) * self.integral[2]
+
+    def command(self, est: Estimate, ref: RefSample, integrate: bool = True) -> FlightSetpoint:
+        """One control step. `integrate` is False while the vehicle still rests on the ground, so
+        the integrators do not wind up before liftoff."""
+        dt = self.model.dt
+        ex, ey, ez = est.x - ref.x, est.y - ref.y, est.z - ref.z
+        if integrate:
+            lim = self.integral_limit
+            self.integral = [min(max(i + e * dt, -lim), lim) for i, e in zip(self.integral, (ex, ey, ez), strict=True)]
+        c, s = math.cos(est.yaw), math.sin(est.yaw)
+        ix, iy, iz = self.integral
+        # reference acceleration in the yawed frame, fed forward as attitude (v'x = g pitch, ...)
+        abx, aby = ref.ax * c + ref.ay * s, -ref.ax * s + ref.ay * c
+        pitch_ff, roll_ff = abx / G, -aby / G
+        err = np.array([
+            ex * c + ey * s, -ex * s + ey * c, ez,
+            (est.vx - ref.vx) * c + (est.vy - ref.vy) * s, -(est.vx - ref.vx) * s + (est.vy - ref.vy) * c,
+            est.vz - ref.vz,
+            self.roll - roll_ff, self.pitch - pitch_ff,
+            wrap_angle(est.yaw - ref.yaw), self.yaw_rate - ref.yaw_rate,
+            ix * c + iy * s, -ix * s + iy * c, iz,
+        ])
+        du = (self.k @ err).tolist()
+        tilt = self.max_tilt
+        roll = min(max(roll_ff - du[0], -tilt), tilt)
+        pitch = min(max(pitch_ff - du[1], -tilt), tilt)
+        yaw_rate = ref.yaw_rate - du[2]
+        accel = min(max(ref.az - du[3], -0.5 * G), self.max_accel)
+        thrust = self.mass * (G + accel) / (math.cos(self.roll) * math.cos(self.pitch))
+        # propagate the on-board attitude loop (first-order lags) with the commands just sent
+        kr = 1.0 - math.exp(-dt / self.model.tau_roll_pitch)
+        ky = 1.0 - math.exp(-dt / self.model.tau_yaw_rate)
+        self.roll += (roll - self.roll) * kr
+        self.pitch += (pitch - self.pitch) * kr
+        self.yaw_rate += (yaw_rate - self.yaw_rate) * ky
+        # what the vehicle should do now, for the estimator's prediction: tilt accelerates it
+        # (v'x = g pitch, v'y = -g roll in the yawed frame), the thrust beyond the learned bias lifts it
+        bx, by = G * self.pitch, -G * self.roll
+        d = self.model.drag_rate
+        self.expected_accel = (bx * c - by * s - d * est.vx, bx * s + by * c - d * est.vy,
+                               accel - self.accel_bias() - d * est.vz)
+        return to_flight_setpoint(roll, pitch, yaw_rate, thrust_command(thrust))

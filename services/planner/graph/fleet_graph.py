@@ -1,0 +1,379 @@
+"""Map -> 3D graph (paper 000 §V-A, Fig. 2): roads, parking, helipads, air layers, interface nodes.
+
+Nodes: parking, land (road), waypoint (subdivisions), air (layer grid and interface nodes), helipad.
+Edges: drive, takeoff, fly, land, each with length, duration, energy (eq. 1-2), charge (eq. 4-5);
+costs (eq. 3) for a given mu come from `FleetGraph.edge_cost`. With `dt` every edge is subdivided
+by waypoints so it takes exactly one time step (what the ILP needs, §V-E); its speed is then at most
+the nominal one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import networkx as nx
+import numpy as np
+
+from common.domain.geometry import bodies_touch, distance_to_polygon, point_in_polygon, segment_hits_body
+from common.domain.mapfile import MapSpec
+from common.domain.planfile import GraphNode, PlanGraph, PlanModel
+from common.domain.vehicle_model import EDGE_KINDS, CostScale, EdgeKind, NodeKind, VehicleModel
+from common.errors import InputError
+from services.planner.graph.conflicts import Conflicts, compute_conflicts
+
+EDGE_CODE = {k: i for i, k in enumerate(EDGE_KINDS)}
+
+
+@dataclass
+class FleetGraph:
+    """The planners' view: a networkx DiGraph plus numpy arrays for hot loops."""
+
+    name: str
+    model: VehicleModel
+    g: nx.DiGraph
+    dt: float | None
+    ids: list[str]
+    index: dict[str, int]
+    pos: np.ndarray  # (N, 3)
+    kinds: list[NodeKind]
+    airborne: np.ndarray  # (N,) bool: waiting here means hovering
+    edges: np.ndarray  # (E, 2) node indices
+    edge_kinds: list[EdgeKind]
+    length: np.ndarray
+    duration: np.ndarray
+    energy: np.ndarray
+    charge: np.ndarray
+    scale: CostScale
+    out_edges: list[np.ndarray] = field(repr=False)
+    edge_index: dict[tuple[int, int], int] = field(repr=False)
+    open_endpoints: bool = False  # any ground node may be a start or goal (MovingAI grids)
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.ids)
+
+    @property
+    def n_edges(self) -> int:
+        return len(self.edges)
+
+    @cached_property
+    def conflicts(self) -> Conflicts:
+        """Node and edge pairs that would bring two bodies into contact (computed on first use)."""
+        return compute_conflicts(self.pos, self.edges, self.model.radius, self.model.height)
+
+    def endpoints(self) -> list[str]:
+        """Spots where a task may start or end: parking spots and helipads (any ground node on maps
+        with open endpoints)."""
+        allowed = ("parking", "helipad", "land") if self.open_endpoints else ("parking", "helipad")
+        return [n for n, k in zip(self.ids, self.kinds, strict=True) if k in allowed]
+
+    def edge_cost(self, mu: float) -> np.ndarray:
+        """Eq. 3 per edge."""
+        return self.scale.cost(mu, self.energy, self.duration)
+
+    def wait_power(self) -> np.ndarray:
+        """Power while waiting at each node: hovering or idle on the ground."""
+        p = self.model.power
+        return np.where(self.airborne, p.fly, p.idle)
+
+    def wait_cost_rate(self, mu: float) -> np.ndarray:
+        """Eq. 3 per second of waiting at each node."""
+        return self.scale.cost(mu, self.wait_power(), 1.0)
+
+    def wait_charge_rate(self) -> np.ndarray:
+        """Eq. 4-5 per second of waiting at each node (Ah/s)."""
+        return self.wait_power() / self.model.voltage / 3600.0
+
+    def to_plan_graph(self) -> PlanGraph:
+        nodes = {
+            n: GraphNode(pos=(float(p[0]), float(p[1]), float(p[2])), kind=k)
+            for n, p, k in zip(self.ids, self.pos, self.kinds, strict=True)
+        }
+        edges = [(self.ids[u], self.ids[v], k) for (u, v), k in zip(self.edges, self.edge_kinds, strict=True)]
+        return PlanGraph(nodes=nodes, edges=edges)
+
+    def plan_model(self) -> PlanModel:
+        m = self.model
+        return PlanModel(
+            radius=m.radius, height=m.height, mass=m.mass, speed=m.speed, power=m.power, voltage=m.voltage,
+            capacity_ah=m.capacity_ah, reserve_ah=m.reserve_ah, margin=m.margin,
+            w_max=self.scale.w_max, t_max=self.scale.t_max,
+        )
+
+    def counts(self) -> tuple[dict[str, int], dict[str, int]]:
+        nodes = {k: 0 for k in ("parking", "land", "waypoint", "air", "helipad")}
+        for k in self.kinds:
+            nodes[k] += 1
+        edges = {k: 0 for k in EDGE_KINDS}
+        for k in self.edge_kinds:
+            edges[k] += 1
+        return nodes, edges
+
+
+def airborne_mask(kinds: list[str], edges: list[tuple[int, int, str]], n: int) -> np.ndarray:
+    """A node is airborne when it is an air node, or a waypoint with no drive edge (on a takeoff,
+    fly or landing edge). The validator uses the same rule on the plan file's graph."""
+    on_road = np.zeros(n, dtype=bool)
+    for u, v, k in edges:
+        if k == "drive":
+            on_road[u] = on_road[v] = True
+    kinds_arr = np.array(kinds)
+    return (kinds_arr == "air") | ((kinds_arr == "waypoint") & ~on_road)
+
+
+class _Builder:
+    """Accumulates nodes and directed edges, then freezes into a FleetGraph."""
+
+    def __init__(self, spec: MapSpec, source: str) -> None:
+        self.spec = spec
+        self.source = source
+        self.model = spec.vehicle.envelope()  # bodies grown by the tracking margin
+        self.ids: list[str] = []
+        self.index: dict[str, int] = {}
+        self.pos: list[tuple[float, float, float]] = []
+        self.kinds: list[NodeKind] = []
+        self.edges: dict[tuple[int, int], EdgeKind] = {}
+
+    def node(self, nid: str, xyz: tuple[float, float, float], kind: NodeKind) -> int:
+        if nid in self.index:
+            return self.index[nid]
+        self.index[nid] = len(self.ids)
+        self.ids.append(nid)
+        self.pos.append(xyz)
+        self.kinds.append(kind)
+        return self.index[nid]
+
+    def edge(self, u: int, v: int, kind: EdgeKind, both: bool = False) -> None:
+        self.edges[(u, v)] = kind
+        if both:
+            self.edges[(v, u)] = kind
+
+    # -- the ground -------------------------------------------------------------------------------
+    def ground(self) -> None:
+        roads = self.spec.roads
+        for nid, n in roads.nodes.items():
+            self.node(nid, (n.x, n.y, 0.0), "land")
+        for u, v in roads.two_way:
+            self.edge(self.index[u], self.index[v], "drive", both=True)
+        for u, v in roads.one_way:
+            self.edge(self.index[u], self.index[v], "drive")
+        for spot in self.spec.parking:
+            s = self.node(spot.id, (spot.x, spot.y, 0.0), "parking")
+            self.edge(s, self.index[spot.road], "drive", both=True)
+        for pad in self.spec.helipads:
+            self.node(pad.id, (pad.x, pad.y, pad.z), "helipad")
+
+    # -- the air ----------------------------------------------------------------------------------
+    def blocked(self, pts: np.ndarray) -> np.ndarray:
+        """Body centred at each point (N, 3) would touch a no-fly zone or an obstacle."""
+        pts = np.atleast_2d(pts)
+        r, h = self.model.radius, self.model.height
+        out = np.zeros(len(pts), dtype=bool)
+        for zone in self.spec.no_fly:
+            poly = np.asarray(zone.polygon, dtype=float)
+            in_z = (pts[:, 2] + h / 2 > zone.z[0]) & (pts[:, 2] - h / 2 < zone.z[1])
+            near = distance_to_polygon(pts[:, :2], poly) < r
+            out |= in_z & (near | point_in_polygon(pts[:, :2], poly))
+        for box in self.spec.obstacles:
+            lo = np.asarray(box.min) - (r, r, h / 2)
+            hi = np.asarray(box.max) + (r, r, h / 2)
+            out |= np.all((pts > lo) & (pts < hi), axis=1)
+        return out
+
+    def segments_blocked(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Whether a body moving along each segment a[k] -> b[k] would touch a zone or obstacle."""
+        a, b = np.atleast_2d(a), np.atleast_2d(b)
+        if not len(a):
+            return np.zeros(0, dtype=bool)
+        steps = max(2, int(np.ceil(np.linalg.norm(b - a, axis=1).max() / (self.model.radius / 2))) + 1)
+        frac = np.linspace(0.0, 1.0, steps)
+        pts = a[:, None, :] + frac[None, :, None] * (b - a)[:, None, :]
+        return self.blocked(pts.reshape(-1, 3)).reshape(len(a), steps).any(axis=1)
+
+    def air(self) -> None:
+        air = self.spec.air
+        if air is None:
+            return
+        xmin, ymin, xmax, ymax = air.bounds
+        nx_ = int(math.floor((xmax - xmin) / air.spacing + 1e-9)) + 1
+        ny_ = int(math.floor((ymax - ymin) / air.spacing + 1e-9)) + 1
+        keys = [(li, i, j) for li in range(len(air.layers)) for i in range(nx_) for j in range(ny_)]
+        pts = np.array([(xmin + i * air.spacing, ymin + j * air.spacing, air.layers[li]) for li, i, j in keys])
+        free = ~self.blocked(pts)
+        grid: dict[tuple[int, int, int], int] = {
+            key: self.node(f"a{key[0]}_{key[1]}_{key[2]}", tuple(p), "air")
+            for key, p, ok in zip(keys, pts, free, strict=True)
+            if ok
+        }
+        steps = [(1, 0), (0, 1)] + ([(1, 1), (1, -1)] if air.diagonals else [])
+        pairs = [
+            (u, grid[key])
+            for (li, i, j), u in grid.items()
+            for key in [(li, i + di, j + dj) for di, dj in steps] + [(li + 1, i, j)]
+            if key in grid
+        ]
+        self.add_clear_edges(pairs, "fly")
+        self.interfaces(grid)
+
+    def add_clear_edges(self, pairs: list[tuple[int, int]], kind: EdgeKind) -> None:
+        """Two-way edges for the pairs whose segment keeps the body clear of zones and obstacles."""
+        if not pairs:
+            return
+        pos = np.array(self.pos)
+        ends = np.array(pairs)
+        for (u, v), bad in zip(pairs, self.segments_blocked(pos[ends[:, 0]], pos[ends[:, 1]]), strict=True):
+            if not bad:
+                self.edge(u, v, kind, both=True)
+
+    def interfaces(self, grid: dict[tuple[int, int, int], int]) -> None:
+        """Interface air nodes join ground and air (§V-A): one above each road node or helipad under
+        free airspace, with a takeoff edge up and a landing edge down, and fly edges to the layer."""
+        air = self.spec.air
+        assert air is not None
+        xmin, ymin, xmax, ymax = air.bounds
+        margin = air.spacing / 2
+        bases = [(nid, "land") for nid in self.spec.roads.nodes] + [(p.id, "helipad") for p in self.spec.helipads]
+        for nid, _ in bases:
+            base = np.array(self.pos[self.index[nid]])
+            x, y, z0 = base
+            if not (xmin - margin <= x <= xmax + margin and ymin - margin <= y <= ymax + margin):
+                continue
+            layer = next((li for li, z in enumerate(air.layers) if z > z0 + self.model.height), None)
+            if layer is None:
+                continue
+            top = np.array([x, y, air.layers[layer]])
+            if self.segments_blocked(base, top)[0]:
+                continue
+            near = [
+                (float(np.hypot(*(np.array(self.pos[v][:2]) - (x, y)))), v)
+                for (li, _, _), v in grid.items()
+                if li == layer
+            ]
+            near = [(d, v) for d, v in near if d <= air.spacing * 1.01]
+            if not near:
+                continue
+            dmin, vmin = min(near)
+            if dmin < 0.25 * air.spacing:
+                iface = vmin
+            else:
+                iface = self.node(f"i_{nid}", tuple(top), "air")
+                self.add_clear_edges([(iface, v) for _, v in near], "fly")
+            b = self.index[nid]
+            self.edge(b, iface, "takeoff")
+            self.edge(iface, b, "land")
+
+    # -- uniform time steps -----------------------------------------------------------------------
+    def subdivide(self, dt: float) -> None:
+        """Split every edge into ceil(duration / dt) pieces joined by waypoint nodes (§V-E)."""
+        old = dict(self.edges)
+        self.edges = {}
+        done: set[tuple[int, int]] = set()
+        for (u, v), kind in old.items():
+            if (u, v) in done:
+                continue
+            a, b = np.array(self.pos[u]), np.array(self.pos[v])
+            length = float(np.linalg.norm(b - a))
+            pieces = max(1, math.ceil(self.model.edge_duration(kind, length) / dt - 1e-6))
+            back = old.get((v, u))
+            chain = [u]
+            for k in range(1, pieces):
+                p = a + (b - a) * k / pieces
+                lo, hi = sorted((self.ids[u], self.ids[v]))
+                frac = k / pieces if self.ids[u] == lo else 1 - k / pieces
+                chain.append(self.node(f"w_{lo}_{hi}_{frac:.3f}", tuple(p), "waypoint"))
+            chain.append(v)
+            for s, t in zip(chain, chain[1:], strict=False):
+                self.edge(s, t, kind)
+                if back is not None:
+                    self.edge(t, s, back)
+            done.add((u, v))
+            done.add((v, u))
+
+    def freeze(self, dt: float | None) -> FleetGraph:
+        pos = np.array(self.pos, dtype=float)
+        pairs = list(self.edges.items())
+        edges = np.array([uv for uv, _ in pairs], dtype=np.int64).reshape(-1, 2)
+        kinds: list[EdgeKind] = [k for _, k in pairs]
+        vec = pos[edges[:, 1]] - pos[edges[:, 0]] if len(edges) else np.zeros((0, 3))
+        length = np.linalg.norm(vec, axis=1)
+        nominal = np.array([self.model.edge_duration(k, d) for k, d in zip(kinds, length, strict=True)])
+        duration = np.full(len(edges), dt) if dt is not None else nominal
+        energy = np.array(
+            [self.model.edge_energy(k, d, dz, t) for k, d, dz, t in zip(kinds, length, vec[:, 2], duration, strict=True)]
+        )
+        charge = np.array([self.model.edge_charge(k, t) for k, t in zip(kinds, duration, strict=True)])
+        g = nx.DiGraph()
+        for i, (nid, k) in enumerate(zip(self.ids, self.kinds, strict=True)):
+            g.add_node(nid, pos=tuple(pos[i]), kind=k, index=i)
+        for e, ((u, v), k) in enumerate(pairs):
+            g.add_edge(self.ids[u], self.ids[v], kind=k, index=e, length=length[e], duration=duration[e])
+        out_edges: list[list[int]] = [[] for _ in self.ids]
+        for e, (u, _) in enumerate(edges):
+            out_edges[u].append(e)
+        airborne = airborne_mask(self.kinds, [(int(u), int(v), k) for (u, v), k in zip(edges, kinds, strict=True)], len(self.ids))
+        scale = CostScale(w_max=float(energy.max(initial=1e-9)), t_max=float(duration.max(initial=1e-9)))
+        return FleetGraph(
+            name=self.spec.name, model=self.model, g=g, dt=dt, ids=list(self.ids), index=dict(self.index),
+            pos=pos, kinds=list(self.kinds), airborne=airborne, edges=edges, edge_kinds=kinds, length=length,
+            duration=duration, energy=energy, charge=charge, scale=scale,
+            out_edges=[np.array(o, dtype=np.int64) for o in out_edges],
+            edge_index={(int(u), int(v)): e for e, (u, v) in enumerate(edges)},
+        )
+
+
+def build_graph(spec: MapSpec, dt: float | None = None, source: str | None = None, open_endpoints: bool = False) -> FleetGraph:
+    """Build the 3D graph of a map; with `dt`, on the uniform-time-step graph (§V-E)."""
+    src = source or spec.name
+    b = _Builder(spec, src)
+    b.ground()
+    check_spots(b, src)
+    b.air()
+    if dt is not None:
+        b.subdivide(dt)
+    graph = b.freeze(dt)
+    graph.open_endpoints = open_endpoints
+    check_reachable(graph, src)
+    return graph
+
+
+def check_spots(b: _Builder, source: str) -> None:
+    """Well-formed infrastructure (§V-D): a vehicle on a spot must not touch another spot's vehicle,
+    nor a vehicle on any road edge other than its own access edge."""
+    r, h = b.model.radius, b.model.height
+    spots = [(f"parking[{i}]", s.id) for i, s in enumerate(b.spec.parking)]
+    spots += [(f"helipads[{i}]", s.id) for i, s in enumerate(b.spec.helipads)]
+    pos = np.array(b.pos)
+    for i, (field_i, a) in enumerate(spots):
+        pa = pos[b.index[a]]
+        for _field_j, c in spots[i + 1:]:
+            if bodies_touch(pa - pos[b.index[c]], r, h):
+                raise InputError(source, field_i, f"spot {a!r} is too close to spot {c!r} for two bodies of radius {r} m")
+        ia = b.index[a]
+        road = [(u, v) for (u, v), k in b.edges.items() if k == "drive" and u < v and ia not in (u, v)]
+        if road:
+            ends = np.array(road)
+            lo, hi = segment_hits_body(pos[ends[:, 0]], pos[ends[:, 1]], pa, r, h)
+            bad = np.flatnonzero(lo < hi)
+            if len(bad):
+                u, v = road[bad[0]]
+                raise InputError(
+                    source, field_i,
+                    f"spot {a!r} is too close to road edge {b.ids[u]!r}-{b.ids[v]!r}: a parked body would block it",
+                )
+
+
+def check_reachable(graph: FleetGraph, source: str) -> None:
+    """Every spot must reach every other (roads, and through the air where the ground is cut)."""
+    spots = graph.endpoints()
+    if len(spots) < 2:
+        return
+    comp = {n: i for i, c in enumerate(nx.strongly_connected_components(graph.g)) for n in c}
+    counts: dict[int, int] = {}
+    for s in spots:
+        counts[comp[s]] = counts.get(comp[s], 0) + 1
+    main = max(counts, key=lambda c: counts[c])
+    for s in spots:
+        if comp[s] != main:
+            raise InputError(source, f"parking/helipad {s!r}", "unreachable: no path to and from the other spots")

@@ -1,0 +1,63 @@
+"""Scenarios (paper 000 §IV): vehicle id -> start and goal. A YAML file or a seeded random draw.
+
+Well-formed (§V-D): every start and goal is a parking spot or helipad (any node on maps with open
+endpoints, such as MovingAI grids), starts are unique and goals are unique.
+"""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import msgspec
+
+from common.bus.keys import check_chunk
+from common.domain.mapfile import decode_yaml, read_text
+from common.domain.planfile import Task
+from common.errors import InputError
+from services.planner.graph.fleet_graph import FleetGraph
+
+
+class ScenarioFile(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    tasks: dict[str, Task]
+    map: str | None = None
+    description: str = ""
+
+
+def load_scenario(path: str | Path, graph: FleetGraph) -> dict[str, Task]:
+    spec: ScenarioFile = decode_yaml(read_text(Path(path)), ScenarioFile, str(path))
+    check_tasks(spec.tasks, graph, str(path))
+    return dict(spec.tasks)
+
+
+def check_tasks(tasks: dict[str, Task], graph: FleetGraph, source: str) -> None:
+    """Raise InputError naming the task field when a scenario is not well-formed on `graph`."""
+    if not tasks:
+        raise InputError(source, "tasks", "no vehicles")
+    allowed = set(graph.endpoints())
+    starts: dict[str, str] = {}
+    goals: dict[str, str] = {}
+    for vid, task in tasks.items():
+        try:
+            check_chunk(vid, "vehicle id")
+        except ValueError as exc:
+            raise InputError(source, f"tasks.{vid}", str(exc)) from None
+        for field, node, seen in (("start", task.start, starts), ("goal", task.goal, goals)):
+            where = f"tasks.{vid}.{field}"
+            if node not in graph.index:
+                raise InputError(source, where, f"unknown node {node!r} on map {graph.name!r}")
+            if node not in allowed:
+                raise InputError(source, where, f"{node!r} is a {graph.kinds[graph.index[node]]} node, not a parking spot or helipad")
+            if node in seen:
+                raise InputError(source, where, f"{node!r} is also the {field} of {seen[node]!r}")
+            seen[node] = vid
+
+
+def random_tasks(graph: FleetGraph, n: int, seed: int) -> dict[str, Task]:
+    """n vehicles on 2n distinct spots drawn with `seed` (so no goal is another vehicle's start)."""
+    spots = sorted(graph.endpoints())
+    if n < 1 or 2 * n > len(spots):
+        raise InputError(graph.name, "--random", f"needs 1 <= N <= {len(spots) // 2} on this map, got {n}")
+    picked = random.Random(seed).sample(spots, 2 * n)
+    width = len(str(n))
+    return {f"cf{i + 1:0{width}d}": Task(start=picked[2 * i], goal=picked[2 * i + 1]) for i in range(n)}

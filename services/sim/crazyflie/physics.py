@@ -1,0 +1,228 @@
+"""Simulated flying car: the physics behind a simulated Crazyflie (paper 000 §VI-A/B).
+
+It takes exactly the setpoints the real vehicle takes (`FlightSetpoint` in cflib `send_setpoint`
+units, `WheelSetpoint`, `StopSetpoint`) and models:
+
+- on the ground, a differential drive (wheel speed limit and lag, `common.crazyflie.thrust.WheelBase`);
+- in the air, a point-mass quadrotor of the vehicle's mass (Table I: 41 g) with the Förster 2015
+  thrust curve (`common.crazyflie.thrust`), the on-board attitude loop as first-order lags on roll/pitch and
+  on the yaw rate, a thrust lag for the motors and linear drag; ground contact below z = 0
+  (liftoff when thrust exceeds weight, touchdown kills the velocity and records its speed);
+- the Crazyflie commander watchdog (firmware commander.c): with no flight setpoint for 0.5 s the
+  attitude is levelled (roll = pitch = 0, yaw rate 0) keeping the thrust, after 2 s the motors stop
+  and the vehicle falls. Wheels stop 0.5 s after their last setpoint (assumed, same safety idea);
+- the battery: power per mode from Table II (`VehicleModel.power`), flight power scaled with
+  (thrust / weight)^1.5 (momentum theory: induced power ~ T^3/2) and driving power with wheel
+  speed, drained through eq. 4-5 (`VehicleModel.charge_ah`); the voltage is a Li-Po open-circuit
+  curve of the charge left minus the sag of the current over the internal resistance.
+
+Frames: world x, y, z up (z = 0 is the ground); yaw CCW from +x; body x forward, y left.
+Clock: `t` is the simulator's own clock (s); pass the same clock to `apply(…, now)`.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+from dataclasses import dataclass
+
+from common.bus.messages import FlightSetpoint, Setpoint, SimTruth, StopSetpoint, WheelSetpoint
+from common.crazyflie.thrust import (
+    DRAG,
+    TAU_ROLL_PITCH,
+    TAU_YAW_RATE,
+    WheelBase,
+    from_flight_setpoint,
+    thrust_newtons,
+)
+from common.domain.vehicle_model import G, VehicleModel
+
+WATCHDOG_LEVEL_S = 0.5
+"""Crazyflie firmware COMMANDER_WDT_TIMEOUT_STABILIZE: level the attitude, keep the thrust."""
+WATCHDOG_CUT_S = 2.0
+"""Crazyflie firmware COMMANDER_WDT_TIMEOUT_SHUTDOWN: motors off."""
+FIRMWARE_MIN_THRUST = 1000
+"""crtp_commander_rpyt.c: a thrust command below this means motors off."""
+
+# Open-circuit voltage of a 1S Li-Po against state of charge: a generic discharge curve (assumed,
+# not measured on the Crazyflie's 250 mAh cell).
+_OCV_SOC = (0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+_OCV_V = (3.27, 3.45, 3.68, 3.74, 3.77, 3.79, 3.82, 3.87, 3.92, 3.98, 4.06, 4.20)
+
+
+def open_circuit_voltage(soc: float) -> float:
+    """Li-Po open-circuit voltage (V) at state of charge `soc` in [0, 1] (linear interpolation)."""
+    soc = min(max(soc, 0.0), 1.0)
+    i = min(bisect_right(_OCV_SOC, soc), len(_OCV_SOC) - 1)
+    s0, s1, v0, v1 = _OCV_SOC[i - 1], _OCV_SOC[i], _OCV_V[i - 1], _OCV_V[i]
+    return v0 + (v1 - v0) * (soc - s0) / (s1 - s0)
+
+
+@dataclass(frozen=True, slots=True)
+class PhysicsParams:
+    """Simulator constants. The defaults are the nominal vehicle the controllers are designed on;
+    tests perturb them (`thrust_scale`, lags, `mass_scale`) to check robustness.
+
+    tau_motor: thrust lag (s, assumed); drag: linear drag (kg/s, `common.crazyflie.thrust.DRAG`); r_internal: battery internal resistance (ohm, assumed);
+    max_substep: integration step (s)."""
+
+    wheels: WheelBase = WheelBase()
+    tau_roll_pitch: float = TAU_ROLL_PITCH
+    tau_yaw_rate: float = TAU_YAW_RATE
+    tau_motor: float = 0.03
+    drag: float = DRAG
+    thrust_scale: float = 1.0
+    mass_scale: float = 1.0
+    r_internal: float = 0.15
+    wheel_watchdog_s: float = 0.5
+    max_substep: float = 0.002
+
+
+@dataclass(frozen=True, slots=True)
+class BatteryState:
+    charge_used_ah: float
+    soc: float
+    vbat: float
+    current_a: float
+
+
+class SimFlyingCar:
+    """One simulated flying car. `apply` setpoints, `step` time, read `truth()` and `battery`."""
+
+    def __init__(self, vid: str, model: VehicleModel | None = None, params: PhysicsParams = PhysicsParams(),
+                 pos: tuple[float, float, float] = (0.0, 0.0, 0.0), yaw: float = 0.0, t: float = 0.0,
+                 charge_used_ah: float = 0.0) -> None:
+        self.vid = vid
+        self.model = model = model or VehicleModel()
+        self.params = params
+        self.mass = model.mass * params.mass_scale
+        self.t = t
+        self.x, self.y, self.z = pos
+        self.vx = self.vy = self.vz = 0.0
+        self.roll = self.pitch = 0.0
+        self.yaw = yaw
+        self.yaw_rate = 0.0
+        self.thrust = 0.0
+        self.wheel_left = self.wheel_right = 0.0
+        self.airborne = pos[2] > 0.0
+        self.charge_used_ah = charge_used_ah
+        self.current = 0.0
+        self.last_impact_speed = 0.0
+        self._flight: tuple[float, float, float, int] = (0.0, 0.0, 0.0, 0)
+        self._flight_t = -math.inf
+        self._wheels: tuple[float, float] = (0.0, 0.0)
+        self._wheels_t = -math.inf
+
+    def apply(self, setpoint: Setpoint, now: float | None = None) -> None:
+        """Take one setpoint as the Crazyflie would, received at `now` (simulator clock)."""
+        t = self.t if now is None else now
+        if isinstance(setpoint, FlightSetpoint):
+            roll, pitch, yaw_rate = from_flight_setpoint(setpoint)
+            cmd = setpoint.thrust if setpoint.thrust >= FIRMWARE_MIN_THRUST else 0
+            self._flight, self._flight_t = (roll, pitch, yaw_rate, cmd), t
+        elif isinstance(setpoint, WheelSetpoint):
+            self._wheels, self._wheels_t = (setpoint.left, setpoint.right), t
+        elif isinstance(setpoint, StopSetpoint):
+            self._flight, self._flight_t = (0.0, 0.0, 0.0, 0), t
+            self._wheels, self._wheels_t = (0.0, 0.0), t
+        else:
+            raise TypeError(f"not a setpoint: {setpoint!r}")
+
+    def flight_command(self) -> tuple[float, float, float, int]:
+        """The (roll, pitch, yaw rate, thrust command) in force now, after the commander watchdog."""
+        age = self.t - self._flight_t
+        roll, pitch, yaw_rate, cmd = self._flight
+        if age > WATCHDOG_CUT_S:
+            return 0.0, 0.0, 0.0, 0
+        if age > WATCHDOG_LEVEL_S:
+            return 0.0, 0.0, 0.0, cmd
+        return roll, pitch, yaw_rate, cmd
+
+    def step(self, dt: float) -> None:
+        """Advance the simulation by `dt` s (in sub-steps of at most `max_substep`)."""
+        n = max(1, math.ceil(dt / self.params.max_substep - 1e-9))
+        h = dt / n
+        for _ in range(n):
+            self._substep(h)
+
+    def _substep(self, h: float) -> None:
+        p = self.params
+        roll_c, pitch_c, yaw_rate_c, cmd = self.flight_command()
+        wl, wr = self._wheels if self.t - self._wheels_t <= p.wheel_watchdog_s else (0.0, 0.0)
+        lim = p.wheels.max_speed
+        kw = 1.0 - math.exp(-h / p.wheels.tau)
+        self.wheel_left += (min(max(wl, -lim), lim) - self.wheel_left) * kw
+        self.wheel_right += (min(max(wr, -lim), lim) - self.wheel_right) * kw
+        self.thrust += (thrust_newtons(cmd) * p.thrust_scale - self.thrust) * (1.0 - math.exp(-h / p.tau_motor))
+        weight = self.mass * G
+        if not self.airborne and self.thrust > weight:
+            self.airborne = True
+        if self.airborne:
+            self._fly(h, roll_c, pitch_c, yaw_rate_c)
+        else:
+            self._drive(h)
+        self._drain(h)
+        self.t += h
+
+    def _fly(self, h: float, roll_c: float, pitch_c: float, yaw_rate_c: float) -> None:
+        p = self.params
+        ka = 1.0 - math.exp(-h / p.tau_roll_pitch)
+        self.roll += (roll_c - self.roll) * ka
+        self.pitch += (pitch_c - self.pitch) * ka
+        self.yaw_rate += (yaw_rate_c - self.yaw_rate) * (1.0 - math.exp(-h / p.tau_yaw_rate))
+        self.yaw = math.remainder(self.yaw + self.yaw_rate * h, 2.0 * math.pi)
+        cr, sr = math.cos(self.roll), math.sin(self.roll)
+        cp, sp = math.cos(self.pitch), math.sin(self.pitch)
+        cy, sy = math.cos(self.yaw), math.sin(self.yaw)
+        a = self.thrust / self.mass
+        k = p.drag / self.mass
+        # thrust along body z of R = Rz(yaw) Ry(pitch) Rx(roll)
+        self.vx += (a * (cy * sp * cr + sy * sr) - k * self.vx) * h
+        self.vy += (a * (sy * sp * cr - cy * sr) - k * self.vy) * h
+        self.vz += (a * cp * cr - G - k * self.vz) * h
+        self.x += self.vx * h
+        self.y += self.vy * h
+        self.z += self.vz * h
+        if self.z <= 0.0:
+            self.last_impact_speed = -self.vz
+            self.z = 0.0
+            self.vx = self.vy = self.vz = 0.0
+            self.roll = self.pitch = self.yaw_rate = 0.0
+            self.airborne = False
+
+    def _drive(self, h: float) -> None:
+        v = 0.5 * (self.wheel_left + self.wheel_right)
+        self.yaw = math.remainder(self.yaw + (self.wheel_right - self.wheel_left) / self.params.wheels.track * h,
+                                  2.0 * math.pi)
+        self.vx, self.vy, self.vz = v * math.cos(self.yaw), v * math.sin(self.yaw), 0.0
+        self.x += self.vx * h
+        self.y += self.vy * h
+        self.roll = self.pitch = self.yaw_rate = 0.0
+
+    def power(self) -> float:
+        """Electrical power now (W): Table II idle, plus flight power scaled by (T / weight)^1.5,
+        plus driving power scaled by wheel speed over the nominal driving speed."""
+        pw = self.model.power
+        p = pw.idle
+        if self.thrust > 0.0:
+            p += (pw.fly - pw.idle) * (self.thrust / (self.mass * G)) ** 1.5
+        wheel = 0.5 * (abs(self.wheel_left) + abs(self.wheel_right))
+        return p + (pw.drive - pw.idle) * wheel / self.model.speed.drive
+
+    def _drain(self, h: float) -> None:
+        watts = self.power()
+        self.current = watts / self.model.voltage  # eq. 4
+        self.charge_used_ah += self.model.charge_ah(watts, h)  # eq. 5
+
+    @property
+    def battery(self) -> BatteryState:
+        soc = max(1.0 - self.charge_used_ah / self.model.capacity_ah, 0.0)
+        vbat = open_circuit_voltage(soc) - self.current * self.params.r_internal
+        return BatteryState(self.charge_used_ah, soc, vbat, self.current)
+
+    def truth(self) -> SimTruth:
+        """Ground truth now (angles in rad)."""
+        return SimTruth(vid=self.vid, t=self.t, x=self.x, y=self.y, z=self.z, yaw=self.yaw,
+                        vx=self.vx, vy=self.vy, vz=self.vz, roll=self.roll, pitch=self.pitch,
+                        airborne=self.airborne, motors=self.thrust > 1e-3 or self.flight_command()[3] > 0,
+                        vbat=self.battery.vbat, charge_used_ah=self.charge_used_ah)

@@ -1,0 +1,124 @@
+"""`fleet sim`: the simulated Crazyflies of a radios file, one UDP endpoint each, in real time.
+
+Every ``udp://`` vehicle of the selected radios becomes a `SimCrazyflie` at its configured start,
+behind its radio's link model (`SimRadio`, shared by the radio's vehicles). Ground truth goes out on
+`sim/truth/<vid>` at `truth_hz`; firmware watchdog trips go out as `VehicleEvent`s on
+`vehicle/<vid>/event`. The gateway talks to these exactly as to real vehicles (paper 000 §VI-C).
+
+Fault injection (docs/reliability.md): a `SimFault` on `sim/fault/<vid>` blacks out the vehicle's
+radio link for a while (`radio_blackout`) or sets its battery's used charge (`battery`); nothing
+happens unless one is published. Counters and figures go out on `stats/sim/<instance>`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Collection
+
+from common.bus.keys import Keys
+from common.bus.messages import SimFault, SimTruth, VehicleEvent
+from common.bus.pubsub import Publisher
+from common.bus.service import Service
+from common.bus.session import ZenohConfig
+from common.bus.stats import publish_stats
+from common.deploy.radios import RadiosFile, udp_address
+from common.domain.vehicle_model import VehicleModel
+from services.sim.crazyflie.endpoint import SimCrazyflie
+from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
+from services.sim.crazyflie.radio import SimRadio
+
+log = logging.getLogger(__name__)
+
+
+class SimService(Service):
+    """Simulated vehicles of `spec` (only the radios named in `radios`, default all)."""
+
+    def __init__(self, spec: RadiosFile, zconfig: ZenohConfig, instance: str = "sim", keys: Keys | None = None,
+                 radios: Collection[str] | None = None, truth_hz: float = 100.0,
+                 params: PhysicsParams | None = None, model: VehicleModel | None = None) -> None:
+        super().__init__("sim", instance, zconfig, keys)
+        unknown = set(radios or ()) - set(spec.radios)
+        if unknown:
+            raise ValueError(f"no radio {sorted(unknown)} in the radios file")
+        if truth_hz <= 0:
+            raise ValueError("truth_hz must be positive")
+        self.spec = spec
+        self.selected = [r for r in spec.radios if radios is None or r in radios]
+        self.period = 1.0 / truth_hz
+        self.params = params or PhysicsParams()
+        self.model = model or VehicleModel()
+        self.radios: dict[str, SimRadio] = {}
+        self.vehicles: dict[str, SimCrazyflie] = {}
+        self._events: dict[str, Publisher[VehicleEvent]] = {}
+
+    async def main(self) -> None:
+        try:
+            truth = await self._open()
+            self.subscribe(self.keys.all_sim_faults, SimFault, self._on_fault)
+            self.spawn(publish_stats(self, self._figures), name="stats")
+            await self._publish_truth(truth)
+        finally:
+            for cf in self.vehicles.values():
+                cf.close()
+
+    async def _open(self) -> dict[str, Publisher[SimTruth]]:
+        loop = asyncio.get_running_loop()
+        now = time.time()
+        truth: dict[str, Publisher[SimTruth]] = {}
+        for name in self.selected:
+            spec = self.spec.radios[name]
+            radio = self.radios[name] = SimRadio(name, spec.link)
+            for vid, link in spec.vehicles.items():
+                if not link.uri.startswith("udp://"):
+                    log.info("sim: %s is a real vehicle (%s), not simulated", vid, link.uri)
+                    continue
+                car = SimFlyingCar(vid, self.model, self.params, pos=link.start, yaw=link.yaw, t=now)
+                cf = self.vehicles[vid] = SimCrazyflie(car, radio, self._on_event)
+                await loop.create_datagram_endpoint(lambda cf=cf: cf, local_addr=udp_address(link.uri))
+                truth[vid] = self.publisher(self.keys.sim_truth(vid), SimTruth)
+                self._events[vid] = self.publisher(self.keys.vehicle(vid, "event"), VehicleEvent)
+        log.info("sim: %d vehicles on radios %s", len(self.vehicles), ", ".join(self.selected))
+        return truth
+
+    async def _publish_truth(self, truth: dict[str, Publisher[SimTruth]]) -> None:
+        """Advance every vehicle to now and publish its truth, every `period` s."""
+        loop = asyncio.get_running_loop()
+        due = loop.time()
+        while True:
+            now = time.time()
+            for vid, cf in self.vehicles.items():
+                cf.advance(now)
+                truth[vid].put(cf.car.truth())
+            due += self.period
+            delay = due - loop.time()
+            if delay < -self.period:  # fell behind (loaded machine): skip, do not burst
+                self.counters.inc("truth_behind")
+                due = loop.time()
+                delay = 0.0
+            await asyncio.sleep(delay)
+
+    def _on_fault(self, fault: SimFault, _key: str) -> None:
+        cf = self.vehicles.get(fault.vid)
+        if cf is None or fault.kind == "mocap_dropout":  # not ours, or the mocap bridge's
+            return
+        log.warning("sim: fault injected into %s: %s", fault.vid, fault)
+        self.counters.inc(f"fault:{fault.kind}:{fault.vid}")
+        if fault.kind == "radio_blackout":
+            cf.blackout(time.time() + fault.duration_s)
+        else:
+            cf.car.charge_used_ah = fault.charge_used_ah
+
+    def _figures(self) -> dict[str, float]:
+        cfs = self.vehicles.values()
+        return {"vehicles": len(self.vehicles), "watchdog_levels": sum(cf.watchdog_levels for cf in cfs),
+                "watchdog_cuts": sum(cf.watchdog_cuts for cf in cfs),
+                "radio_lost": sum(r.lost for r in self.radios.values()),
+                "radio_congested": sum(r.congested for r in self.radios.values()),
+                "radio_delivered": sum(r.delivered for r in self.radios.values()),
+                "touchdown_max_mps": max((cf.hardest_touchdown for cf in cfs), default=0.0),
+                **{f"touchdown_mps:{vid}": cf.hardest_touchdown for vid, cf in self.vehicles.items()}}
+
+    def _on_event(self, vid: str, kind: str, detail: str) -> None:
+        self._events[vid].put(VehicleEvent(vid=vid, t=time.time(), kind=kind, detail=detail))

@@ -1,0 +1,142 @@
+"""Harness of the fault tests (tests/test_faults_*.py): a mission on a local fleet (in-process router,
+every service a process, simulated Crazyflies), watched as any other process would see it, with
+faults injected through the simulators' fault keys (`sim/fault/<vid>`, docs/reliability.md)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import time
+from collections import defaultdict
+from collections.abc import Awaitable, Callable, Iterable
+from dataclasses import dataclass, field
+
+import zenoh
+
+from common.bus.keys import Keys
+from common.bus.messages import ServiceStats, SimFault, SimTruth, Telemetry, VehicleEvent, VehicleState
+from common.bus.pubsub import Publisher, subscribe
+from common.bus.session import ZenohConfig, open_session
+from common.domain.planfile import Task
+from services.mission.demo import LocalFleet
+from services.mission.runner import MissionResult, MissionRunner, MissionSpec
+
+TOWN_TASKS = {
+    "cf1": Task(start="WP10", goal="EP8"),  # flies west -> east through the corridor
+    "cf2": Task(start="EP7", goal="WP9"),   # flies east -> west
+    "cf3": Task(start="WP7", goal="WP3"),   # drives in the west (15 s)
+}
+"""16 s plans on the town map: both flyers airborne from about 4 s to 12 s of the mission."""
+STATS_SERVICES = ("executor", "gateway", "sim", "mocap")
+
+
+async def until(predicate: Callable[[], bool], timeout: float, what: str | Callable[[], str]) -> None:
+    """Wait for `predicate`; on timeout fail naming `what` (a callable says what is still missing)."""
+    try:
+        async with asyncio.timeout(timeout):
+            while not predicate():
+                await asyncio.sleep(0.02)
+    except TimeoutError:
+        raise AssertionError(f"timed out after {timeout} s waiting for {what() if callable(what) else what}") from None
+
+
+@dataclass
+class Watch:
+    """Ground truth, states, telemetry and events of every vehicle, each stamped on arrival."""
+
+    keys: Keys
+    truth: dict[str, list[SimTruth]] = field(default_factory=lambda: defaultdict(list))
+    states: dict[str, list[VehicleState]] = field(default_factory=lambda: defaultdict(list))
+    telemetry: dict[str, list[Telemetry]] = field(default_factory=lambda: defaultdict(list))
+    events: list[tuple[float, VehicleEvent]] = field(default_factory=list)
+    stats: dict[str, ServiceStats] = field(default_factory=dict)
+    """Latest `stats/<service>/<instance>` of each service, by service name (one instance each here)."""
+    _faults: dict[str, Publisher[SimFault]] = field(default_factory=dict)
+    _session: zenoh.Session | None = None
+
+    def open(self, config: ZenohConfig) -> None:
+        """Subscribe (from the event loop)."""
+        s = self._session = open_session(config)
+        subscribe(s, self.keys.all_sim_truth, SimTruth, lambda m, _k: self.truth[m.vid].append(m), maxlen=4096)
+        subscribe(s, self.keys.all_vehicles("state"), VehicleState, lambda m, _k: self.states[m.vid].append(m))
+        subscribe(s, self.keys.all_vehicles("telemetry"), Telemetry, lambda m, _k: self.telemetry[m.vid].append(m))
+        subscribe(s, self.keys.all_vehicles("event"), VehicleEvent, lambda m, _k: self.events.append((time.time(), m)))
+        for service in STATS_SERVICES:  # one per service: the router's access control grants them so
+            subscribe(s, self.keys.all_stats(service), ServiceStats, lambda m, _k: self.stats.__setitem__(m.service, m))
+
+    def close(self) -> None:
+        if self._session is not None:
+            self._session.close()
+
+    def inject(self, fault: SimFault) -> float:
+        """Publish `fault`; the time it was published."""
+        assert self._session is not None
+        pub = self._faults.get(fault.vid)
+        if pub is None:
+            pub = self._faults[fault.vid] = Publisher(self._session, self.keys.sim_fault(fault.vid), SimFault)
+        pub.put(fault)
+        return time.time()
+
+    def mode(self, vid: str) -> str:
+        return self.states[vid][-1].mode if self.states[vid] else ""
+
+    def kinds(self, vid: str, since: float = 0.0) -> list[str]:
+        return [e.kind for t, e in self.events if e.vid == vid and t >= since]
+
+    def first(self, vid: str, kind: str, since: float = 0.0) -> float | None:
+        """Arrival time of the first `kind` event of `vid` from `since` on."""
+        return next((t for t, e in self.events if e.vid == vid and e.kind == kind and t >= since), None)
+
+    def truth_between(self, vid: str, t0: float, t1: float = math.inf) -> list[SimTruth]:
+        return [s for s in self.truth[vid] if t0 <= s.t <= t1]
+
+    def hardest_touchdown(self, vid: str) -> float:
+        """The simulator's fastest touchdown of `vid` (m/s; above about 1 m/s it fell)."""
+        return self.stats["sim"].figures[f"touchdown_mps:{vid}"]
+
+    def at_rest_on_ground(self, vid: str) -> bool:
+        s = self.truth[vid][-1]
+        return not s.airborne and not s.motors and s.z < 0.01
+
+
+Scenario = Callable[[Watch, MissionRunner], Awaitable[None]]
+
+SETTLE_S = 3.0
+"""s after a mission's end for its vehicles to come to rest: a landing's last stop can be lost on
+the radio, and the gateway repeats it when the next status reply still shows the motors running."""
+
+
+async def settle(watch: Watch, vids: Iterable[str], timeout: float) -> None:
+    """Wait until every one of `vids` is at rest on the ground or `timeout` passed (the tests'
+    assertions then say which is not)."""
+    with contextlib.suppress(AssertionError):
+        await until(lambda: all(watch.truth[v] and watch.at_rest_on_ground(v) for v in vids), timeout, "rest")
+
+
+def fly(fleet: LocalFleet, spec: MissionSpec, scenario: Scenario) -> tuple[MissionResult, Watch]:
+    """Run the mission of `spec` on `fleet` while `scenario(watch, runner)` injects and checks;
+    return the mission's result and everything watched."""
+    watch = Watch(fleet.keys)
+    runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
+
+    async def main() -> None:
+        watch.open(fleet.client_config())
+        try:
+            mission = asyncio.create_task(runner.run())
+            await scenario(watch, runner)
+            assert await mission == 0
+            ended = time.time()  # the simulator's figures from after the end
+            await settle(watch, runner.spec.tasks, SETTLE_S)
+            await until(lambda: "sim" in watch.stats and watch.stats["sim"].t > ended, 5.0, "the sim's stats")
+        finally:
+            watch.close()
+
+    asyncio.run(main())
+    assert runner.result is not None, "the mission did not run"
+    print(runner.result.summary())
+    return runner.result, watch
+
+
+def airborne(watch: Watch, vid: str, z: float = 0.3) -> Callable[[], bool]:
+    return lambda: bool(watch.truth[vid]) and watch.truth[vid][-1].z > z
