@@ -21,7 +21,7 @@ import time
 from dataclasses import dataclass
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
-from services.planner.maps.loading import Problem, load_graph
+from services.planner.maps.loading import GraphProblem, load_graph
 from services.planner.maps.scenario import random_tasks
 from services.planner.registry import run_planner
 from services.planner.validate import validate_plan
@@ -39,7 +39,7 @@ class Run:
     gap: float | None
 
 
-def run(problem: Problem, planner: str, mu: float, time_limit: float, seed: int) -> Run:
+def run(problem: GraphProblem, planner: str, mu: float, time_limit: float, seed: int) -> Run:
     plan, result = run_planner(problem, planner, mu, time_limit, seed)
     if plan is None:
         return Run(False, False, result.planning_time_s, float("nan"), None)
@@ -56,7 +56,7 @@ def main() -> None:
     args = parser.parse_args()
 
     graph = load_graph("grid125", uniform=True)
-    warm = Problem(graph, "grid125", random_tasks(graph, 2, 0))
+    warm = GraphProblem(graph, "grid125", random_tasks(graph, 2, 0))
     t0 = time.perf_counter()
     for planner in PLANNERS:
         run_planner(warm, planner, args.mu, args.time_limit, 0)
@@ -67,7 +67,7 @@ def main() -> None:
     cheaper_sipp: dict[int, int] = {}
     for n in args.sizes:
         for seed in range(args.trials):
-            problem = Problem(graph, "grid125", random_tasks(graph, n, seed))
+            problem = GraphProblem(graph, "grid125", random_tasks(graph, n, seed))
             pair = {p: run(problem, p, args.mu, args.time_limit, seed) for p in PLANNERS}
             for p, r in pair.items():
                 runs.setdefault((n, p), []).append(r)

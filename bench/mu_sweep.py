@@ -16,7 +16,7 @@ import numpy as np
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
 from common.domain.mapfile import MAPS_DIR
-from services.planner.maps.loading import Problem, load_graph
+from services.planner.maps.loading import GraphProblem, load_graph
 from services.planner.maps.scenario import load_scenario
 from services.planner.registry import run_planner
 from services.planner.validate import validate_plan
@@ -34,7 +34,7 @@ def main() -> None:
     problems = {}
     for uniform in {u for _, u in variants}:
         graph = load_graph("town", uniform=uniform)
-        problems[uniform] = Problem(graph, "town", load_scenario(args.scenario, graph))
+        problems[uniform] = GraphProblem(graph, "town", load_scenario(args.scenario, graph))
     mus = [round(m, 1) for m in np.linspace(0.0, 1.0, 11)]
     results: dict[str, list[tuple[float, float] | None]] = {}
     rows = []

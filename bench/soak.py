@@ -23,21 +23,16 @@ import os
 import random
 import time
 from collections import defaultdict
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
-from common.bus.keys import Keys
 from common.bus.messages import ServiceStats
 from common.bus.pubsub import subscribe
-from common.bus.session import InProcessRouter, open_session
-from common.deploy.credentials import make_credentials
-from common.deploy.launcher import start, stop
-from common.deploy.radios import dump_radios
+from common.bus.session import open_session
+from common.deploy.local import LocalFleet
 from common.domain.planfile import Task
-from services.mission.demo import LocalFleet, demo_radios, fleet_processes, wait_for_services
+from services.mission.demo import local_fleet
 from services.mission.runner import MissionResult, MissionRunner, MissionSpec
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.maps.loading import load_graph
@@ -62,33 +57,11 @@ def draw_tasks(graph: FleetGraph, starts: dict[str, str], rng: random.Random) ->
             return {vid: Task(start=s, goal=g) for (vid, s), g in zip(starts.items(), goals, strict=True)}
 
 
-@contextmanager
-def soak_fleet(graph: FleetGraph, tasks: dict[str, Task], run_dir: Path, executors: int, per_radio: int,
-               truth_hz: float, fleet: str = "soak") -> Iterator[LocalFleet]:
-    """The demo's processes (services.mission.demo), minus the recorder, tuned for a large fleet."""
-    run_dir.mkdir(parents=True, exist_ok=True)
-    radios = demo_radios(graph, tasks, per_radio)
-    radios_path = run_dir / "radios.yaml"
-    radios_path.write_text(dump_radios(radios))
-    keys = Keys(fleet)
-    creds = make_credentials(run_dir / "secrets")
-    procs = [p for p in fleet_processes(radios_path, radios, executors, run_dir / "recordings")
-             if p.service != "telemetry"]
-    for p in procs:
-        p.argv += {"gateway": ["--subscribe-each"], "sim": ["--truth-hz", str(truth_hz)]}.get(p.service, [])
-    with InProcessRouter(**creds.router_options()) as router:
-        for p in procs:
-            p.env.update({"FLEET_ZENOH_CONNECT": router.endpoint, "FLEET_NAME": keys.fleet, **creds.env(p.service)})
-        start(procs, run_dir, settle_s=0.1)
-        try:
-            local = LocalFleet(router, keys, run_dir, radios, creds)
-            counts = {"planner": 1, "executor": executors, "gateway": len(radios.radios), "sim": 1, "mocap": 1}
-            missing = asyncio.run(wait_for_services(local.client_config(), keys, counts, 120.0))
-            if missing:
-                raise RuntimeError(f"services not up within 120 s: {', '.join(missing)} (see {run_dir / 'logs'})")
-            yield local
-        finally:
-            stop(run_dir, grace_s=5.0)
+def soak_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int, per_radio: int,
+               truth_hz: float, fleet: str = "soak"):
+    """The demo's fleet (services.mission.demo), minus the recorder, tuned for a large fleet."""
+    return local_fleet(map_name, tasks, run_dir, executors, per_radio, fleet=fleet,
+                       extra_args={"sim": ["--truth-hz", str(truth_hz)]}, without={"telemetry"})
 
 
 def proc_sample(pid: int) -> tuple[float, float] | None:
@@ -262,7 +235,7 @@ def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: 
     spots = sorted(graph.endpoints())
     starts = {f"cf{i + 1:02d}": s for i, s in enumerate(rng.sample(spots, vehicles))}
     tasks = draw_tasks(graph, starts, rng)
-    with soak_fleet(graph, tasks, run_dir, executors, per_radio, truth_hz) as fleet:
+    with soak_fleet(MAP, tasks, run_dir, executors, per_radio, truth_hz) as fleet:
         log = asyncio.run(soak(fleet, graph, tasks, 60.0 * minutes, sample_s, seed))
     print(report(log, 60.0 * minutes))
     print(f"saved {figure(log, out)}")

@@ -23,6 +23,7 @@ _COMMAND_MODULES = (
     "services.mission.cli",
     "services.executor.cli",
     "services.radio_gateway.cli",
+    "services.sim.cli",
     "services.mocap_bridge.cli",
     "services.telemetry.cli",
     "common.deploy.router",

@@ -1,4 +1,5 @@
-"""`fleet collab ...` (services/planner/collab/cli.py): plan, simulate, and bad input as InputError."""
+"""The paper-002 commands: `fleet collab plan` (planner), `fleet sim replay` and `fleet sim team`
+(simulator), `fleet mission team` (mission client); bad input as InputError naming the field."""
 
 from __future__ import annotations
 
@@ -8,27 +9,25 @@ import pytest
 
 from common.domain.team_plan import read_plan
 from common.errors import InputError
-from services.planner.collab.cli import register
+from services.cli import build_parser
 
 
 def run(*argv: str) -> int:
-    parser = argparse.ArgumentParser(prog="fleet")
-    register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
+    args: argparse.Namespace = build_parser().parse_args(argv)
     return args.handler(args)
 
 
 ROOM = ("--map", "demo-room", "--start", "1.25,1.25,1.0", "--ugv", "0.75,1.25,0", "--goal", "5.75,3.75,2.0")
 
 
-def test_plan_prints_writes_and_simulates_a_team_plan(tmp_path, capsys):
+def test_plan_prints_and_writes_a_team_plan_the_simulated_world_replays(tmp_path, capsys):
     out = tmp_path / "plan.json"
-    assert run("collab", "plan", *ROOM, "--out", str(out), "--simulate", "--time-limit", "20") == 0
+    assert run("collab", "plan", *ROOM, "--out", str(out), "--time-limit", "20") == 0
     text = capsys.readouterr().out
-    assert "GOTOLANDMARK_DYN" in text and "[after ugv" in text and "drone reached the goal" in text
+    assert "GOTOLANDMARK_DYN" in text and "[after ugv" in text
     plan = read_plan(out)
     assert plan.map == "demo-room" and plan.planner == "pad"
-    assert run("collab", "simulate", str(out)) == 0
+    assert run("sim", "replay", str(out)) == 0
     assert "drone reached the goal" in capsys.readouterr().out
 
 
@@ -44,12 +43,12 @@ def test_plan_with_a_seeded_problem_as_json(capsys):
         (("collab", "plan", "--map", "demo-room", "--start", "1,1,1"), "--start/--ugv/--goal"),
         (("collab", "plan", *ROOM[:-1], "0,0,1"), "goal"),  # inside the outer wall
         (("collab", "plan", *ROOM[:4], "--ugv", "1.25,1.25,zero", *ROOM[6:]), "--ugv"),
-        (("collab", "simulate", "/nonexistent/plan.json"), ""),
-        (("collab", "bench", "--instances", "0"), "--instances"),
-        (("collab", "sim", "--ugv", "0.25,0.25,0"), "ugv_start"),  # the UGV inside the outer wall
-        (("collab", "sim", "--time-scale", "0"), "--time-scale"),
-        (("collab", "mission", "--goal", "5.75,3.75"), "--goal"),
-        (("collab", "mission", "--local", "--executors", "0"), "--executors"),
+        (("sim", "replay", "/nonexistent/plan.json"), ""),
+        (("sim", "team", "--ugv", "0.25,0.25,0"), "ugv_start"),  # the UGV inside the outer wall
+        (("sim", "team", "--time-scale", "0"), "--time-scale"),
+        (("sim",), "--config"),
+        (("mission", "team", "--goal", "5.75,3.75"), "--goal"),
+        (("mission", "team", "--local", "--executors", "0"), "--executors"),
     ],
 )
 def test_bad_input_raises_input_error(argv, field):

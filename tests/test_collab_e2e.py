@@ -25,7 +25,7 @@ from services.executor.service import ExecutorService
 from services.executor.team import RESEND_S, TeamRobot
 from services.mission.team import TeamMission, TeamMissionSpec
 from services.planner.service import PlannerService
-from services.sim.team.service import CollabSimService
+from services.sim.team.service import TeamSimService
 from services.sim.team.world import TeamWorld
 
 KEYS = Keys("collab-test")
@@ -71,7 +71,7 @@ async def run_team(endpoint: str, executors: tuple[str, ...], time_scale: float,
     world = TeamWorld(Sensing(load_env("demo-room"), TeamModel()), TEAM.drone_start, TEAM.ugv_start)
     execs = {name: ExecutorService(name, zc, KEYS, rate_hz=20.0) for name in executors}
     services = [PlannerService("planner", "p1", zc, KEYS), *execs.values(),
-                CollabSimService("sim", zc, KEYS, world, {"drone": DRONE, "ugv": UGV}, time_scale=time_scale)]
+                TeamSimService("sim", zc, KEYS, world, {"drone": DRONE, "ugv": UGV}, time_scale=time_scale)]
     tasks = [asyncio.create_task(s.run()) for s in services]
     client = open_session(zc)
     observer = Observer(client)

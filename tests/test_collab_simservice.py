@@ -16,7 +16,7 @@ from common.domain import team_plan as tp
 from common.team.maps import load_env
 from common.team.sensing import Sensing
 from common.team.team_model import TeamModel
-from services.sim.team.service import CollabSimService
+from services.sim.team.service import TeamSimService
 from services.sim.team.world import TeamWorld
 
 KEYS = Keys("collab-sim-test")
@@ -30,7 +30,7 @@ def test_actions_run_once_with_sensing_and_repeats_get_their_status(zenoh_router
     async def body():
         zc = ZenohConfig.client(zenoh_router)
         world = TeamWorld(Sensing(load_env("demo-room"), TeamModel()), (1.25, 1.25, 1.0), (5.75, 1.25, 0.0))
-        sim = CollabSimService("sim", zc, KEYS, world, {"drone": "d1", "ugv": "u1"}, time_scale=10.0)
+        sim = TeamSimService("sim", zc, KEYS, world, {"drone": "d1", "ugv": "u1"}, time_scale=10.0)
         task = asyncio.create_task(sim.run())
         client = open_session(zc)
         got: list[ActionStatus] = []

@@ -13,14 +13,15 @@ from common.domain import team_plan as tp
 from common.errors import InputError
 from common.team.env import Env
 from common.team.maps import load_env
+from common.team.problem import TeamProblem
 from common.team.sensing import Sensing
 from common.team.team_model import TeamModel
-from services.planner.collab.planner import Problem, TeamPlanner
+from services.planner.collab.planner import TeamPlanner
 from services.sim.team.world import TeamSim
 
 # demo-room: the drone starts next to the UGV in the room's corner; the goal is over the middle of
 # the room, out of IR range of every wall and far from the landmark: only the UGV can guide it there.
-PROBLEM = Problem(drone_start=(0, 2, 2), ugv_start=(2, 1, 0), goal=(1, 7, 11))
+PROBLEM = TeamProblem(drone_start=(0, 2, 2), ugv_start=(2, 1, 0), goal=(1, 7, 11))
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,6 @@ from common.domain.vehicle_model import VehicleModel
 from services.executor.faults import landing_nodes
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from services.planner.maps.loading import load_graph
 from tests.support.fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
 
 MODEL = VehicleModel()
@@ -34,7 +33,7 @@ def test_low_battery_mid_flight_lands_at_the_nearest_safe_node_and_aborts_the_mi
         await until(airborne(watch, "cf1"), 5, "cf1 at cruise height")
         marks["drained"] = watch.inject(SimFault(vid="cf1", kind="battery", charge_used_ah=NEARLY_EMPTY_AH))
 
-    with local_fleet(load_graph("town"), TOWN_TASKS, tmp_path / "run", executors=2, fleet="batteryfault") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="batteryfault") as fleet:
         result, watch = fly(fleet, spec, scenario)
 
     drained = marks["drained"]

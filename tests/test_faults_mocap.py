@@ -19,7 +19,6 @@ from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from services.mocap_bridge.bridge import MocapBridge
 from services.mocap_bridge.config import MocapConfig, SimNoise
-from services.planner.maps.loading import load_graph
 from tests.support.fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
 
 SHORT, LONG = 0.3, 2.0
@@ -38,7 +37,7 @@ def test_a_short_dropout_is_flown_through_and_a_long_one_lands_the_vehicle(tmp_p
         assert watch.mode("cf2") == "flying", "cf2 must still be flying for the long dropout"
         marks["long"] = watch.inject(SimFault(vid="cf2", kind="mocap_dropout", duration_s=LONG))
 
-    with local_fleet(load_graph("town"), TOWN_TASKS, tmp_path / "run", executors=2, fleet="mocapfault") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="mocapfault") as fleet:
         result, watch = fly(fleet, spec, scenario)
 
     short, long = marks["short"], marks["long"]

@@ -28,7 +28,6 @@ from services.executor.faults import safe_landing_steps
 from services.executor.trajectory import Trajectory
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from services.planner.maps.loading import load_graph
 from services.radio_gateway.gateway import RadioGateway
 from services.sim.crazyflie.service import SimService
 from tests.support.fleet_faults import TOWN_TASKS, Watch, fly, until
@@ -83,7 +82,7 @@ def test_a_link_lost_mid_flight_lands_the_vehicle_and_aborts_the_mission(tmp_pat
         await asyncio.sleep(1.0)  # cruising: the setpoint the firmware keeps is about the hover's
         marks["cut"] = watch.inject(SimFault(vid="cf1", kind="radio_blackout", duration_s=1.5))
 
-    with local_fleet(load_graph("town"), TOWN_TASKS, tmp_path / "run", executors=2, fleet="radiofault") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="radiofault") as fleet:
         result, watch = fly(fleet, spec, scenario)
 
     cut = marks["cut"]

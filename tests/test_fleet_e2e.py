@@ -15,7 +15,6 @@ import pytest
 from common.deploy.radios import LinkModel
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from services.planner.maps.loading import load_graph
 from tests.support.fleet_faults import TOWN_TASKS
 from tests.support.service_logs import service_warnings
 
@@ -27,10 +26,9 @@ def _pid_of(run_dir, instance: str) -> int:
 
 @pytest.mark.timeout(240)
 def test_executor_killed_mid_flight_its_vehicles_still_arrive(tmp_path) -> None:
-    graph = load_graph("town")
     spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
     killed: dict[str, object] = {}
-    with local_fleet(graph, TOWN_TASKS, tmp_path / "run", executors=2, fleet="e2e") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="e2e") as fleet:
         runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
 
         async def kill_when_flying() -> None:
@@ -69,10 +67,9 @@ def test_executor_killed_mid_flight_its_vehicles_still_arrive(tmp_path) -> None:
 def test_ten_percent_packet_loss_keeps_tracking_within_bounds(tmp_path) -> None:
     """Issue 5: with 10 % of radio packets lost, tracking stays within issue 4's bounds (RMS 3 cm on
     the ground, 5 cm in the air), measured by the executors against their references."""
-    graph = load_graph("town")
     tasks = {k: TOWN_TASKS[k] for k in ("cf1", "cf3")}  # a flyer and a driver
     spec = MissionSpec(map="town", tasks=tasks, planner="sipp", time_limit=20)
-    with local_fleet(graph, tasks, tmp_path / "run", executors=1, fleet="lossy",
+    with local_fleet("town", tasks, tmp_path / "run", executors=1, fleet="lossy",
                      link=LinkModel(loss=0.10, seed=3)) as fleet:
         runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
         asyncio.run(runner.run())

@@ -12,7 +12,7 @@ import pytest
 
 from common.bus.session import free_tcp_endpoint
 from common.deploy.compose import interpolate
-from services.mission.demo import free_udp_port
+from common.deploy.radios import free_udp_ports
 from tests.support.service_logs import service_warnings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -25,7 +25,7 @@ def test_fleet_up_mission_down(tmp_path) -> None:
     run_dir = tmp_path / "run"
     radios = (REPO / "deploy" / "radios-town.yaml").read_text()
     for k in range(8):  # the shipped file's fixed UDP ports may be taken on a shared machine
-        radios = radios.replace(f":{19850 + k}\n", f":{free_udp_port()}\n")
+        radios = radios.replace(f":{19850 + k}\n", f":{free_udp_ports(1)[0]}\n")
     (tmp_path / "radios.yaml").write_text(interpolate(radios, {"SIM_HOST": "127.0.0.1"}))
     sets = ["--set", f"FLEET_ROUTER_PORT={port}", "--set", "FLEET_NAME=uptest",
             "--set", f"FLEET_RECORDINGS={tmp_path / 'recordings'}", "--set", f"FLEET_RADIOS={tmp_path / 'radios.yaml'}"]

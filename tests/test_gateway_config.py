@@ -16,7 +16,7 @@ from common.deploy.radios import (
     simulated_radios,
 )
 from common.errors import InputError
-from services.radio_gateway import cli
+from services.cli import build_parser
 
 GOOD = """
 radios:
@@ -77,9 +77,7 @@ def test_bad_files_name_the_field_and_the_problem(tmp_path: Path, text: str, fie
 
 
 def _command(*argv: str) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="fleet")
-    cli.register(parser.add_subparsers(dest="command", required=True))
-    return parser.parse_args(list(argv))
+    return build_parser().parse_args(list(argv))
 
 
 def test_commands_refuse_bad_input_before_starting(tmp_path: Path) -> None:

@@ -19,7 +19,7 @@ from services.planner.ilp.arcs import arc_table
 from services.planner.ilp.network import Fleet, carry_over, vehicle_columns
 from services.planner.ilp.planner import decode, plan_ilp
 from services.planner.ilp.solve import HorizonResult, solve_horizon
-from services.planner.maps.loading import Problem, load_graph
+from services.planner.maps.loading import GraphProblem, load_graph
 from services.planner.maps.scenario import load_scenario, random_tasks
 from services.planner.registry import run_planner
 from services.planner.result import PlanResult, to_plan
@@ -31,7 +31,7 @@ HAVE_SIPP = importlib.util.find_spec("services.planner.sipp.planner") is not Non
 def plan_valid(graph: FleetGraph, tasks: dict[str, Task], mu: float = 0.5, time_limit: float = 30.0) -> PlanResult:
     """Plan with the ILP through the planner registry and require the validator's approval; every
     entry is one time step after the previous one (moves and waits alike)."""
-    plan, result = run_planner(Problem(graph, graph.name, tasks), "ilp", mu, time_limit, 0)
+    plan, result = run_planner(GraphProblem(graph, graph.name, tasks), "ilp", mu, time_limit, 0)
     assert plan is not None, result.error
     report = validate_plan(plan)
     assert report.ok, report.summary()
@@ -190,7 +190,7 @@ def test_ilp_costs_no_more_than_sipp_on_grid125() -> None:
     graph = load_graph("grid125", uniform=True)
     compared = 0
     for seed in range(8):
-        problem = Problem(graph, "grid125", random_tasks(graph, 6, seed))
+        problem = GraphProblem(graph, "grid125", random_tasks(graph, 6, seed))
         costs, results = {}, {}
         for planner in ("ilp", "sipp"):
             plan, results[planner] = run_planner(problem, planner, 0.5, 30.0, 0)

@@ -27,14 +27,16 @@ import pytest
 
 from common.bus.keys import Keys
 from common.bus.session import ZenohConfig
-from common.deploy.compose import Process
+from common.deploy.compose import Process, load_compose
 from common.deploy.credentials import Credentials, make_credentials
 from common.deploy.launcher import start, stop
+from common.deploy.local import COMPOSE_FILE
 from common.deploy.radios import dump_radios
 from common.domain.planfile import Task
-from services.mission.demo import demo_radios, fleet_processes, wait_for_services
+from services.mission.demo import demo_processes, demo_radios
 from services.mission.runner import MissionRunner, MissionSpec
 from services.planner.maps.loading import load_graph
+from tests.support.alive import wait_for_services
 from tests.support.service_logs import service_warnings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -172,16 +174,18 @@ def _in(ns: str, proc: Process) -> Process:
 
 def _processes(hosts: Hosts, creds: Credentials, run_dir: Path) -> tuple[Process, list[Process], dict[str, int]]:
     """The router, the other services, and how many of each service the driver waits for."""
-    graph = load_graph("town")
-    radios = demo_radios(graph, TASKS, per_radio=2)
+    radios = demo_radios("town", TASKS, per_radio=2)
     radios_path = run_dir / "radios.yaml"
     radios_path.write_text(dump_radios(radios))
+    overrides = {"ROUTER_HOST": hosts.router_endpoint.split("/")[1].split(":")[0], "FLEET_ROUTER_PORT": str(ROUTER_PORT),
+                 "FLEET_NAME": FLEET, "FLEET_SECRETS": str(creds.dir), "FLEET_RADIOS": str(radios_path),
+                 "FLEET_EXECUTORS": str(len(hosts.executors)), "FLEET_RECORDINGS": str(run_dir / "recordings")}
+    compose = [p for p in load_compose(COMPOSE_FILE, overrides) if p.service != "router"]
     router = Process("router", "router", [sys.executable, "-m", "services.cli", "router", "--config",
                                           creds.router_options()["config_file"], "--listen", hosts.router_endpoint,
                                           "--users", str(creds.users_file)])
     services = []
-    for p in fleet_processes(radios_path, radios, len(hosts.executors), run_dir / "recordings"):
-        p.env.update({"FLEET_ZENOH_CONNECT": hosts.router_endpoint, "FLEET_NAME": FLEET, **creds.env(p.service)})
+    for p in demo_processes(compose, radios_path, radios, {}, set()):
         if p.service == "executor":  # their INFO log has every mode change: a failure's story
             p = Process(p.service, p.instance, [*p.argv[:3], "-v", *p.argv[3:]], p.env)
         services.append(_in(hosts.executors.get(p.instance, hosts.router), p))

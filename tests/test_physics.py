@@ -8,11 +8,10 @@ import math
 import pytest
 
 from common.bus.messages import FlightSetpoint, StopSetpoint, WheelSetpoint
+from common.crazyflie.firmware import WATCHDOG_CUT_S, WATCHDOG_LEVEL_S
 from common.crazyflie.thrust import WheelBase, hover_command
 from common.domain.vehicle_model import G, VehicleModel
 from services.sim.crazyflie.physics import (
-    WATCHDOG_CUT_S,
-    WATCHDOG_LEVEL_S,
     PhysicsParams,
     SimFlyingCar,
     open_circuit_voltage,

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from common.bus.messages import PlanStep
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
-from services.executor.trajectory import Trajectory, TrajectoryParams, wrap_angle
+from common.flight.reference import wrap_angle
+from services.executor.trajectory import Trajectory, TrajectoryParams
 from tests.support.closed_loop import reference_steps
 
 MODEL = VehicleModel()

@@ -21,8 +21,8 @@ import asyncio
 import logging
 import signal
 import threading
-from collections.abc import Awaitable, Callable, Coroutine
-from typing import Any, TypeVar
+from collections.abc import Awaitable, Callable, Coroutine, Mapping
+from typing import Any, Generic, TypeVar
 
 import zenoh
 
@@ -114,6 +114,10 @@ class Service:
         self._closers.append(pub.close)
         return pub
 
+    def publishers(self, key_of: Callable[[str], str], typ: type[T], **options: Any) -> KeyedPublishers[T]:
+        """One publisher per vehicle (or other name), on key `key_of(name)`, declared on first use."""
+        return KeyedPublishers(self, key_of, typ, options)
+
     def subscribe(self, key: str, typ: type[T], handler: MessageHandler[T] | None = None,
                   maxlen: int = MAILBOX_SIZE) -> Subscription[T]:
         sub = subscribe(self.session, key, typ, handler, counters=self.counters, maxlen=maxlen)
@@ -186,6 +190,32 @@ class Service:
             self._session.close()
             self._session = None
         log.info("%s/%s stopped", self.name, self.instance)
+
+
+class KeyedPublishers(Generic[T]):
+    """A service's publishers of one message type, one per name (a vehicle id), each declared the
+    first time it is used and kept until the service stops."""
+
+    def __init__(self, service: Service, key_of: Callable[[str], str], typ: type[T], options: dict[str, Any]) -> None:
+        self._service = service
+        self._key_of = key_of
+        self._typ = typ
+        self._options = options
+        self._pubs: dict[str, Publisher[T]] = {}
+
+    def __getitem__(self, name: str) -> Publisher[T]:
+        pub = self._pubs.get(name)
+        if pub is None:
+            pub = self._pubs[name] = self._service.publisher(self._key_of(name), self._typ, **self._options)
+        return pub
+
+    def put(self, name: str, msg: T) -> None:
+        self[name].put(msg)
+
+    def put_all(self, msgs: Mapping[str, T]) -> None:
+        """Publish each message on its name's key."""
+        for name, msg in msgs.items():
+            self[name].put(msg)
 
 
 def _install_signal_handlers(loop: asyncio.AbstractEventLoop, stop: Callable[[], None]) -> tuple[int, ...]:

@@ -1,13 +1,11 @@
-"""From the plan file to each vehicle's `VehiclePlan` message (what an executor follows)."""
+"""From a plan to each vehicle's copy: the plan file to `VehiclePlan`s (paper 000), a team plan to
+the drone's and the UGV's `VehicleTeamPlan` (paper 002): what an executor follows."""
 
 from __future__ import annotations
 
-import zenoh
-
-from common.bus.messages import PlanStep, VehiclePlan
-from common.bus.pubsub import Publisher
-from common.bus.service import Service
+from common.bus.messages import PlanStep, TeamTask, VehiclePlan, VehicleTeamPlan
 from common.domain.planfile import Plan
+from common.domain.team_plan import TeamPlan
 
 
 def vehicle_plans(plan: Plan, mission: str, t0: float = 0.0) -> dict[str, VehiclePlan]:
@@ -26,18 +24,9 @@ def vehicle_plans(plan: Plan, mission: str, t0: float = 0.0) -> dict[str, Vehicl
     return out
 
 
-class PlanPublisher:
-    """Publishes VehiclePlans on `vehicle/<vid>/plan` for a service, one reused publisher per vehicle."""
-
-    def __init__(self, service: Service) -> None:
-        self._service = service
-        self._pubs: dict[str, Publisher[VehiclePlan]] = {}
-
-    def put(self, plans: dict[str, VehiclePlan]) -> None:
-        for vid, vplan in plans.items():
-            pub = self._pubs.get(vid)
-            if pub is None:
-                pub = self._pubs[vid] = self._service.publisher(
-                    self._service.keys.vehicle(vid, "plan"), VehiclePlan, congestion_control=zenoh.CongestionControl.BLOCK
-                )
-            pub.put(vplan)
+def robot_plans(plan: TeamPlan, team: TeamTask, mission: str, t0: float = 0.0) -> dict[str, VehicleTeamPlan]:
+    """The drone's and the UGV's copy of a team plan, each naming its partner."""
+    return {
+        team.drone: VehicleTeamPlan(vid=team.drone, mission=mission, robot="drone", partner=team.ugv, plan=plan, t0=t0),
+        team.ugv: VehicleTeamPlan(vid=team.ugv, mission=mission, robot="ugv", partner=team.drone, plan=plan, t0=t0),
+    }

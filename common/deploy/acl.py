@@ -75,8 +75,8 @@ ROLES: dict[str, Role] = {
     "sim": Role(publish=("sim/truth/*", "vehicle/*/event"), subscribe=("sim/fault/*",)),
     "mocap": Role(publish=("vehicle/*/pose", "vehicle/*/event"), subscribe=("sim/truth/*", "sim/fault/*")),
     "telemetry": Role(subscribe=("vehicle/*/plan", "vehicle/*/state", "vehicle/*/telemetry", "sim/truth/*")),
-    # the simulated ground-air team of paper 002 (`fleet collab sim`): runs the executors' actions
-    "collab-sim": Role(publish=("vehicle/*/action_status", "sim/truth/*"), subscribe=("vehicle/*/action",)),
+    # the simulated ground-air team of paper 002 (`fleet sim team`): runs the executors' actions
+    "team-sim": Role(publish=("vehicle/*/action_status", "sim/truth/*"), subscribe=("vehicle/*/action",)),
     # the operator: runs missions, watches everything, injects simulator faults; never commands a vehicle
     "mission": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan", "mission/*/start", "mission/*/abort",
                              "sim/fault/*"),

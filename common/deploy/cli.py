@@ -16,6 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--set", action="append", default=[], metavar="VAR=VALUE",
                    help="override a ${VAR} of the compose file (repeatable)")
     p.add_argument("--only", help="start only these services, comma-separated")
+    p.add_argument("--profile", action="append", default=[], help="activate a compose profile (repeatable)")
     p.add_argument("--wait", type=float, default=60.0, metavar="S",
                    help="seconds to wait for every service to serve (0: return once started)")
     p.set_defaults(handler=cmd_up)
@@ -39,7 +40,7 @@ def cmd_up(args: argparse.Namespace) -> int:
             raise InputError("--set", item, "expected VAR=VALUE")
         k, v = item.split("=", 1)
         overrides[k] = v
-    procs = load_compose(args.compose, overrides, args.run_dir)
+    procs = load_compose(args.compose, overrides, args.run_dir, args.profile)
     if args.only:
         wanted = set(args.only.split(","))
         procs = [p for p in procs if p.service in wanted]

@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import re
 import sys
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,6 +41,7 @@ class ComposeService(msgspec.Struct, frozen=True):
     environment: dict[str, str | int | float] | list[str] = {}
     deploy: Deploy = Deploy()
     depends_on: list[str] = []
+    profiles: list[str] = []
     x_fleet_local: list[str] | None = msgspec.field(default=None, name="x-fleet-local")
 
 
@@ -104,15 +106,19 @@ def local_env(overrides: dict[str, str] | None, run_dir: Path | None) -> dict[st
 
 
 def load_compose(path: str | Path, overrides: dict[str, str] | None = None,
-                 run_dir: Path | None = None) -> list[Process]:
-    """Parse compose.yaml into processes, in start order (`run_dir`: where `fleet up` keeps its state)."""
+                 run_dir: Path | None = None, profiles: Iterable[str] = ()) -> list[Process]:
+    """Parse compose.yaml into processes, in start order (`run_dir`: where `fleet up` keeps its state).
+    A service with `profiles` starts only when one of them is active, as in compose."""
     source = str(path)
     env = local_env(overrides, run_dir)
     text = interpolate(read_text(Path(path)), env)
     spec: ComposeFile = decode_yaml(text, ComposeFile, source)
     procs: list[Process] = []
+    active = set(profiles)
     for name in _order(spec.services, source):
         svc = spec.services[name]
+        if svc.profiles and not active & set(svc.profiles):
+            continue
         argv = svc.x_fleet_local if svc.x_fleet_local is not None else svc.command
         if argv is None:
             raise InputError(source, f"services.{name}", "needs `command` (or `x-fleet-local` for foreign images)")

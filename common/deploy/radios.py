@@ -184,6 +184,15 @@ def load_radios(path: str | Path) -> RadiosFile:
     return spec
 
 
+def load_radios_for(path: str | Path, radios: Sequence[str]) -> RadiosFile:
+    """`load_radios`, and an InputError (naming `--radio`) for each of `radios` the file lacks."""
+    spec = load_radios(path)
+    for name in radios:
+        if name not in spec.radios:
+            raise InputError(str(path), "--radio", f"no radio {name!r} (the file has {', '.join(spec.radios)})")
+    return spec
+
+
 def dump_radios(spec: RadiosFile) -> str:
     """YAML text of `spec` (what `load_radios` reads back)."""
     return yaml.safe_dump(msgspec.to_builtins(spec), sort_keys=False)
@@ -203,9 +212,11 @@ def free_udp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
 
 def simulated_radios(starts: Mapping[str, tuple[float, float, float]], per_radio: int,
                      link: LinkModel | None = None, gateway: GatewayParams | None = None,
-                     ports: Sequence[int] | None = None, host: str = "127.0.0.1") -> RadiosFile:
-    """Simulated vehicles (`vid -> start`), `per_radio` to a radio named r0, r1, ..., on UDP ports
-    `ports` (default: free ones), with the default link model and gateway parameters unless given."""
+                     ports: Sequence[int] | None = None, host: str = "127.0.0.1",
+                     yaws: Mapping[str, float] | None = None, prefix: str = "r") -> RadiosFile:
+    """Simulated vehicles (`vid -> start`, facing `yaws[vid]` or +x), `per_radio` to a radio named
+    <prefix>0, <prefix>1, ..., on UDP ports `ports` (default: free ones), with the default link model
+    and gateway parameters unless given."""
     if per_radio < 1:
         raise ValueError("per_radio must be at least 1")
     vids = list(starts)
@@ -214,7 +225,8 @@ def simulated_radios(starts: Mapping[str, tuple[float, float, float]], per_radio
         raise ValueError(f"{len(vids)} vehicles but {len(ports)} ports")
     groups: dict[str, dict[str, VehicleLink]] = {}
     for i, (vid, port) in enumerate(zip(vids, ports, strict=False)):
-        groups.setdefault(f"r{i // per_radio}", {})[vid] = VehicleLink(uri=f"udp://{host}:{port}", start=starts[vid])
+        groups.setdefault(f"{prefix}{i // per_radio}", {})[vid] = VehicleLink(
+            uri=f"udp://{host}:{port}", start=starts[vid], yaw=(yaws or {}).get(vid, 0.0))
     link = link or LinkModel()
     radios = {name: RadioSpec(vehicles=vehicles, link=link) for name, vehicles in groups.items()}
     spec = RadiosFile(radios=radios, gateway=gateway or GatewayParams())

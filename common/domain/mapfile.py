@@ -150,6 +150,19 @@ def load_map(name_or_path: str | Path) -> MapSpec:
     return spec
 
 
+def spot_pose(spec: MapSpec, spot: str, source: str = "") -> tuple[float, float, float, float]:
+    """Where a vehicle starting at `spot` stands: (x, y, z, yaw). A parked car faces the road node
+    its spot leads to (the graph's access edge, §V-A); on a helipad it faces +x."""
+    for p in spec.parking:
+        if p.id == spot:
+            road = spec.roads.nodes[p.road]
+            return p.x, p.y, 0.0, math.atan2(road.y - p.y, road.x - p.x)
+    for h in spec.helipads:
+        if h.id == spot:
+            return h.x, h.y, h.z, 0.0
+    raise InputError(source or spec.name, spot, f"not a parking spot or helipad of map {spec.name!r}")
+
+
 def _check_finite(value: object, field: str, source: str) -> None:
     if isinstance(value, float) and not math.isfinite(value):
         raise InputError(source, field, "must be a finite number")

@@ -170,3 +170,40 @@ class PlanProgress:
     @property
     def finished(self) -> bool:
         return all(self.next_step(r) is None for r in ROBOTS)
+
+
+def parse_vec3(text: str, what: str, source: str) -> Vec3:
+    """'x,y,z' (or 'x,y,heading_deg') -> three floats; an InputError naming the option otherwise."""
+    try:
+        x, y, z = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(source, what, f"expected three comma-separated numbers, got {text!r}") from None
+    return x, y, z
+
+
+def format_team_plan(plan: TeamPlan) -> str:
+    """A readable listing of a team plan: one line per step, sync points as 'after <robot> <n>'."""
+    lines = [f"team plan on {plan.map} ({plan.planner}): cost {plan.cost:.2f} (within {plan.epsilon:.2f} x optimal), "
+             f"{plan.planning_time_s:.2f} s, {plan.expansions} expansions",
+             f"drone start {plan.drone_start}, UGV start {plan.ugv_start}, goal {plan.goal}"]
+    for robot, steps in (("drone", plan.drone), ("ugv", plan.ugv)):
+        lines.append(f"{robot}:")
+        other = PlanProgress.other(robot)
+        for i, step in enumerate(steps):
+            fields = " ".join(f"{k}={_short(v)}" for k, v in _fields(step.action).items())
+            sync = f"  [after {other} {step.wait_for}]" if step.wait_for else ""
+            end = ", ".join(f"{v:.2f}" for v in step.end)
+            lines.append(f"  {i:3d} {action_name(step):18s} {fields} -> ({end}){sync}")
+    return "\n".join(lines)
+
+
+def _fields(struct: msgspec.Struct) -> dict:
+    return {f: getattr(struct, f) for f in struct.__struct_fields__}
+
+
+def _short(v: object) -> object:
+    if isinstance(v, float):
+        return f"{v:.2f}"
+    if isinstance(v, tuple):
+        return "(" + ", ".join(_short(x) for x in v) + ")"
+    return v

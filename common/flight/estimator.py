@@ -22,7 +22,7 @@ from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
 from common.bus.messages import Pose
-from services.executor.trajectory import wrap_angle
+from common.flight.reference import wrap_angle
 
 
 @dataclass(frozen=True, slots=True)

@@ -40,7 +40,7 @@ from common.crazyflie.thrust import (
 )
 from common.domain.vehicle_model import G
 from common.flight.estimator import Estimate
-from services.executor.trajectory import RefSample, wrap_angle
+from common.flight.reference import RefSample, wrap_angle
 
 N_STATES = 13
 N_INPUTS = 4

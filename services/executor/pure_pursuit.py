@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from common.bus.messages import WheelSetpoint
 from common.crazyflie.thrust import WheelBase
 from common.flight.estimator import Estimate
-from services.executor.trajectory import RefSample, wrap_angle
+from common.flight.reference import RefSample, wrap_angle
 
 
 @dataclass(frozen=True, slots=True)

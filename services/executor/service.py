@@ -1,8 +1,8 @@
 """The executor service (paper 000 §VI-C, Fig. 4: trajectory generator, state machine, driving and
 flying controllers): one asyncio process running one control loop over the vehicles it owns.
 
-Ownership is rendezvous hashing over the live executors (`common.domain.ownership`), seen through
-liveliness tokens: every executor computes the same assignment, so when one dies its vehicles pass
+Ownership is rendezvous hashing over the live executors, seen through liveliness tokens
+(`takeover.py`): every executor computes the same assignment, so when one dies its vehicles pass
 to the others as soon as its token disappears (under 1 s), and the gateways obey the new owner. A
 vehicle taken over mid-mission resumes from the last state its previous owner published.
 
@@ -41,11 +41,11 @@ from common.bus.messages import (
     VehiclePlan,
     VehicleState,
 )
-from common.bus.pubsub import Publisher, Subscription
+from common.bus.pubsub import Subscription
 from common.bus.service import Service
 from common.bus.stats import publish_stats
-from common.domain.ownership import owner_of
 from common.flight.modes import Mode
+from services.executor.takeover import VehicleOwnership
 from services.executor.team import TeamExecutor
 from services.executor.vehicle_controller import VehicleController
 
@@ -111,15 +111,12 @@ class ExecutorService(Service):
         self.plans: dict[str, VehiclePlan] = {}
         self.starts: dict[str, float] = {}
         self.aborts: dict[str, str] = {}
-        self.last_state: dict[str, VehicleState] = {}
+        self.ownership = VehicleOwnership(self.instance, lambda vid: vid in self.controllers, self._take,
+                                          lambda vid: self.controllers.pop(vid, None))
         self.last_pose: dict[str, Pose] = {}
         """The latest pose of every vehicle, owned or not: a take-over starts from it."""
         self.controllers: dict[str, VehicleController] = {}
-        self.live: frozenset[str] = frozenset()
         self.stats = LoopStats()
-        self._cmd: dict[str, Publisher[Cmd]] = {}
-        self._state: dict[str, Publisher[VehicleState]] = {}
-        self._event: dict[str, Publisher[VehicleEvent]] = {}
         self._last_mode: dict[str, str] = {}
         self._fresh_pose: dict[str, float] = {}  # vid -> capture time of a pose fused since its last cmd
         self._executors: AliveSet | None = None
@@ -136,6 +133,9 @@ class ExecutorService(Service):
         self.subscribe(k.all_vehicles("state"), VehicleState, self._on_state, maxlen=4096)
         self.subscribe(k.all_missions("start"), MissionStart, self._on_start)
         self.subscribe(k.all_missions("abort"), MissionAbort, self._on_abort)
+        self._cmd = self.publishers(lambda vid: k.vehicle(vid, "cmd"), Cmd)
+        self._state = self.publishers(lambda vid: k.vehicle(vid, "state"), VehicleState)
+        self._event = self.publishers(lambda vid: k.vehicle(vid, "event"), VehicleEvent)
         self.team.open()
         loop = asyncio.get_running_loop()
         self._executors = await self.watch_alive(
@@ -146,12 +146,6 @@ class ExecutorService(Service):
 
     def _figures(self) -> dict[str, float]:
         return {"vehicles": len(self.controllers), **self.stats.figures()}
-
-    def _publisher(self, table: dict, vid: str, topic: str, typ: type) -> Publisher:
-        pub = table.get(vid)
-        if pub is None:
-            pub = table[vid] = self.publisher(self.keys.vehicle(vid, topic), typ)
-        return pub
 
     # ---- ownership ------------------------------------------------------------------------------
     def _on_executors(self) -> None:
@@ -187,15 +181,8 @@ class ExecutorService(Service):
 
     def _reassign(self, live: frozenset[str]) -> None:
         """Take the vehicles that hash to us, release the others (rendezvous hashing)."""
-        self.live = live | {self.instance}
-        for vid in list(self.plans):
-            mine = owner_of(vid, self.live) == self.instance
-            if mine and vid not in self.controllers:
-                self._take(vid)
-            elif not mine and vid in self.controllers:
-                log.info("%s: vehicle %s passes to %s", self.instance, vid, owner_of(vid, self.live))
-                del self.controllers[vid]
-        self.team.reassign(self.live)
+        self.ownership.reassign(live, self.plans)
+        self.team.reassign(self.ownership.live)
 
     def _take(self, vid: str) -> None:
         plan = self.plans[vid]
@@ -206,8 +193,8 @@ class ExecutorService(Service):
         t0 = plan.t0 or self.starts.get(plan.mission)
         if t0:
             ctl.start(t0)
-        prev = self.last_state.get(vid)
-        if prev is not None and prev.mission == plan.mission and prev.owner != self.instance:
+        prev = self.ownership.resume_from(vid, plan.mission)
+        if prev is not None:
             ctl.take_over(prev, time.time(), self.last_pose.get(vid))
             log.warning("%s: took over %s from %s in mode %s", self.instance, vid, prev.owner, prev.mode)
         if plan.mission in self.aborts:
@@ -231,8 +218,7 @@ class ExecutorService(Service):
                     ctl.start(t0)
             return
         self.plans[plan.vid] = plan
-        if owner_of(plan.vid, self.live | {self.instance}) == self.instance:
-            self._take(plan.vid)
+        self.ownership.claim(plan.vid)
 
     def _on_start(self, start: MissionStart, _key: str) -> None:
         if self.starts.get(start.mission) == start.t0:
@@ -265,8 +251,7 @@ class ExecutorService(Service):
 
     def _on_state(self, state: VehicleState, _key: str) -> None:
         self.team.on_state(state)
-        if state.owner != self.instance:
-            self.last_state[state.vid] = state
+        self.ownership.on_state(state)
 
     # ---- the loop -------------------------------------------------------------------------------
     async def _control_loop(self, poses: Subscription[Pose]) -> None:
@@ -288,12 +273,12 @@ class ExecutorService(Service):
                 except Exception as exc:  # one vehicle's bug must not take the others down
                     self._give_up(vid, exc, now)
                     continue
-                self._publisher(self._cmd, vid, "cmd", Cmd).put(cmd)
+                self._cmd.put(vid, cmd)
                 captured = self._fresh_pose.pop(vid, None)
                 if captured is not None:
                     self.stats.add_latency(time.time() - captured)
                 if n % self.state_every == 0:
-                    self._publisher(self._state, vid, "state", VehicleState).put(state)
+                    self._state.put(vid, state)
                 self._report_mode(vid, ctl, state, now)
             n += 1
             end = time.monotonic()
@@ -312,7 +297,7 @@ class ExecutorService(Service):
         self.counters.inc(f"controller_failed:{vid}")
         self._failed.add((vid, mission))
         del self.controllers[vid]
-        self._publisher(self._event, vid, "event", VehicleEvent).put(
+        self._event.put(vid,
             VehicleEvent(vid=vid, t=now, kind="controller_failed", detail=f"{type(exc).__name__}: {exc}"))
 
     def _report_mode(self, vid: str, ctl: VehicleController, state: VehicleState, now: float) -> None:
@@ -333,7 +318,7 @@ class ExecutorService(Service):
             where = f"landing at {node}" if node else "landing here" if state.mode == Mode.LANDING else "stopped here"
             detail = f"from {prev}: {where}"
         if kind is not None:
-            self._publisher(self._event, vid, "event", VehicleEvent).put(
+            self._event.put(vid,
                 VehicleEvent(vid=vid, t=now, kind=kind, detail=detail, node=node))
 
 

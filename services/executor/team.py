@@ -18,7 +18,6 @@ import asyncio
 import logging
 import math
 import time
-from typing import Any
 
 from common.bus.messages import (
     ActionStatus,
@@ -29,10 +28,9 @@ from common.bus.messages import (
     VehicleState,
     VehicleTeamPlan,
 )
-from common.bus.pubsub import Publisher
 from common.bus.service import Service
-from common.domain.ownership import owner_of
 from common.domain.team_plan import PlanProgress, Vec3, action_name
+from services.executor.takeover import VehicleOwnership
 
 log = logging.getLogger(__name__)
 
@@ -155,19 +153,20 @@ class TeamExecutor:
         self.svc = service
         self.plans: dict[str, VehicleTeamPlan] = {}
         self.robots: dict[str, TeamRobot] = {}
-        self.live: frozenset[str] = frozenset({service.instance})
+        self.ownership = VehicleOwnership(service.instance, lambda vid: vid in self.robots, self._take,
+                                          lambda vid: self.robots.pop(vid, None))
         self.progress: dict[tuple[str, str], int] = {}
         """(mission, vid) -> steps done, from every team robot's state."""
-        self.others: dict[str, VehicleState] = {}
-        """The last state another executor published per vehicle (for take-over)."""
         self.starts: dict[str, float] = {}
         self.aborts: dict[str, str] = {}
-        self._pubs: dict[tuple[str, str], Publisher[Any]] = {}
         self._stated: dict[str, tuple[float, str, int]] = {}
         """vid -> (time, mode, steps done) of its last published state."""
 
     def open(self) -> None:
         k = self.svc.keys
+        self._actions = self.svc.publishers(lambda vid: k.vehicle(vid, "action"), TeamAction)
+        self._states = self.svc.publishers(lambda vid: k.vehicle(vid, "state"), VehicleState)
+        self._events = self.svc.publishers(lambda vid: k.vehicle(vid, "event"), VehicleEvent)
         self.svc.subscribe(k.all_vehicles("team_plan"), VehicleTeamPlan, self._on_plan)
         self.svc.subscribe(k.all_vehicles("action_status"), ActionStatus, self._on_status)
         self.svc.spawn(self._timer(), name="team timer")
@@ -175,18 +174,10 @@ class TeamExecutor:
     # ---- hooks of the executor service --------------------------------------------------------
     def reassign(self, live: frozenset[str]) -> None:
         """Take the team robots that hash to this executor, release the others."""
-        self.live = live
-        for vid in self.plans:
-            mine = owner_of(vid, live) == self.svc.instance
-            if mine and vid not in self.robots:
-                self._take(vid)
-            elif not mine and vid in self.robots:
-                log.info("%s: team robot %s passes to %s", self.svc.instance, vid, owner_of(vid, live))
-                del self.robots[vid]
+        self.ownership.reassign(live, self.plans)
 
     def on_state(self, state: VehicleState) -> None:
-        if state.owner != self.svc.instance:
-            self.others[state.vid] = state
+        self.ownership.on_state(state)
         if state.mission and state.vid in self.plans:
             self._progressed(state.mission, state.vid, state.step)
 
@@ -215,8 +206,7 @@ class TeamExecutor:
         if robot is not None and robot.mode == "acting":
             return  # a new mission waits until the robot has finished its action (the mission re-sends)
         self.plans[assigned.vid] = assigned
-        if owner_of(assigned.vid, self.live) == self.svc.instance:
-            self._take(assigned.vid)
+        self.ownership.claim(assigned.vid)
 
     def _on_status(self, status: ActionStatus, _key: str) -> None:
         robot = self.robots.get(status.vid)
@@ -224,17 +214,15 @@ class TeamExecutor:
             return
         if robot.failure:
             log.warning("%s: team robot %s failed: %s", self.svc.instance, status.vid, robot.failure)
-            self._pub(status.vid, "event", VehicleEvent).put(
-                VehicleEvent(vid=status.vid, t=time.time(), kind="action_failed", detail=robot.failure))
+            self._events.put(status.vid, VehicleEvent(vid=status.vid, t=time.time(), kind="action_failed", detail=robot.failure))
         self._advance(status.vid)
 
     # ---- running --------------------------------------------------------------------------------
     def _take(self, vid: str) -> None:
         assigned = self.plans[vid]
-        prev = self.others.get(vid)
-        resume = prev if prev is not None and prev.mission == assigned.mission else None
+        resume = self.ownership.resume_from(vid, assigned.mission)
         if resume is not None:
-            log.warning("%s: took over team robot %s from %s at step %d", self.svc.instance, vid, prev.owner, prev.step)
+            log.warning("%s: took over team robot %s from %s at step %d", self.svc.instance, vid, resume.owner, resume.step)
         robot = self.robots[vid] = TeamRobot(assigned, self.svc.instance, resume)
         robot.partner_progress(self.progress.get((assigned.mission, assigned.partner), 0))
         t0 = assigned.t0 or self.starts.get(assigned.mission)
@@ -263,11 +251,11 @@ class TeamExecutor:
         now = time.time()
         action = robot.action(now)
         if action is not None:
-            self._pub(vid, "action", TeamAction).put(action)
+            self._actions.put(vid, action)
         last = self._stated.get(vid)
         if last is None or last[1:] != (robot.mode, robot.done) or now - last[0] >= HEARTBEAT_S:
             self._stated[vid] = (now, robot.mode, robot.done)
-            self._pub(vid, "state", VehicleState).put(robot.state(now))
+            self._states.put(vid, robot.state(now))
             self._progressed(robot.assignment.mission, vid, robot.done)
 
     async def _timer(self) -> None:
@@ -275,9 +263,3 @@ class TeamExecutor:
             for vid in list(self.robots):
                 self._advance(vid)
             await asyncio.sleep(TICK_S)
-
-    def _pub(self, vid: str, topic: Any, typ: type) -> Publisher[Any]:
-        pub = self._pubs.get((vid, topic))
-        if pub is None:
-            pub = self._pubs[(vid, topic)] = self.svc.publisher(self.svc.keys.vehicle(vid, topic), typ)
-        return pub

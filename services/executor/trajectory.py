@@ -22,33 +22,9 @@ from dataclasses import dataclass
 
 from common.bus.messages import PlanStep
 from common.flight.modes import AIRBORNE, Mode, segment_mode
+from common.flight.reference import RefSample, wrap_angle
 
 _EPS = 1e-9
-
-
-def wrap_angle(a: float) -> float:
-    """Angle in (-pi, pi]."""
-    return a - 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
-
-
-@dataclass(frozen=True, slots=True)
-class RefSample:
-    """The reference at time `t` (s since mission start): position, velocity, acceleration (m, m/s,
-    m/s^2, world frame), yaw (rad, CCW from +x) and yaw rate, and the planned mode."""
-
-    t: float
-    x: float
-    y: float
-    z: float
-    vx: float
-    vy: float
-    vz: float
-    ax: float
-    ay: float
-    az: float
-    yaw: float
-    yaw_rate: float
-    mode: Mode
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,15 +1,19 @@
-"""`fleet mission run SCENARIO`: plan, hand out, start together, watch, summarise; `fleet demo`
-(`services/mission/demo.py`)."""
+"""`fleet mission run SCENARIO` (flying cars, paper 000) and `fleet mission team` (a ground-air team,
+paper 002): plan, hand out, start together, watch, summarise; `fleet demo` (`services/mission/demo.py`)."""
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import sys
 from pathlib import Path
 
 from common.bus.args import add_zenoh_args, keys_from_args, lazy_handler, zconfig_from_args
-from common.domain.mapfile import decode_yaml, read_text
+from common.domain.team_plan import parse_vec3
 from common.errors import InputError
+
+# The demo room's problem (maps/collab/demo-room.yaml): the drone needs the UGV to reach the goal.
+ROOM_MAP, ROOM_START, ROOM_UGV, ROOM_GOAL = "demo-room", "1.25,1.25,1", "0.75,1.25,0", "5.75,3.75,2"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,7 +29,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--keep-going", action="store_true", help="do not abort the mission on a vehicle fault")
     add_zenoh_args(p, default_instance="mission")
     p.set_defaults(handler=cmd_mission_run)
+    _register_team(msub)
     _register_demo(sub)
+
+
+def _register_team(msub: argparse._SubParsersAction) -> None:
+    p = msub.add_parser("team", help="plan a ground-air team mission (paper 002), run it through the executors")
+    p.add_argument("--map", default=ROOM_MAP)
+    p.add_argument("--start", default=ROOM_START, help="drone start x,y,z in metres")
+    p.add_argument("--ugv", default=ROOM_UGV, help="UGV start x,y,heading_deg")
+    p.add_argument("--goal", default=ROOM_GOAL, help="drone goal x,y,z")
+    p.add_argument("--drone-id", default="drone1", help="the drone's vehicle id")
+    p.add_argument("--ugv-id", default="ugv1", help="the UGV's vehicle id")
+    p.add_argument("--planner", choices=["pad", "arastar"], default="pad")
+    p.add_argument("--time-limit", type=float, default=30.0, help="seconds to the first solution")
+    p.add_argument("--improve", type=float, default=1.0, help="seconds to improve after it")
+    p.add_argument("--id", help="mission id (default: random)")
+    p.add_argument("--local", action="store_true",
+                   help="bring up the planner, executors and the simulated team here first (compose.yaml, profile team)")
+    p.add_argument("--executors", type=int, default=2, help="with --local: how many executors")
+    p.add_argument("--time-scale", type=float, default=10.0, help="with --local: simulated seconds per real second")
+    p.add_argument("--run-dir", default="out/team-mission", help="with --local: process state and logs")
+    add_zenoh_args(p, default_instance="mission")
+    p.set_defaults(handler=cmd_mission_team)
 
 
 def _register_demo(sub: argparse._SubParsersAction) -> None:
@@ -43,10 +69,10 @@ def _register_demo(sub: argparse._SubParsersAction) -> None:
 
 
 def spec_from_args(args: argparse.Namespace):
+    from common.domain.scenario import read_scenario
     from services.mission.runner import MissionSpec
-    from services.planner.maps.scenario import ScenarioFile
 
-    scen: ScenarioFile = decode_yaml(read_text(Path(args.scenario)), ScenarioFile, args.scenario)
+    scen = read_scenario(args.scenario)
     map_name = args.map or scen.map
     if not map_name:
         raise InputError(args.scenario, "map", "the scenario names no map: give --map")
@@ -66,3 +92,42 @@ def cmd_mission_run(args: argparse.Namespace) -> int:
         return code or 1
     print(runner.result.summary())
     return 0 if runner.result.ok else 1
+
+
+def cmd_mission_team(args: argparse.Namespace) -> int:
+    from common.bus.messages import TeamTask
+    from services.mission.team import TeamMission, TeamMissionSpec
+
+    source = "fleet mission team"
+    if args.executors < 1 or args.time_scale <= 0:
+        raise InputError(source, "--executors/--time-scale", "must be positive")
+    team = TeamTask(drone=args.drone_id, ugv=args.ugv_id, drone_start=parse_vec3(args.start, "--start", source),
+                    ugv_start=parse_vec3(args.ugv, "--ugv", source), goal=parse_vec3(args.goal, "--goal", source),
+                    method=args.planner, improve_s=args.improve)
+    spec = TeamMissionSpec(map=args.map, team=team, time_limit=args.time_limit, **({"mission": args.id} if args.id else {}))
+
+    def run(zconfig, keys) -> TeamMission:
+        mission = TeamMission(spec, zconfig, keys)
+        asyncio.run(mission.run())
+        return mission
+
+    if args.local:
+        from common.deploy.local import bring_up
+
+        overrides = {"FLEET_NAME": "team", "FLEET_EXECUTORS": str(args.executors), "FLEET_TEAM_MAP": args.map,
+                     "FLEET_TEAM_DRONE": args.start, "FLEET_TEAM_UGV": args.ugv, "FLEET_TEAM_DRONE_ID": args.drone_id,
+                     "FLEET_TEAM_UGV_ID": args.ugv_id, "FLEET_TEAM_TIME_SCALE": f"{args.time_scale:g}"}
+        try:
+            with bring_up(Path(args.run_dir), overrides, profiles=["team"],
+                          only=["planner", "executor", "team-sim"]) as local:
+                mission = run(local.client_config(), local.keys)
+        except RuntimeError as exc:
+            print(f"{source}: {exc}", file=sys.stderr)
+            return 1
+    else:
+        mission = run(zconfig_from_args(args), keys_from_args(args))
+    if mission.result is None:
+        print(f"{source}: could not run (no router reachable?)", file=sys.stderr)
+        return 1
+    print(mission.result.summary())
+    return 0 if mission.result.ok else 1

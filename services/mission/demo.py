@@ -1,162 +1,103 @@
 """`fleet demo`: the whole fleet on one machine with no setup (paper 000 §VII-C: 8 flying cars in
-the miniature town, two per Crazyradio). An in-process zenoh router; the planner, executors, radio
-gateways, simulated Crazyflies, simulated motion capture and the telemetry recorder as separate
-processes (the services of compose.yaml); the mission run from here; a summary at the end.
-Exit 0 only if every vehicle arrived and no two bodies came into contact."""
+the miniature town, two per Crazyradio). compose.yaml's services as processes of this Python
+(`common.deploy.local.bring_up`), with the demo's overrides: simulated Crazyflies on the scenario's
+start spots, one gateway per simulated radio, the executor count, the recorder's viewer; the router
+in this process; the mission run from here; a summary at the end. Exit 0 only if every vehicle
+arrived and no two bodies came into contact."""
 
 from __future__ import annotations
 
 import argparse
 import asyncio
-import math
-import socket
 import sys
-import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
-from common.bus.keys import Keys
-from common.bus.liveliness import watch_alive
-from common.bus.session import InProcessRouter, ZenohConfig, open_session
 from common.deploy.compose import Process
-from common.deploy.credentials import Credentials, make_credentials
-from common.deploy.launcher import start, stop
-from common.deploy.radios import LinkModel, RadiosFile, RadioSpec, VehicleLink, dump_radios
-from common.domain.mapfile import MAPS_DIR, decode_yaml, read_text
+from common.deploy.local import LocalFleet, bring_up
+from common.deploy.radios import LinkModel, RadiosFile, dump_radios, simulated_radios
+from common.domain.mapfile import MAPS_DIR, load_map, spot_pose
 from common.domain.planfile import Task
+from common.domain.scenario import read_scenario
 from services.mission.runner import MissionRunner, MissionSpec
-from services.planner.graph.fleet_graph import FleetGraph
-from services.planner.maps.loading import load_graph
-from services.planner.maps.scenario import ScenarioFile, check_tasks
 
 DEMO_SCENARIO = MAPS_DIR / "scenarios" / "town_8.yaml"
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def demo_radios(map_name: str, tasks: dict[str, Task], per_radio: int = 2, link: LinkModel | None = None,
+                source: str = "") -> RadiosFile:
+    """Simulated Crazyflies parked on their start spots, `per_radio` to a radio (the paper found 2
+    reliable), radios named radio0, radio1, ..."""
+    spec = load_map(map_name)
+    poses = {vid: spot_pose(spec, task.start, source) for vid, task in tasks.items()}
+    return simulated_radios({vid: p[:3] for vid, p in poses.items()}, per_radio, link,
+                            yaws={vid: p[3] for vid, p in poses.items()}, prefix="radio")
 
 
-def demo_radios(graph: FleetGraph, tasks: dict[str, Task], per_radio: int = 2,
-                link: LinkModel | None = None) -> RadiosFile:
-    """Simulated Crazyflies on their start spots, `per_radio` to a radio (the paper found 2 reliable)."""
-    radios: dict[str, dict[str, VehicleLink]] = {}
-    for i, (vid, task) in enumerate(tasks.items()):
-        x, y, z = (float(v) for v in graph.pos[graph.index[task.start]])
-        radios.setdefault(f"radio{i // per_radio}", {})[vid] = VehicleLink(
-            uri=f"udp://127.0.0.1:{free_udp_port()}", start=(x, y, z), yaw=parked_yaw(graph, task.start))
-    return RadiosFile(radios={name: RadioSpec(vehicles=v, link=link or LinkModel()) for name, v in radios.items()})
+def one_gateway_per_radio(procs: list[Process], radios_path: Path, radios: RadiosFile) -> list[Process]:
+    """compose.yaml's gateways replaced by one per radio of `radios` (same role, same environment)."""
+    gateways = [p for p in procs if p.service.startswith("gateway")]
+    if not gateways:
+        return procs
+    template = gateways[0]
+    cli = template.argv[:template.argv.index("gateway")]
+    made = [Process("gateway", name, [*cli, "gateway", "--config", str(radios_path), "--radio", name, "--subscribe-each"],
+                    {**template.env, "FLEET_INSTANCE": name}) for name in radios.radios]
+    at = procs.index(template)
+    rest = [p for p in procs if p not in gateways]
+    return rest[:at] + made + rest[at:]
 
 
-def parked_yaw(graph: FleetGraph, spot: str) -> float:
-    """A parked car faces the road it leaves by (its spot's access edge)."""
-    i = graph.index[spot]
-    out = graph.out_edges[i]
-    if not len(out):
-        return 0.0
-    dx, dy, _ = graph.pos[graph.edges[out[0], 1]] - graph.pos[i]
-    return float(math.atan2(dy, dx))
-
-
-def fleet_processes(radios_path: Path, radios: RadiosFile, executors: int, rrd_dir: Path,
-                    viewer: bool = False, web: bool = False) -> list[Process]:
-    """The services of one fleet, as local processes of this Python."""
-    cli = [sys.executable, "-m", "services.cli"]
-    cfg = ["--config", str(radios_path)]
-    procs = [Process("planner", "planner", [*cli, "planner"])]
-    procs += [Process("executor", f"executor-{i + 1}", [*cli, "executor"], {"FLEET_INSTANCE": f"executor-{i + 1}"})
-              for i in range(executors)]
-    procs.append(Process("sim", "sim", [*cli, "sim", *cfg]))
-    procs += [Process("gateway", name, [*cli, "gateway", *cfg, "--radio", name], {"FLEET_INSTANCE": name})
-              for name in radios.radios]
-    procs.append(Process("mocap", "mocap", [*cli, "mocap"]))
-    telemetry = [*cli, "telemetry", "--out", str(rrd_dir)] + (["--viewer"] if viewer else []) + (["--web"] if web else [])
-    procs.append(Process("telemetry", "telemetry", telemetry))
-    return procs
-
-
-async def wait_for_services(config: ZenohConfig, keys: Keys, counts: dict[str, int], timeout: float) -> list[str]:
-    """Wait until each service has its count of live instances; the ones still missing."""
-    session = open_session(config)
-    try:
-        watches = {svc: await watch_alive(session, keys, svc) for svc in counts}
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            missing = [s for s, n in counts.items() if len(watches[s].instances) < n]
-            if not missing:
-                break
-            await asyncio.sleep(0.2)
-        for w in watches.values():
-            w.close()
-        return [s for s, n in counts.items() if len(watches[s].instances) < n]
-    finally:
-        session.close()
-
-
-@dataclass
-class LocalFleet:
-    router: InProcessRouter
-    keys: Keys
-    run_dir: Path
-    radios: RadiosFile
-    credentials: Credentials
-
-    def client_config(self) -> ZenohConfig:
-        """A session of the operator role (`mission`): runs missions, watches, injects simulator faults."""
-        return self.router.client_config(**self.credentials.options("mission"))
+def with_args(procs: list[Process], extra: Mapping[str, list[str]]) -> list[Process]:
+    """Each process of a service in `extra` with those arguments appended."""
+    return [Process(p.service, p.instance, [*p.argv, *extra[p.service]], p.env) if p.service in extra else p
+            for p in procs]
 
 
 @contextmanager
-def local_fleet(graph: FleetGraph, tasks: dict[str, Task], run_dir: Path, executors: int = 2, per_radio: int = 2,
-                fleet: str = "demo", viewer: bool = False, web: bool = False,
-                link: LinkModel | None = None) -> Iterator[LocalFleet]:
-    """An in-process router and every service as a process, up and alive; stopped on exit.
-
-    Secured as compose.yaml is: the router enforces deploy/router.json5 with role credentials made
-    in run_dir/secrets, and each process authenticates with its role's (docs/security.md)."""
+def local_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int = 2, per_radio: int = 2,
+                fleet: str = "demo", link: LinkModel | None = None, extra_args: Mapping[str, list[str]] | None = None,
+                without: Iterable[str] = ()) -> Iterator[LocalFleet]:
+    """compose.yaml's fleet with simulated Crazyflies for `tasks`, up and serving; stopped on exit.
+    `extra_args`: more arguments per service; `without`: services not to start."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    radios = demo_radios(graph, tasks, per_radio, link)
+    radios = demo_radios(map_name, tasks, per_radio, link)
     radios_path = run_dir / "radios.yaml"
     radios_path.write_text(dump_radios(radios))
-    keys = Keys(fleet)
-    creds = make_credentials(run_dir / "secrets")
-    with InProcessRouter(**creds.router_options()) as router:
-        procs = fleet_processes(radios_path, radios, executors, run_dir.parent / "recordings", viewer, web)
-        for p in procs:
-            p.env.update({"FLEET_ZENOH_CONNECT": router.endpoint, "FLEET_NAME": keys.fleet, **creds.env(p.service)})
-        print(f"fleet: router on {router.endpoint}; starting {len(procs)} processes (logs in {run_dir / 'logs'})")
-        start(procs, run_dir, settle_s=0.1)
-        try:
-            counts = {"planner": 1, "executor": executors, "gateway": len(radios.radios), "sim": 1, "mocap": 1,
-                      "telemetry": 1}
-            local = LocalFleet(router, keys, run_dir, radios, creds)
-            missing = asyncio.run(wait_for_services(local.client_config(), keys, counts, 60.0))
-            if missing:
-                raise RuntimeError(f"services not up within 60 s: {', '.join(missing)} (see {run_dir / 'logs'})")
-            yield local
-        finally:
-            stop(run_dir, grace_s=5.0)
+    overrides = {"FLEET_NAME": fleet, "FLEET_RADIOS": str(radios_path), "FLEET_EXECUTORS": str(executors),
+                 "FLEET_RECORDINGS": str(run_dir.parent / "recordings")}
+    adjust = partial(demo_processes, radios_path=radios_path, radios=radios, extra_args=extra_args or {},
+                     without=set(without))
+    with bring_up(run_dir, overrides, adjust=adjust) as local:
+        yield local
+
+
+def demo_processes(procs: list[Process], radios_path: Path, radios: RadiosFile,
+                   extra_args: Mapping[str, list[str]], without: set[str]) -> list[Process]:
+    """compose.yaml's processes as the demo runs them: one gateway per simulated radio, some
+    services left out, some with more arguments."""
+    procs = [p for p in one_gateway_per_radio(procs, radios_path, radios) if p.service not in without]
+    return with_args(procs, extra_args)
 
 
 def run_demo(args: argparse.Namespace) -> int:
     path = Path(args.scenario or DEMO_SCENARIO)
-    scenario: ScenarioFile = decode_yaml(read_text(path), ScenarioFile, str(path))
+    scenario = read_scenario(path)
     map_name = scenario.map or "town"
-    graph = load_graph(map_name)
     tasks = dict(scenario.tasks)
-    check_tasks(tasks, graph, str(path))
     out = Path(args.out)
     spec = MissionSpec(map=map_name, tasks=tasks, planner=args.planner, mu=args.mu, time_limit=args.time_limit)
     try:
-        with local_fleet(graph, tasks, out / "run", args.executors, args.per_radio, viewer=args.viewer,
-                         web=args.web) as fleet:
+        demo_radios(map_name, tasks, args.per_radio, source=str(path))  # bad starts: an error before any process
+        viewer = (["--viewer"] if args.viewer else []) + (["--web"] if args.web else [])
+        with local_fleet(map_name, tasks, out / "run", args.executors, args.per_radio,
+                         extra_args={"telemetry": viewer}) as fleet:
             runner = MissionRunner(spec, fleet.client_config(), fleet.keys)
             asyncio.run(runner.run())
     except RuntimeError as exc:
-        print(f"demo: {exc}")
+        print(f"demo: {exc}", file=sys.stderr)
         return 1
     result = runner.result
     if result is None:
@@ -165,5 +106,3 @@ def run_demo(args: argparse.Namespace) -> int:
     print(result.summary())
     print(f"rerun recording: {out / 'recordings' / (spec.mission + '.rrd')} (open with `rerun FILE`)")
     return 0 if result.ok else 1
-
-

@@ -1,45 +1,22 @@
-"""`fleet mission run`: ask the planner for a plan, hand it out, start every executor at a common
-time, show progress, and end with a summary (arrived, time, energy per vehicle, largest tracking
-error, smallest separation between bodies in ground truth). Aborts on request (SIGINT/SIGTERM) or
-on a vehicle fault, landing every vehicle. A fault is a fault event (`FAULT_EVENTS`), a vehicle
-state in emergency landing, or no state from a vehicle for `contact_timeout_s` (2 s: its executor or the
-router is gone: events published meanwhile are lost, and the gateways land what they cannot hear
-commands for). Fails fast when no executor or no planner is alive.
-
-While the mission runs, plans and the start message are re-published every second so that an
-executor that joins late or takes over a vehicle has them (zenoh keeps no history by itself).
+"""`fleet mission run`: a mission of flying cars (paper 000) on the skeleton of `client.py`: plan
+the tasks on a map, hand each vehicle its `VehiclePlan`, start them together, and end with a
+summary (arrived, time, energy per vehicle, largest tracking error, smallest separation between
+bodies in ground truth). Over when every vehicle arrived, at the plan's makespan plus `slack_s`, or
+on a fault (`client.FAULT_EVENTS`), landing every vehicle.
 """
 
 from __future__ import annotations
 
-import asyncio
-import logging
-import time
 import uuid
 from dataclasses import dataclass, field
 
-from common.bus.messages import (
-    MissionAbort,
-    MissionStart,
-    PlanReply,
-    PlanRequest,
-    SimTruth,
-    VehicleEvent,
-    VehicleState,
-)
-from common.bus.pubsub import QueryError, QueryTimeout, query
-from common.bus.service import Service
-from common.bus.vehicle_plans import PlanPublisher, vehicle_plans
+import zenoh
+
+from common.bus.messages import PlanReply, PlanRequest, SimTruth, VehiclePlan, VehicleState
+from common.bus.vehicle_plans import vehicle_plans
 from common.domain.planfile import Plan, Task
+from services.mission.client import MissionClient, MissionTiming
 from services.mission.separation import SeparationMonitor
-
-log = logging.getLogger(__name__)
-
-FAULT_EVENTS = frozenset({"emergency_landing", "low_battery", "link_lost", "crash", "stale_cmd_landing",
-                          "controller_failed"})
-"""Events that abort a mission. A motion-capture dropout (`mocap_lost`) is not one by itself: the
-executor predicts through short dropouts and reports what it does about long ones (an emergency
-landing, or holding on the ground)."""
 
 
 @dataclass(frozen=True)
@@ -56,6 +33,10 @@ class MissionSpec:
     slack_s: float = 20.0
     abort_on_fault: bool = True
     contact_timeout_s: float = 2.0
+
+    def timing(self) -> MissionTiming:
+        return MissionTiming(self.start_lead_s, self.ready_timeout_s, self.planner_timeout_s,
+                             self.contact_timeout_s, self.abort_on_fault)
 
 
 @dataclass
@@ -78,6 +59,8 @@ class VehicleReport:
         n = self.samples[where]
         return (self.sq_error[where] / n) ** 0.5 if n else 0.0
 
+
+ARRIVED = "every vehicle arrived"
 
 AIRBORNE_MODES = frozenset({"taking_off", "flying", "landing", "emergency_landing"})
 
@@ -109,131 +92,73 @@ class MissionResult:
         return "\n".join(lines)
 
 
-class MissionRunner(Service):
-    """One mission, as a short-lived service (`alive/mission/<id>`)."""
+class MissionRunner(MissionClient[MissionResult]):
+    """One mission of flying cars, as a short-lived service (`alive/mission/<id>`)."""
 
     def __init__(self, spec: MissionSpec, *args, progress: bool = True, **kwargs) -> None:
-        super().__init__("mission", spec.mission, *args, **kwargs)
+        super().__init__(spec.mission, spec.tasks, spec.timing(), *args, progress=progress, **kwargs)
         self.spec = spec
-        self.progress = progress
-        self.result: MissionResult | None = None
         self.reports = {vid: VehicleReport(vid) for vid in spec.tasks}
-        self.states: dict[str, VehicleState] = {}
-        self.events: list[str] = []
-        self.fault: str | None = None
-        self.heard: dict[str, float] = {}  # vid -> arrival of its latest state
-        self.t0: float | None = None
+        self.plan: Plan | None = None
         self.voltage = 3.7
+        self.sep: SeparationMonitor | None = None
+        self._plans = None
 
-    async def main(self) -> None:
-        started = time.time()
-        try:
-            self.result = await self._run(started)
-        except asyncio.CancelledError:
-            self.result = self._finish(started, False, "interrupted")
-            raise
+    def plan_request(self) -> PlanRequest:
+        s = self.spec
+        return PlanRequest(map=s.map, tasks=s.tasks, planner=s.planner, mu=s.mu, time_limit=s.time_limit,
+                           mission=s.mission)
 
-    async def _run(self, started: float) -> MissionResult:
-        spec = self.spec
-        executors = await self.watch_alive("executor")
-        if not executors.instances:
-            return self._finish(started, False, "no executor is alive: start executors (fleet executor / fleet up)")
-        if not (await self.watch_alive("planner")).instances:
-            return self._finish(started, False, "no planner is alive: start one (fleet planner / fleet up)")
-        try:
-            reply = await query(self.session, self.keys.planner_plan,
-                                PlanRequest(map=spec.map, tasks=spec.tasks, planner=spec.planner, mu=spec.mu,
-                                            time_limit=spec.time_limit, mission=spec.mission),
-                                PlanReply, timeout=spec.time_limit + spec.planner_timeout_s)
-        except QueryTimeout:
-            return self._finish(started, False, f"the planner did not answer within {spec.time_limit + spec.planner_timeout_s:.0f} s")
-        except QueryError as exc:
-            return self._finish(started, False, f"the planner is unreachable or failed: {exc}")
-        if not reply.ok or reply.plan is None:
-            return self._finish(started, False, f"planning failed: {reply.error}")
-        plan = reply.plan
+    def planner_wait_s(self) -> float:
+        return self.spec.time_limit + self.spec.planner_timeout_s
+
+    def accept(self, reply: PlanReply) -> str | None:
+        if reply.plan is None:
+            return "planning failed: the planner's reply carries no plan"
+        self.plan = plan = reply.plan
         self.voltage = plan.model.voltage
         for vid, path in plan.paths.items():
             self.reports[vid].planned_s = path[-1].t
-        sep = SeparationMonitor(*plan.model.body())  # physical bodies, not the planning envelope
-        self.subscribe(self.keys.all_vehicles("state"), VehicleState, self._on_state)
-        self.subscribe(self.keys.all_vehicles("event"), VehicleEvent, self._on_event)
+        self.sep = sep = SeparationMonitor(*plan.model.body())  # physical bodies, not the planning envelope
         self.subscribe(self.keys.all_sim_truth, SimTruth, lambda t, _k: sep.update(t))
-        plans = PlanPublisher(self)
-        start_pub = self.publisher(self.keys.mission(spec.mission, "start"), MissionStart)
-        abort_pub = self.publisher(self.keys.mission(spec.mission, "abort"), MissionAbort)
-        handed = vehicle_plans(plan, spec.mission)
-        plans.put(handed)
-        ready = await self._wait_ready(spec.ready_timeout_s, lambda: plans.put(handed))
-        if not ready:
-            missing = sorted(v for v in spec.tasks if self.states.get(v, None) is None or self.states[v].mission != spec.mission)
-            return self._finish(started, False, f"executors did not take the plans of {', '.join(missing)}", plan)
-        self.t0 = time.time() + spec.start_lead_s
-        start = MissionStart(mission=spec.mission, t0=self.t0, vehicles=list(spec.tasks))
-        handed = vehicle_plans(plan, spec.mission, self.t0)
-        deadline = self.t0 + max(r.planned_s for r in self.reports.values()) + spec.slack_s
-        last_print = 0.0
-        reason = ""
-        try:
-            while True:
-                now = time.time()
-                plans.put(handed)
-                start_pub.put(start)
-                for _ in range(10):
-                    sep.sample()
-                    await asyncio.sleep(0.1)
-                if self.progress and now - last_print > 2.0:
-                    last_print = now
-                    print(self._progress_line(now), flush=True)
-                if all(r.arrived for r in self.reports.values()):
-                    reason = "every vehicle arrived"
-                    break
-                self._check_contact(time.time())
-                if self.fault and spec.abort_on_fault:
-                    reason = f"aborted on fault: {self.fault}"
-                    break
-                if now > deadline:
-                    reason = "time limit: not every vehicle arrived"
-                    break
-        except asyncio.CancelledError:
-            reason = "aborted on request"
-            abort_pub.put(MissionAbort(mission=spec.mission, reason=reason))
-            raise
-        if not all(r.arrived for r in self.reports.values()):
-            abort_pub.put(MissionAbort(mission=spec.mission, reason=reason))
-            await self._wait_landed(10.0, lambda: abort_pub.put(MissionAbort(mission=spec.mission, reason=reason)))
-        ok = reason == "every vehicle arrived" and not sep.contacts  # landing at its goal after a fault is no success
-        if sep.contacts:
-            reason += f"; bodies came into contact {len(sep.contacts)} times"
-        result = self._finish(started, ok, reason, plan)
-        result.min_gap, result.min_pair, result.contacts = sep.min_gap, sep.min_pair, len(sep.contacts)
-        return result
+        self._plans = self.publishers(lambda vid: self.keys.vehicle(vid, "plan"), VehiclePlan,
+                                      congestion_control=zenoh.CongestionControl.BLOCK)
+        return None
 
-    async def _wait_ready(self, timeout: float, again) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if all(self.states.get(v) is not None and self.states[v].mission == self.spec.mission for v in self.spec.tasks):
-                return True
-            again()
-            await asyncio.sleep(0.5)
-        return False
+    def hand_out(self, t0: float) -> None:
+        assert self.plan is not None and self._plans is not None
+        self._plans.put_all(vehicle_plans(self.plan, self.mission, t0))
 
-    async def _wait_landed(self, timeout: float, again) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if all(s.mode in ("done", "parked", "holding") for s in self.states.values()):
-                return
-            again()
-            await asyncio.sleep(0.5)
+    def sample(self) -> None:
+        if self.sep is not None:
+            self.sep.sample()
 
-    def _on_state(self, state: VehicleState, _key: str) -> None:
-        r = self.reports.get(state.vid)
-        if r is None:
-            return
-        self.states[state.vid] = state
-        self.heard[state.vid] = time.time()
+    def end_reason(self, now: float) -> str | None:
+        if all(r.arrived for r in self.reports.values()):
+            return ARRIVED
+        assert self.t0 is not None
+        if now > self.t0 + max(r.planned_s for r in self.reports.values()) + self.spec.slack_s:
+            return "time limit: not every vehicle arrived"
+        return None
+
+    def succeeded(self, reason: str) -> bool:
+        return reason == ARRIVED  # landing at its goal after a fault is no success
+
+    def conclude(self, ok: bool, reason: str) -> MissionResult:
+        sep = self.sep
+        contacts = len(sep.contacts) if sep is not None else 0
+        if contacts:
+            ok, reason = False, f"{reason}; bodies came into contact {contacts} times"
+        self.result = MissionResult(self.mission, ok, reason, self.reports, float("inf"), ("", ""), contacts,
+                                    self.elapsed(), self.plan, self.events)
+        if sep is not None:
+            self.result.min_gap, self.result.min_pair = sep.min_gap, sep.min_pair
+        return self.result
+
+    def on_state(self, state: VehicleState) -> None:
+        r = self.reports[state.vid]
         r.mode, r.step, r.steps, r.owner = state.mode, state.step, state.steps, state.owner
-        if state.mission != self.spec.mission or self.t0 is None:
+        if state.mission != self.mission or self.t0 is None:
             return
         r.energy_j = state.charge_used_ah * 3600.0 * self.voltage  # eq. 4-5 backwards
         r.max_tracking_error = max(r.max_tracking_error, state.tracking_error)
@@ -241,31 +166,10 @@ class MissionRunner(Service):
             where = "air" if state.mode in AIRBORNE_MODES else "ground"
             r.sq_error[where] += state.tracking_error**2
             r.samples[where] += 1
-        if state.mode == "emergency_landing":  # its event may have been lost with the router
-            self.fault = self.fault or f"{state.vid}: in emergency landing"
         if state.arrived and not r.arrived:
             r.arrived, r.arrival_s = True, state.t - self.t0
 
-    def _check_contact(self, now: float) -> None:
-        """A vehicle not heard from for `contact_timeout_s` is a fault (its owner or the router is gone)."""
-        for vid in self.spec.tasks:
-            silent = now - self.heard.get(vid, now)
-            if silent > self.spec.contact_timeout_s:
-                self.fault = self.fault or f"{vid}: lost contact (no state for {silent:.1f} s)"
-
-    def _on_event(self, event: VehicleEvent, _key: str) -> None:
-        text = f"{event.vid}: {event.kind} {event.detail}".strip()
-        self.events.append(text)
-        log.warning("vehicle event: %s", text)
-        if event.kind in FAULT_EVENTS and event.vid in self.reports:
-            self.fault = self.fault or text
-
-    def _progress_line(self, now: float) -> str:
+    def progress_line(self, now: float) -> str:
         t = now - (self.t0 or now)
         parts = [f"{r.vid}:{r.mode[:4]} {r.step}/{r.steps}{'*' if r.arrived else ''}" for r in self.reports.values()]
         return f"t={t:6.1f}s  " + "  ".join(parts)
-
-    def _finish(self, started: float, ok: bool, reason: str, plan: Plan | None = None) -> MissionResult:
-        self.result = MissionResult(self.spec.mission, ok, reason, self.reports, float("inf"), ("", ""), 0,
-                                    time.time() - started, plan, self.events)
-        return self.result

@@ -1,5 +1,5 @@
-"""`fleet collab mission`: one ground-air team plan run end to end through the executors (paper 002
-§IV-E, plan execution with synchronisation points).
+"""`fleet mission team`: one ground-air team plan run end to end through the executors (paper 002
+§IV-E, plan execution with synchronisation points), on the skeleton of `client.py`.
 
 The mission asks the planner for a team plan (`PlanRequest(planner="collab", team=...)`), hands
 each robot its copy (`vehicle/<vid>/team_plan`, re-sent every second: zenoh keeps no history),
@@ -14,35 +14,29 @@ the partner's steps it waits for were reported done.
 from __future__ import annotations
 
 import asyncio
-import itertools
 import math
 import time
 import uuid
 from dataclasses import dataclass, field
 
+import zenoh
+
 from common.bus.messages import (
     ActionStatus,
-    MissionAbort,
-    MissionStart,
     PlanReply,
     PlanRequest,
     SimTruth,
     TeamTask,
-    VehicleEvent,
     VehicleState,
+    VehicleTeamPlan,
 )
-from common.bus.pubsub import QueryError, QueryTimeout, query
-from common.bus.service import Service
-from common.domain.team_plan import PlanProgress, Robot, TeamPlan, action_name
-from services.planner.collab.cli import format_plan
-from services.planner.collab.request import PLANNER, TeamPlanPublisher, robot_plans
+from common.bus.vehicle_plans import robot_plans
+from common.domain.team_plan import PlanProgress, Robot, TeamPlan, action_name, format_team_plan
+from services.mission.client import MissionClient, MissionTiming
 
+FINISHED = "both robots finished their sequences"
 GOAL_TOLERANCE_M = 0.25
 """The drone is at the goal within half a lattice cell (002 maps: 0.5 m cells)."""
-TICK_S = 0.2
-"""How often the mission looks at the robots' progress."""
-RESEND_TICKS = 5
-"""Plans and the start are re-sent every RESEND_TICKS ticks (late joiners, take-overs)."""
 TRUTH_WAIT_S = 2.0
 """At the end, how long to wait for a ground truth of the drone newer than its last state."""
 
@@ -100,128 +94,82 @@ class TeamMissionResult:
         return "\n".join(lines)
 
 
-class TeamMission(Service):
+class TeamMission(MissionClient[TeamMissionResult]):
     """One team mission, as a short-lived service (`alive/mission/<id>`)."""
 
     def __init__(self, spec: TeamMissionSpec, *args, progress: bool = True, **kwargs) -> None:
-        super().__init__("mission", spec.mission, *args, **kwargs)
-        self.spec = spec
-        self.print_progress = progress
         team = spec.team
+        timing = MissionTiming(spec.start_lead_s, spec.ready_timeout_s, spec.planner_timeout_s)
+        super().__init__(spec.mission, (team.drone, team.ugv), timing, *args, progress=progress, **kwargs)
+        self.spec = spec
         self.reports = {team.drone: RobotReport(team.drone, "drone"), team.ugv: RobotReport(team.ugv, "ugv")}
-        self.states: dict[str, VehicleState] = {}
         self.statuses: list[ActionStatus] = []
         self.truth: dict[str, SimTruth] = {}
-        self.events: list[str] = []
-        self.t0: float | None = None
         self.plan: TeamPlan | None = None
-        self.result: TeamMissionResult | None = None
+        self._plans = None
+        self._last_done, self._last_progress = -1, 0.0
 
-    async def main(self) -> None:
-        started = time.time()
-        try:
-            self.result = await self._run(started)
-        except asyncio.CancelledError:
-            self.result = self._finish(started, False, "interrupted")
-            raise
+    def plan_request(self) -> PlanRequest:
+        s = self.spec
+        return PlanRequest(map=s.map, tasks={}, planner="collab", time_limit=s.time_limit, mission=s.mission, team=s.team)
 
-    async def _run(self, started: float) -> TeamMissionResult:
-        spec, team = self.spec, self.spec.team
-        executors = await self.watch_alive("executor")
-        if not executors.instances:
-            return self._finish(started, False, "no executor is alive: start executors (fleet executor / fleet up)")
-        request = PlanRequest(map=spec.map, tasks={}, planner=PLANNER, time_limit=spec.time_limit,
-                              mission=spec.mission, team=team)
-        wait = spec.time_limit + team.improve_s + spec.planner_timeout_s
-        try:
-            reply = await query(self.session, self.keys.planner_plan, request, PlanReply, timeout=wait)
-        except QueryTimeout:
-            return self._finish(started, False, f"the planner did not answer within {wait:.0f} s")
-        except QueryError as exc:
-            return self._finish(started, False, f"the planner is unreachable or failed: {exc}")
-        if not reply.ok or reply.team_plan is None:
-            return self._finish(started, False, f"planning failed: {reply.error}")
+    def planner_wait_s(self) -> float:
+        return self.spec.time_limit + self.spec.team.improve_s + self.spec.planner_timeout_s
+
+    def accept(self, reply: PlanReply) -> str | None:
+        if reply.team_plan is None:
+            return "planning failed: the planner's reply carries no team plan"
         self.plan = plan = reply.team_plan
         if self.print_progress:
-            print(format_plan(plan), flush=True)
+            print(format_team_plan(plan), flush=True)
         for r in self.reports.values():
             r.steps = len(plan.drone if r.robot == "drone" else plan.ugv)
         k = self.keys
-        self.subscribe(k.all_vehicles("state"), VehicleState, self._on_state)
-        self.subscribe(k.all_vehicles("event"), VehicleEvent, self._on_event)
         self.subscribe(k.all_vehicles("action_status"), ActionStatus, self._on_status)
         self.subscribe(k.all_sim_truth, SimTruth, self._on_truth)
-        plans = TeamPlanPublisher(self)
-        start_pub = self.publisher(k.mission(spec.mission, "start"), MissionStart)
-        abort_pub = self.publisher(k.mission(spec.mission, "abort"), MissionAbort)
-        handed = robot_plans(plan, team, spec.mission)
-        if not await self._wait_ready(spec.ready_timeout_s, lambda: plans.put(handed)):
-            missing = sorted(v for v in self.reports if v not in self.states)
-            return self._finish(started, False, f"executors did not take the team plan of {', '.join(missing)}")
-        self.t0 = time.time() + spec.start_lead_s
-        start = MissionStart(mission=spec.mission, t0=self.t0, vehicles=list(self.reports))
-        handed = robot_plans(plan, team, spec.mission, self.t0)
-        last_done, last_progress = -1, time.time()
-        try:
-            for tick in itertools.count():
-                if tick % RESEND_TICKS == 0:
-                    plans.put(handed)
-                    start_pub.put(start)
-                await asyncio.sleep(TICK_S)
-                now = time.time()
-                done = sum(r.done for r in self.reports.values())
-                if done != last_done:
-                    last_done, last_progress = done, now
-                if all(r.mode == "done" for r in self.reports.values()):
-                    reason = "both robots finished their sequences"
-                    break
-                failed = [r for r in self.reports.values() if r.mode == "failed"]
-                if failed:
-                    reason = f"{failed[0].vid} failed" + next((f": {e}" for e in self.events if "action_failed" in e), "")
-                    break
-                if now - last_progress > spec.stall_s:
-                    reason = f"no step completed for {spec.stall_s:.0f} s"
-                    break
-        except asyncio.CancelledError:
-            abort_pub.put(MissionAbort(mission=spec.mission, reason="aborted on request"))
-            raise
-        finished = all(r.mode == "done" for r in self.reports.values())
-        if not finished:
-            abort_pub.put(MissionAbort(mission=spec.mission, reason=reason))
-        await self._fresh_truth(TRUTH_WAIT_S)
-        result = self._finish(started, finished, reason)
-        if finished and not (result.goal_error_m is not None and result.goal_error_m <= GOAL_TOLERANCE_M):
-            result.ok = False
-            result.reason += "; but the drone is not at the goal"
-        if result.sync_violations:
-            result.ok = False
-            result.reason += "; sync points were broken"
-        return result
+        self._plans = self.publishers(lambda vid: k.vehicle(vid, "team_plan"), VehicleTeamPlan,
+                                      congestion_control=zenoh.CongestionControl.BLOCK)
+        self._last_progress = time.time()
+        return None
 
-    async def _fresh_truth(self, timeout: float) -> None:
+    def hand_out(self, t0: float) -> None:
+        assert self.plan is not None and self._plans is not None
+        self._plans.put_all(robot_plans(self.plan, self.spec.team, self.mission, t0))
+
+    def end_reason(self, now: float) -> str | None:
+        done = sum(r.done for r in self.reports.values())
+        if done != self._last_done:
+            self._last_done, self._last_progress = done, now
+        if all(r.mode == "done" for r in self.reports.values()):
+            return FINISHED
+        failed = [r for r in self.reports.values() if r.mode == "failed"]
+        if failed:
+            return f"{failed[0].vid} failed" + next((f": {e}" for e in self.events if "action_failed" in e), "")
+        if now - self._last_progress > self.spec.stall_s:
+            return f"no step completed for {self.spec.stall_s:.0f} s"
+        return None
+
+    def succeeded(self, reason: str) -> bool:
+        return reason == FINISHED
+
+    async def before_result(self) -> None:
         """Wait for a ground truth of the drone newer than its last state (if a simulator publishes one)."""
         drone = self.spec.team.drone
-        deadline = time.monotonic() + timeout
+        deadline = time.monotonic() + TRUTH_WAIT_S
         while drone in self.truth and drone in self.states and self.truth[drone].t < self.states[drone].t:
             if time.monotonic() > deadline:
                 return
             await asyncio.sleep(0.02)
 
-    async def _wait_ready(self, timeout: float, again) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            again()
-            if all(v in self.states for v in self.reports):
-                return True
-            await asyncio.sleep(0.5)
-        return False
+    def progress_line(self, now: float) -> str:
+        t = now - (self.t0 or now)
+        return f"t={t:6.1f}s  " + "  ".join(f"{r.vid}:{r.mode} {r.done}/{r.steps}" for r in self.reports.values())
 
     # ---- inputs ---------------------------------------------------------------------------------
-    def _on_state(self, state: VehicleState, _key: str) -> None:
-        r = self.reports.get(state.vid)
-        if r is None or state.mission != self.spec.mission:
+    def on_state(self, state: VehicleState) -> None:
+        r = self.reports[state.vid]
+        if state.mission != self.mission:
             return
-        self.states[state.vid] = state
         r.mode, r.done, r.owner = state.mode, state.step, state.owner
         r.pose = (state.x, state.y, state.z if r.robot == "drone" else math.degrees(state.yaw))
         if state.arrived and r.finished_s is None and self.t0 is not None:
@@ -244,10 +192,6 @@ class TeamMission(Service):
     def _on_truth(self, truth: SimTruth, _key: str) -> None:
         if truth.vid in self.reports:
             self.truth[truth.vid] = truth
-
-    def _on_event(self, event: VehicleEvent, _key: str) -> None:
-        if event.vid in self.reports:
-            self.events.append(f"{event.vid}: {event.kind} {event.detail}".strip())
 
     # ---- the end --------------------------------------------------------------------------------
     def sync_violations(self) -> tuple[int, list[str]]:
@@ -277,10 +221,14 @@ class TeamMission(Service):
             return (truth.x, truth.y, truth.z)
         return self.reports[self.spec.team.drone].pose
 
-    def _finish(self, started: float, ok: bool, reason: str) -> TeamMissionResult:
+    def conclude(self, ok: bool, reason: str) -> TeamMissionResult:
         drone = self.drone_position()
         goal_error = math.dist(drone, self.plan.goal) if self.plan is not None and drone is not None else None
         count, broken = self.sync_violations()
-        self.result = TeamMissionResult(self.spec.mission, ok, reason, time.time() - started, self.plan, self.reports,
+        if ok and not (goal_error is not None and goal_error <= GOAL_TOLERANCE_M):
+            ok, reason = False, f"{reason}; but the drone is not at the goal"
+        if broken:
+            ok, reason = False, f"{reason}; sync points were broken"
+        self.result = TeamMissionResult(self.mission, ok, reason, self.elapsed(), self.plan, self.reports,
                                         goal_error, count, broken, self.events)
         return self.result

@@ -1,4 +1,7 @@
-"""The planner registry: name -> planning function, and the step from result to plan file."""
+"""The planners, by name, all with one signature: a `PlanRequest` in, a `PlanReply` out (the planner
+service calls `solve`). Paper 000's graph planners ("sipp", "ilp") share one path: map + tasks ->
+graph problem -> paths -> plan file -> validation; paper 002's team planner ("collab") plans for a
+ground-air team (`services/planner/collab/request.py`)."""
 
 from __future__ import annotations
 
@@ -6,29 +9,73 @@ import time
 from collections.abc import Callable
 from importlib import import_module
 
+from common.bus.messages import PlanReply, PlanRequest
 from common.domain.planfile import Plan, Task
 from common.errors import InputError
 from services.planner.graph.fleet_graph import FleetGraph
-from services.planner.maps.loading import Problem
+from services.planner.maps.loading import GraphProblem, problem_from_request
 from services.planner.result import PlanResult, to_plan
 
-PlannerFn = Callable[[FleetGraph, dict[str, Task], float, float, int], PlanResult]
+Solver = Callable[[PlanRequest], PlanReply]
+GraphPlanner = Callable[[FleetGraph, dict[str, Task], float, float, int], PlanResult]
 
 PLANNERS: dict[str, str] = {
+    "sipp": "services.planner.registry:solve_on_graph",
+    "ilp": "services.planner.registry:solve_on_graph",
+    "collab": "services.planner.collab.request:solve_team",
+}
+"""Every planner a request may name -> its solver (``module:function``, imported on first use)."""
+
+GRAPH_PLANNERS: dict[str, str] = {
     "sipp": "services.planner.sipp.planner:plan_sipp",
     "ilp": "services.planner.ilp.planner:plan_ilp",
 }
+"""The graph planners of paper 000 behind `solve_on_graph` and `fleet plan`."""
 
 
-def get_planner(name: str) -> PlannerFn:
-    if name not in PLANNERS:
-        raise InputError("planner", "", f"unknown planner {name!r} (choose from {', '.join(PLANNERS)}; collab for ground-air teams)")
-    module, fn = PLANNERS[name].split(":")
+def _load(target: str) -> Callable:
+    module, fn = target.split(":")
     return getattr(import_module(module), fn)
 
 
-def run_planner(problem: Problem, planner: str, mu: float, time_limit: float, seed: int) -> tuple[Plan | None, PlanResult]:
-    """Run a planner; the plan file on success, else None (the result says why)."""
+def solve(req: PlanRequest) -> PlanReply:
+    """Plan for a request with the planner it names (blocking: run it in a worker thread)."""
+    if req.planner not in PLANNERS:
+        return PlanReply(ok=False, error=f"unknown planner {req.planner!r} (choose from {', '.join(PLANNERS)})")
+    if not 0.0 <= req.mu <= 1.0:
+        return PlanReply(ok=False, error=f"mu must be in [0, 1], got {req.mu}")
+    if req.time_limit <= 0:
+        return PlanReply(ok=False, error="time_limit must be positive")
+    solver: Solver = _load(PLANNERS[req.planner])
+    return solver(req)
+
+
+def solve_on_graph(req: PlanRequest) -> PlanReply:
+    """A graph planner's request: plan the tasks on the map's graph and validate the plan."""
+    from services.planner.validate import validate_plan
+
+    try:
+        problem = problem_from_request(req.map, req.tasks, req.planner)
+        plan, result = run_planner(problem, req.planner, req.mu, req.time_limit, req.seed)
+    except InputError as exc:
+        return PlanReply(ok=False, error=str(exc))
+    if plan is None:
+        who = f" (could not place {result.failed_vehicle})" if result.failed_vehicle else ""
+        return PlanReply(ok=False, error=f"no plan{who}: {result.error}")
+    report = validate_plan(plan)
+    if not report.ok:
+        return PlanReply(ok=False, error="plan failed validation: " + "; ".join(report.errors[:5]))
+    return PlanReply(ok=True, plan=plan)
+
+
+def get_planner(name: str) -> GraphPlanner:
+    if name not in GRAPH_PLANNERS:
+        raise InputError("planner", "", f"unknown graph planner {name!r} (choose from {', '.join(GRAPH_PLANNERS)})")
+    return _load(GRAPH_PLANNERS[name])
+
+
+def run_planner(problem: GraphProblem, planner: str, mu: float, time_limit: float, seed: int) -> tuple[Plan | None, PlanResult]:
+    """Run a graph planner; the plan file on success, else None (the result says why)."""
     fn = get_planner(planner)
     t0 = time.perf_counter()
     result = fn(problem.graph, problem.tasks, mu, time_limit, seed)

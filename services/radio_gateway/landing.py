@@ -22,14 +22,14 @@ import math
 from dataclasses import dataclass
 
 from common.bus.messages import FlightSetpoint, Pose
+from common.crazyflie.firmware import FIRMWARE_MIN_THRUST
 from common.crazyflie.thrust import DRAG, thrust_command, thrust_newtons, to_flight_setpoint
 from common.deploy.radios import LandingParams
 from common.domain.vehicle_model import G
 from common.flight.estimator import Estimate, PoseEstimator
 from common.flight.lqr import FlightLqr
 from common.flight.modes import Mode
-from services.executor.trajectory import RefSample
-from services.sim.crazyflie.physics import FIRMWARE_MIN_THRUST
+from common.flight.reference import RefSample
 
 log = logging.getLogger(__name__)
 

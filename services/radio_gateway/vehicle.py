@@ -33,11 +33,11 @@ from enum import StrEnum
 
 from common.bus.messages import FlightSetpoint, Pose, Setpoint, StopSetpoint, WheelSetpoint
 from common.crazyflie import crtp
+from common.crazyflie.firmware import FIRMWARE_MIN_THRUST
 from common.crazyflie.thrust import thrust_command, thrust_newtons
 from common.deploy.radios import GatewayParams
 from services.radio_gateway.landing import SafeLanding
 from services.radio_gateway.linkstats import Event, LinkStats
-from services.sim.crazyflie.physics import FIRMWARE_MIN_THRUST
 
 _UNLOCK = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=0)
 

@@ -7,14 +7,15 @@ import math
 
 import numpy as np
 
-from services.planner.collab.planner import Problem, TeamPlanner
+from common.team.problem import TeamProblem
+from services.planner.collab.planner import TeamPlanner
 
 NEAR_CELLS = 4
 """The UGV starts within this many cells of the drone (002 §V-C: the robots start near each other)."""
 MIN_DISTANCE_M = 5.0
 
 
-def sample_problem(planner: TeamPlanner, seed: int) -> Problem:
+def sample_problem(planner: TeamPlanner, seed: int) -> TeamProblem:
     """A reproducible random problem for `seed`."""
     rng = np.random.default_rng(seed)
     s = planner.sensing
@@ -36,4 +37,4 @@ def sample_problem(planner: TeamPlanner, seed: int) -> Problem:
             continue
         lat = planner.lattice((ur, uc))
         if math.isfinite(lat.cost_to_go(lat.drone_id(k, r, c))[lat.drone_id(*start)]):
-            return Problem(drone_start=start, ugv_start=(ur, uc, int(rng.integers(8))), goal=(k, r, c))
+            return TeamProblem(drone_start=start, ugv_start=(ur, uc, int(rng.integers(8))), goal=(k, r, c))

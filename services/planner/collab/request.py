@@ -1,25 +1,16 @@
-"""Team plan requests on the planner service (paper 002 over zenoh): `PlanRequest(planner="collab",
-team=TeamTask(...))` -> a TeamPlan (§IV-E), and its per-robot copies for the executors
-(`vehicle/<vid>/team_plan`)."""
+"""Team plan requests (paper 002 over zenoh), the solver of planner "collab" in `registry.py`:
+`PlanRequest(planner="collab", team=TeamTask(...))` -> a TeamPlan (§IV-E)."""
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-import zenoh
-
 from common.bus.keys import check_chunk
-from common.bus.messages import PlanReply, PlanRequest, TeamTask, VehicleTeamPlan
-from common.bus.pubsub import Publisher
-from common.bus.service import Service
-from common.domain.team_plan import TeamPlan
+from common.bus.messages import PlanReply, PlanRequest
 from common.errors import InputError
 
 if TYPE_CHECKING:  # the planning modules load on the first team request, not with every `fleet` command
     from services.planner.collab.planner import TeamPlanner
-
-PLANNER = "collab"
-"""The `PlanRequest.planner` name of team planning."""
 
 _planners: dict[str, TeamPlanner] = {}
 
@@ -58,28 +49,3 @@ def solve_team(req: PlanRequest) -> PlanReply:
         why = f"time limit of {req.time_limit:g} s reached" if out.timed_out else "no team plan exists"
         return PlanReply(ok=False, error=f"no team plan: {why} ({out.expansions} expansions)")
     return PlanReply(ok=True, team_plan=out.plan)
-
-
-def robot_plans(plan: TeamPlan, team: TeamTask, mission: str, t0: float = 0.0) -> dict[str, VehicleTeamPlan]:
-    """The drone's and the UGV's copy of a team plan, each naming its partner."""
-    return {
-        team.drone: VehicleTeamPlan(vid=team.drone, mission=mission, robot="drone", partner=team.ugv, plan=plan, t0=t0),
-        team.ugv: VehicleTeamPlan(vid=team.ugv, mission=mission, robot="ugv", partner=team.drone, plan=plan, t0=t0),
-    }
-
-
-class TeamPlanPublisher:
-    """Publishes VehicleTeamPlans on `vehicle/<vid>/team_plan` for a service, one publisher per robot."""
-
-    def __init__(self, service: Service) -> None:
-        self._service = service
-        self._pubs: dict[str, Publisher[VehicleTeamPlan]] = {}
-
-    def put(self, plans: dict[str, VehicleTeamPlan]) -> None:
-        for vid, msg in plans.items():
-            pub = self._pubs.get(vid)
-            if pub is None:
-                pub = self._pubs[vid] = self._service.publisher(
-                    self._service.keys.vehicle(vid, "team_plan"), VehicleTeamPlan,
-                    congestion_control=zenoh.CongestionControl.BLOCK)
-            pub.put(msg)

@@ -14,7 +14,7 @@ from services.planner.maps.scenario import check_tasks, load_scenario, random_ta
 
 
 @dataclass
-class Problem:
+class GraphProblem:
     graph: FleetGraph
     map_name: str
     tasks: dict[str, Task]
@@ -37,7 +37,7 @@ def load_graph(name_or_path: str, dt: float | None = None, uniform: bool = False
     return _cached_graph(str(path), mtime, dt, uniform)
 
 
-def load_problem(args: argparse.Namespace) -> Problem:
+def load_problem(args: argparse.Namespace) -> GraphProblem:
     """`fleet plan` arguments -> graph + tasks. ILP plans always use the uniform-time-step graph."""
     uniform = args.planner == "ilp" or args.uniform
     if args.movingai:
@@ -47,7 +47,7 @@ def load_problem(args: argparse.Namespace) -> Problem:
         if not args.scen:
             raise InputError("--scen", "", "a MovingAI map needs its .scen file")
         tasks = load_scen(args.scen, graph, args.agents)
-        return Problem(graph, args.movingai, tasks)
+        return GraphProblem(graph, args.movingai, tasks)
     graph = load_graph(args.map, uniform=uniform)
     if args.scenario:
         tasks = load_scenario(args.scenario, graph)
@@ -55,11 +55,11 @@ def load_problem(args: argparse.Namespace) -> Problem:
         tasks = random_tasks(graph, args.random, args.seed)
     else:
         raise InputError("fleet plan", "--scenario/--random", "give a scenario file or --random N")
-    return Problem(graph, args.map, tasks)
+    return GraphProblem(graph, args.map, tasks)
 
 
-def problem_from_request(map_name: str, tasks: dict[str, Task], planner: str) -> Problem:
+def problem_from_request(map_name: str, tasks: dict[str, Task], planner: str) -> GraphProblem:
     """The planner service's path: a map name and tasks from a zenoh request."""
     graph = load_graph(map_name, uniform=planner == "ilp")
     check_tasks(tasks, graph, "plan request")
-    return Problem(graph, map_name, tasks)
+    return GraphProblem(graph, map_name, tasks)

@@ -1,4 +1,5 @@
-"""Scenarios (paper 000 §IV): vehicle id -> start and goal. A YAML file or a seeded random draw.
+"""Scenarios (paper 000 §IV) on a graph: a scenario file (`common.domain.scenario`) checked, or a
+seeded random draw.
 
 Well-formed (§V-D): every start and goal is a parking spot or helipad (any node on maps with open
 endpoints, such as MovingAI grids), starts are unique and goals are unique.
@@ -9,23 +10,15 @@ from __future__ import annotations
 import random
 from pathlib import Path
 
-import msgspec
-
 from common.bus.keys import check_chunk
-from common.domain.mapfile import decode_yaml, read_text
 from common.domain.planfile import Task
+from common.domain.scenario import read_scenario
 from common.errors import InputError
 from services.planner.graph.fleet_graph import FleetGraph
 
 
-class ScenarioFile(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    tasks: dict[str, Task]
-    map: str | None = None
-    description: str = ""
-
-
 def load_scenario(path: str | Path, graph: FleetGraph) -> dict[str, Task]:
-    spec: ScenarioFile = decode_yaml(read_text(Path(path)), ScenarioFile, str(path))
+    spec = read_scenario(path)
     check_tasks(spec.tasks, graph, str(path))
     return dict(spec.tasks)
 

@@ -19,7 +19,8 @@ from collections.abc import Callable
 
 from common.bus.messages import FlightSetpoint, WheelSetpoint
 from common.crazyflie import crtp
-from services.sim.crazyflie.physics import FIRMWARE_MIN_THRUST, WATCHDOG_CUT_S, WATCHDOG_LEVEL_S, SimFlyingCar
+from common.crazyflie.firmware import FIRMWARE_MIN_THRUST, WATCHDOG_CUT_S, WATCHDOG_LEVEL_S
+from services.sim.crazyflie.physics import SimFlyingCar
 from services.sim.crazyflie.radio import SimRadio
 
 log = logging.getLogger(__name__)

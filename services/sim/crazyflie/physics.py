@@ -27,6 +27,7 @@ from bisect import bisect_right
 from dataclasses import dataclass
 
 from common.bus.messages import FlightSetpoint, Setpoint, SimTruth, StopSetpoint, WheelSetpoint
+from common.crazyflie.firmware import FIRMWARE_MIN_THRUST, WATCHDOG_CUT_S, WATCHDOG_LEVEL_S
 from common.crazyflie.thrust import (
     DRAG,
     TAU_ROLL_PITCH,
@@ -36,13 +37,6 @@ from common.crazyflie.thrust import (
     thrust_newtons,
 )
 from common.domain.vehicle_model import G, VehicleModel
-
-WATCHDOG_LEVEL_S = 0.5
-"""Crazyflie firmware COMMANDER_WDT_TIMEOUT_STABILIZE: level the attitude, keep the thrust."""
-WATCHDOG_CUT_S = 2.0
-"""Crazyflie firmware COMMANDER_WDT_TIMEOUT_SHUTDOWN: motors off."""
-FIRMWARE_MIN_THRUST = 1000
-"""crtp_commander_rpyt.c: a thrust command below this means motors off."""
 
 # Open-circuit voltage of a 1S Li-Po against state of charge: a generic discharge curve (assumed,
 # not measured on the Crazyflie's 250 mAh cell).

@@ -25,7 +25,7 @@ from common.bus.pubsub import Publisher
 from common.bus.service import Service
 from common.bus.session import ZenohConfig
 from common.domain.team_plan import Robot, Vec3
-from services.sim.team.world import Outcome, TeamWorld
+from services.sim.team.world import ActionOutcome, TeamWorld
 
 
 @dataclass
@@ -35,18 +35,18 @@ class _Run:
     mission: str
     index: int
     status: ActionStatus
-    outcome: Outcome
+    outcome: ActionOutcome
     start: Vec3
     started: float
     ends: float
 
 
-class CollabSimService(Service):
+class TeamSimService(Service):
     """The world of one team: `vids` names the drone's and the UGV's vehicle ids."""
 
     def __init__(self, instance: str, zconfig: ZenohConfig, keys, world: TeamWorld, vids: dict[Robot, str],
                  time_scale: float = 1.0, truth_hz: float = 10.0) -> None:
-        super().__init__("collab-sim", instance, zconfig, keys)
+        super().__init__("team-sim", instance, zconfig, keys)
         if time_scale <= 0 or truth_hz <= 0:
             raise ValueError("time_scale and truth_hz must be positive")
         self.world = world

@@ -19,7 +19,7 @@ from common.team.sensing import DIRS, Sensing
 
 
 @dataclass(frozen=True)
-class Outcome:
+class ActionOutcome:
     """What one action does in the world: where the robot ends up (on failure: where it stopped),
     how long it takes (simulated seconds) and why it failed ("" if it did not)."""
 
@@ -47,17 +47,17 @@ class TeamWorld:
     def xyz(self, robot: tp.Robot) -> tp.Vec3:
         return self.metres(self.drone if robot == "drone" else self.ugv)
 
-    def outcome(self, robot: tp.Robot, step: tp.Step) -> Outcome:
+    def outcome(self, robot: tp.Robot, step: tp.Step) -> ActionOutcome:
         """Run `robot`'s action from the current poses without moving anything; a result that ends
         more than half a cell from the step's `end` is a failure."""
         out = self._drone(step) if robot == "drone" else self._ugv(step)
         if out.ok:
             pose = self.metres(out.pose)
             if math.dist(pose[:2], step.end[:2]) > self.env.resolution / 2:
-                return Outcome(out.pose, out.duration_s, f"ended at {_fmt(pose)}, expected {_fmt(step.end)}")
+                return ActionOutcome(out.pose, out.duration_s, f"ended at {_fmt(pose)}, expected {_fmt(step.end)}")
         return out
 
-    def apply(self, robot: tp.Robot, out: Outcome) -> None:
+    def apply(self, robot: tp.Robot, out: ActionOutcome) -> None:
         """Put `robot` where `out` left it."""
         if robot == "drone":
             assert isinstance(out.pose, ctl.DronePose)
@@ -72,7 +72,7 @@ class TeamWorld:
         return (x, y, self.env.z_levels[pose.level] if isinstance(pose, ctl.DronePose) else 45.0 * pose.heading)
 
     # ---- controllers ----------------------------------------------------------------------------
-    def _drone(self, step: tp.Step) -> Outcome:
+    def _drone(self, step: tp.Step) -> ActionOutcome:
         a, env, m = step.action, self.env, self.s.model
         before = self.drone
         trigger = None
@@ -82,7 +82,7 @@ class TeamWorld:
         elif isinstance(a, tp.GoToLandmarkStat):
             ids = [lm.id for lm in env.landmarks]
             if a.landmark not in ids:
-                return Outcome(before, 0.0, f"unknown landmark {a.landmark}")
+                return ActionOutcome(before, 0.0, f"unknown landmark {a.landmark}")
             c = ctl.GoToLandmarkStat(ids.index(a.landmark), env.cell_of(a.target[0], a.target[1]))
         elif isinstance(a, tp.GoToLandmarkDyn):
             ux, uy, _ = self.xyz("ugv")
@@ -94,18 +94,18 @@ class TeamWorld:
         elif isinstance(a, tp.Altitude):
             c = ctl.Altitude(env.level_of(a.z))
         else:
-            return Outcome(before, 0.0, f"{type(a).__name__} is not a drone action")
+            return ActionOutcome(before, 0.0, f"{type(a).__name__} is not a drone action")
         after = ctl.phi(self.s, before, c, trigger, self.ugv)
         if after is None:
-            return Outcome(before, 0.0, f"{type(a).__name__} not available at {_fmt(self.xyz('drone'))}")
+            return ActionOutcome(before, 0.0, f"{type(a).__name__} not available at {_fmt(self.xyz('drone'))}")
         dz = abs(env.z_levels[after.level] - env.z_levels[before.level])
         dist = math.hypot(after.row - before.row, after.col - before.col) * env.resolution + dz
-        return Outcome(after, dist / m.drone_speed + (1.0 if isinstance(a, tp.MetricTurn) else 0.0))
+        return ActionOutcome(after, dist / m.drone_speed + (1.0 if isinstance(a, tp.MetricTurn) else 0.0))
 
-    def _ugv(self, step: tp.Step) -> Outcome:
+    def _ugv(self, step: tp.Step) -> ActionOutcome:
         a, m = step.action, self.s.model
         if not isinstance(a, tp.MetricMotion):
-            return Outcome(self.ugv, 0.0, f"{type(a).__name__} is not a UGV action")
+            return ActionOutcome(self.ugv, 0.0, f"{type(a).__name__} is not a UGV action")
         turns = round(a.turn_deg / 45.0)
         pose = self.ugv
         for _ in range(abs(turns)):
@@ -114,9 +114,9 @@ class TeamWorld:
         for _ in range(n):
             nxt = ctl.phi_ugv(self.s, pose, ctl.UgvForward())
             if nxt is None:
-                return Outcome(pose, 0.0, f"UGV blocked at {_fmt(self.metres(pose))}")
+                return ActionOutcome(pose, 0.0, f"UGV blocked at {_fmt(self.metres(pose))}")
             pose = nxt
-        return Outcome(pose, abs(a.turn_deg) / m.ugv_turn_rate + a.distance_m / m.ugv_speed)
+        return ActionOutcome(pose, abs(a.turn_deg) / m.ugv_turn_rate + a.distance_m / m.ugv_speed)
 
 
 @dataclass(frozen=True)
