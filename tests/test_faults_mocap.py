@@ -12,13 +12,13 @@ from collections.abc import Callable
 import pytest
 import zenoh
 
-from common.bus.messages import SimFault, SimTruth
+from common.bus.messages import MocapBody, MocapFrame, SimFault
 from common.bus.pubsub import Publisher
 from common.bus.session import ZenohConfig
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from services.mocap_bridge.bridge import MocapBridge
-from services.mocap_bridge.config import MocapConfig, SimNoise
+from services.mocap_bridge.config import MocapConfig
 from tests.support.fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
 
 SHORT, LONG = 0.3, 2.0
@@ -66,15 +66,15 @@ def test_late_frames_are_dropped_not_queued(zenoh_router: str, zsession: Callabl
     """A bridge that falls behind drops frames older than `max_age_s` (counted) instead of
     publishing a backlog of late poses."""
     cfg = ZenohConfig.client(zenoh_router)
-    bridge = MocapBridge(MocapConfig(sim=SimNoise(latency_s=0.0)), cfg)
+    bridge = MocapBridge(MocapConfig(), cfg)
     session = zsession()
-    truth = Publisher(session, bridge.keys.sim_truth("cf1"), SimTruth)
+    frames = Publisher(session, bridge.keys.sim_mocap, MocapFrame)
 
     async def main() -> None:
         task = asyncio.create_task(bridge.run())
-        await until(lambda: truth.matched, 5.0, "the bridge's subscription")
+        await until(lambda: frames.matched, 5.0, "the bridge's subscription")
         for age in (1.0, 0.5, 0.0):
-            truth.put(SimTruth(vid="cf1", t=time.time() - age, x=0.0, y=0.0, z=0.0, yaw=0.0))
+            frames.put(MocapFrame(t=time.time() - age, bodies=[MocapBody("cf1", 0.0, 0.0, 0.0, 0.0)]))
         await until(lambda: bridge.published.get("cf1") == 1, 2.0, "the fresh pose")
         bridge.stop()
         assert await task == 0

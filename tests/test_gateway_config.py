@@ -68,6 +68,7 @@ def test_a_good_file_loads_with_defaults_and_round_trips(tmp_path: Path) -> None
     ("radios: {r0: {vehicles: {a: {uri: 'radio://0/80/2M/E7E7E7E7E1'}, b: {uri: 'radio://1/80/2M/E7E7E7E7E2'}}}}",
      "radios.r0.vehicles", "several dongles"),
     ("radios: {r0: {vehicles: {a: {uri: 'udp://h:1'}}}}\ngateway: {tick_hz: 0}", "gateway.tick_hz", "> 0"),
+    ("radios: {r0: {vehicles: {a: {uri: 'udp://h:1'}}}}\nmocap: {pos_std: -1}", "mocap.pos_std", ">= 0"),
 ])
 def test_bad_files_name_the_field_and_the_problem(tmp_path: Path, text: str, field: str, problem: str) -> None:
     path = _write(tmp_path, text)

@@ -1,5 +1,5 @@
 """The mocap bridge: the `motioncapture` mock backend end to end (rate, rigid-body mapping, capture
-stamps), the sim backend (noisy poses of the simulated truth, a vanished body reported and not
+stamps), the sim backend (noisy poses of the simulated motion capture, a vanished body reported and not
 frozen), and the tracker's rate limit and lost / found logic on synthetic frames."""
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from common.bus.keys import Keys
 from common.bus.messages import Pose, SimTruth, VehicleEvent
 from common.bus.pubsub import subscribe
 from common.bus.session import ZenohConfig
-from common.deploy.radios import simulated_radios
+from common.deploy.radios import MocapModel, simulated_radios
 from common.errors import InputError
 from services.mocap_bridge.bridge import MocapBridge
-from services.mocap_bridge.config import MocapConfig, SimNoise, load_mocap
+from services.mocap_bridge.config import MocapConfig, load_mocap
 from services.mocap_bridge.tracker import BodyTracker, yaw_of
 from services.sim.crazyflie.service import SimService
 from tests.support.loadgen import running
@@ -77,15 +77,15 @@ def test_sim_backend_publishes_noisy_poses_and_reports_a_vanished_body(
         zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
     cfg = ZenohConfig.client(zenoh_router)
     spec = simulated_radios({"v1": (0.5, -0.25, 0.0), "v2": (1.0, 1.0, 0.0)}, per_radio=2)
-    noise = SimNoise(pos_std=0.002, latency_s=0.01, seed=4)
-    bridge = MocapBridge(MocapConfig(sim=noise), cfg)
+    noise = MocapModel(pos_std=0.002, latency_s=0.01, seed=4)
+    bridge = MocapBridge(MocapConfig(), cfg)
     session = zsession()
 
     async def main() -> None:
         seen = Poses(session)
         truth: dict[str, SimTruth] = {}
         subscribe(session, KEYS.all_sim_truth, SimTruth, lambda m, _k: truth.__setitem__(m.vid, m))
-        sim = SimService(spec, cfg)
+        sim = SimService(spec, cfg, mocap=noise)
         async with running(bridge):
             async with running(sim):
                 await asyncio.sleep(1.0)
@@ -99,7 +99,7 @@ def test_sim_backend_publishes_noisy_poses_and_reports_a_vanished_body(
             assert not seen.since("v1", gone) and not seen.since("v2", gone)  # not frozen: no poses at all
             lost = {e.vid for e in seen.events if e.kind == "mocap_lost"}
             assert lost == {"v1", "v2"}
-            async with running(SimService(spec, cfg)):  # back again
+            async with running(SimService(spec, cfg, mocap=noise)):  # back again
                 await asyncio.sleep(0.5)
             assert {e.vid for e in seen.events if e.kind == "mocap_found"} == {"v1", "v2"}
         rate = len(v1) / (t1 - t0)
@@ -148,7 +148,7 @@ def test_mocap_config_errors(tmp_path: Path) -> None:
     assert load_mocap(path).options == {"hostname": "10.0.0.5"}
     for text, field in [("backend: kinect\n", "backend"), ("rate_hz: 0\n", "rate_hz"),
                         ("bodies: {a: cf1, b: cf1}\n", "bodies.b"), ("bodies: {a: 'x/y'}\n", "bodies.a"),
-                        ("sim: {pos_std: -1}\n", "sim.pos_std")]:
+                        ("latency_s: -1\n", "latency_s")]:
         path.write_text(text)
         with pytest.raises(InputError) as err:
             load_mocap(path)

@@ -66,6 +66,10 @@ class Keys:
     def planner_plan(self) -> str:
         return f"{self.root}/planner/plan"
 
+    @property
+    def planner_graph(self) -> str:
+        return f"{self.root}/planner/graph"
+
     def mission(self, mission_id: str, topic: MissionTopic) -> str:
         check_chunk(mission_id, "mission id")
         return f"{self.root}/mission/{mission_id}/{topic}"
@@ -80,6 +84,11 @@ class Keys:
     @property
     def all_sim_truth(self) -> str:
         return f"{self.root}/sim/truth/*"
+
+    @property
+    def sim_mocap(self) -> str:
+        """Frames of the simulated motion-capture system."""
+        return f"{self.root}/sim/mocap"
 
     def sim_fault(self, vid: str) -> str:
         check_chunk(vid, "vehicle id")

@@ -11,7 +11,7 @@ from typing import Generic, Literal, TypeVar
 
 import msgspec
 
-from common.domain.planfile import Plan, PlanModel, Task
+from common.domain.planfile import Plan, PlanGraph, PlanModel, Task
 from common.domain.team_plan import Robot, Step, TeamPlan, Vec3
 from common.domain.vehicle_model import EdgeKind, NodeKind
 
@@ -139,6 +139,24 @@ class VehicleEvent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     node: str = ""
 
 
+class MocapBody(msgspec.Struct, frozen=True, forbid_unknown_fields=True, array_like=True):
+    """One rigid body of a motion-capture frame: its name in the capture system, position (m), yaw (rad)."""
+
+    name: str
+    x: float
+    y: float
+    z: float
+    yaw: float
+
+
+class MocapFrame(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One frame of a (simulated) motion-capture system (`sim/mocap`): every body it saw, and the
+    capture time `t` (epoch s). The mocap bridge's `sim` backend reads these as it reads a Vicon."""
+
+    t: float
+    bodies: list[MocapBody]
+
+
 class SimTruth(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Ground truth of a simulated vehicle (`sim/truth/<vid>`)."""
 
@@ -222,6 +240,20 @@ class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     error: str = ""
     plan: Plan | None = None
     team_plan: TeamPlan | None = None
+
+
+class GraphRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Query payload of `planner/graph`: the graph the planner builds from `map` (the base graph, or
+    the uniform-time-step graph of the ILP)."""
+
+    map: str
+    uniform: bool = False
+
+
+class GraphReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    ok: bool
+    error: str = ""
+    graph: PlanGraph | None = None
 
 
 class VehicleTeamPlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

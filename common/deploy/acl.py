@@ -69,18 +69,19 @@ ROLES: dict[str, Role] = {
         subscribe=("vehicle/*/plan", "vehicle/*/team_plan", "vehicle/*/pose", "vehicle/*/telemetry",
                    "vehicle/*/state", "vehicle/*/action_status", "mission/*/start", "mission/*/abort"),
         watch=("alive/executor/*",)),
-    "planner": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan"), serve=("planner/plan",)),
+    "planner": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan"), serve=("planner/plan", "planner/graph")),
     "gateway": Role(publish=("vehicle/*/telemetry", "vehicle/*/event"),
                     subscribe=("vehicle/*/cmd", "vehicle/*/pose"), watch=("alive/executor/*",)),
-    "sim": Role(publish=("sim/truth/*", "vehicle/*/event"), subscribe=("sim/fault/*",)),
-    "mocap": Role(publish=("vehicle/*/pose", "vehicle/*/event"), subscribe=("sim/truth/*", "sim/fault/*")),
-    "telemetry": Role(subscribe=("vehicle/*/plan", "vehicle/*/state", "vehicle/*/telemetry", "sim/truth/*")),
+    "sim": Role(publish=("sim/truth/*", "sim/mocap", "vehicle/*/event"), subscribe=("sim/fault/*",)),
+    "mocap": Role(publish=("vehicle/*/pose", "vehicle/*/event"), subscribe=("sim/mocap",)),
+    "telemetry": Role(subscribe=("vehicle/*/plan", "vehicle/*/state", "vehicle/*/telemetry", "sim/truth/*"),
+                      query=("planner/graph",)),
     # the simulated ground-air team of paper 002 (`fleet sim team`): runs the executors' actions
     "team-sim": Role(publish=("vehicle/*/action_status", "sim/truth/*"), subscribe=("vehicle/*/action",)),
     # the operator: runs missions, watches everything, injects simulator faults; never commands a vehicle
     "mission": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan", "mission/*/start", "mission/*/abort",
                              "sim/fault/*"),
-                    subscribe=("**",), query=("planner/plan",), watch=("alive/**",)),
+                    subscribe=("**",), query=("planner/plan", "planner/graph"), watch=("alive/**",)),
 }
 
 

@@ -101,6 +101,19 @@ class GatewayParams(msgspec.Struct, **_Strict):
     landing: LandingParams = LandingParams()
 
 
+class MocapModel(msgspec.Struct, **_Strict):
+    """The simulated motion-capture system's imperfections (`fleet sim`, docs/mocap.md): Gaussian
+    position (m) and yaw (rad) noise, the delay from capture to publication (s), and dropouts: each
+    body starts one at random `dropout_rate_hz` times per second (Poisson), lasting `dropout_s`."""
+
+    pos_std: NonNegative = 0.001
+    yaw_std: NonNegative = 0.0087
+    latency_s: NonNegative = 0.006
+    dropout_rate_hz: NonNegative = 0.0
+    dropout_s: NonNegative = 0.2
+    seed: int = 0
+
+
 class VehicleLink(msgspec.Struct, **_Strict):
     """One vehicle: its cflib link URI; for the simulator, where it starts (m) and its yaw (rad)."""
 
@@ -117,6 +130,8 @@ class RadioSpec(msgspec.Struct, **_Strict):
 class RadiosFile(msgspec.Struct, **_Strict):
     radios: dict[str, RadioSpec]
     gateway: GatewayParams = GatewayParams()
+    mocap: MocapModel = MocapModel()
+    """The simulated motion capture of the simulated vehicles (ignored by real ones)."""
 
 
 def udp_address(uri: str) -> tuple[str, int]:

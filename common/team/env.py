@@ -22,6 +22,7 @@ import msgspec
 import numpy as np
 
 from common.domain.mapfile import decode_yaml, read_text
+from common.domain.movingai import read_grid
 from common.errors import InputError
 
 MAP_FORMAT = "fleet-collab-map/1"
@@ -39,7 +40,7 @@ class LandmarkSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     z: float = 1.5
 
 
-class MapSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+class TeamMapSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """The YAML map file. `legend` maps extra grid characters to obstacle-top heights in metres;
     '.' (free) and '#' (wall) are built in. Zones are [xmin, ymin, xmax, ymax] rectangles in metres
     and cover the cells whose centres lie inside."""
@@ -104,7 +105,7 @@ def _zone_mask(rects: list[Rect], shape: tuple[int, int], res: float, source: st
     return mask
 
 
-def env_from_spec(spec: MapSpec, source: str) -> Env:
+def env_from_spec(spec: TeamMapSpec, source: str) -> Env:
     """Check a decoded map and build its grids; every problem is an InputError naming the field."""
     if spec.resolution <= 0:
         raise InputError(source, "resolution", "must be positive")
@@ -153,7 +154,7 @@ def grid_env(
     name: str = "grid",
 ) -> Env:
     """An Env from grid rows (rows[0] is y = 0) at 0.5 m cells: quick maps for code and tests."""
-    spec = MapSpec(
+    spec = TeamMapSpec(
         format=MAP_FORMAT, name=name, rows=rows, legend=legend or {}, landmarks=landmarks or [],
         no_ugv=no_ugv or [], no_metric=no_metric or [],
     )
@@ -162,14 +163,12 @@ def grid_env(
 
 def load_yaml_map(path: str | Path) -> Env:
     """A `fleet-collab-map/1` YAML file -> Env (strict: unknown keys are InputErrors)."""
-    spec = decode_yaml(read_text(Path(path)), MapSpec, str(path))
+    spec = decode_yaml(read_text(Path(path)), TeamMapSpec, str(path))
     return env_from_spec(spec, str(path))
 
 
 def load_movingai_map(path: str | Path, resolution: float = 0.5) -> Env:
     """A MovingAI `.map` grid -> Env: blocked cells are walls, no landmarks, no zones."""
-    from services.planner.maps.movingai import read_grid
-
     free = read_grid(path)
     heights = np.where(free, 0.0, math.inf)
     return Env(

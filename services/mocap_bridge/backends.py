@@ -1,4 +1,4 @@
-"""Where frames come from: a `motioncapture` (libmotioncapture) system, or the simulator's truth.
+"""Where frames come from: a `motioncapture` (libmotioncapture) system, or the simulated one.
 
 Both hand frames to `on_frame(t, seen)` on the event loop: `t` the capture time (epoch s), `seen`
 body name -> (x, y, z, yaw) of every body visible in the frame.
@@ -7,24 +7,20 @@ body name -> (x, y, z, yaw) of every body visible in the frame.
   (`waitForNextFrame` blocks, and so may `connect`; both release the GIL). The Python binding gives
   no frame timestamp: a frame is stamped on arrival minus the configured system latency. A failing
   connection is retried every `RETRY_S`.
-- `SimBackend`: `sim/truth/<vid>` from `fleet sim`, with Gaussian noise, a capture-to-publication
-  delay and random dropouts (`SimNoise`); the capture time is the truth's own time. `blind` hides
-  one body for a while (fault injection, docs/reliability.md).
+- `sim`: the frames of the simulated motion-capture system of `fleet sim` (`sim/mocap`, noise,
+  latency and dropouts are the simulator's), stamped with their capture time.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-import math
-import random
 import threading
 import time
 from collections.abc import Callable, Mapping
 
-from common.bus.messages import SimTruth
+from common.bus.messages import MocapFrame
 from common.bus.pubsub import call_in_loop
-from services.mocap_bridge.config import SimNoise
 from services.mocap_bridge.tracker import BodyPose, yaw_of
 
 log = logging.getLogger(__name__)
@@ -82,39 +78,6 @@ def _body_pose(body) -> BodyPose:
     return x, y, z, yaw_of(q.w, q.x, q.y, q.z)
 
 
-class SimBackend:
-    """Simulated motion capture from ground truth (feed it with `on_truth`)."""
-
-    def __init__(self, noise: SimNoise, on_frame: FrameCallback) -> None:
-        self.noise = noise
-        self._on_frame = on_frame
-        self._rng = random.Random(noise.seed)
-        self._dropout_until: dict[str, float] = {}
-        self._last_t: dict[str, float] = {}
-        self._closed = False
-
-    def on_truth(self, truth: SimTruth, _key: str = "") -> None:
-        n = self.noise
-        last = self._last_t.get(truth.vid)
-        self._last_t[truth.vid] = truth.t
-        starts = last is not None and n.dropout_rate_hz > 0.0 and truth.t > last
-        if starts and self._rng.random() < -math.expm1(-n.dropout_rate_hz * (truth.t - last)):
-            self.blind(truth.vid, truth.t + n.dropout_s)
-        if truth.t < self._dropout_until.get(truth.vid, -math.inf):
-            return
-        g = self._rng.gauss
-        seen = {truth.vid: (truth.x + g(0.0, n.pos_std), truth.y + g(0.0, n.pos_std), truth.z + g(0.0, n.pos_std),
-                            math.remainder(truth.yaw + g(0.0, n.yaw_std), 2.0 * math.pi))}
-        asyncio.get_running_loop().call_later(n.latency_s, self._deliver, truth.t, seen)
-
-    def blind(self, vid: str, until: float) -> None:
-        """`vid` is not seen in frames captured before `until` (epoch s; an earlier end is kept)."""
-        self._dropout_until[vid] = max(until, self._dropout_until.get(vid, -math.inf))
-
-    def _deliver(self, t: float, seen: Mapping[str, BodyPose]) -> None:
-        if not self._closed:
-            self._on_frame(t, seen)
-
-    def close(self) -> None:
-        """Frames still on their way are dropped (the bridge is stopping)."""
-        self._closed = True
+def frame_bodies(frame: MocapFrame) -> dict[str, BodyPose]:
+    """A simulated system's frame (`sim/mocap`) as the bridge takes frames: body name -> pose."""
+    return {b.name: (b.x, b.y, b.z, b.yaw) for b in frame.bodies}

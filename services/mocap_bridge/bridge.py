@@ -1,14 +1,11 @@
 """`fleet mocap`: motion capture -> `vehicle/<vid>/pose` (paper 000 §VI-B: "position and yaw estimates
 from a Vicon motion capture system"), 100 Hz by default, stamped with the capture time.
 
-A `motioncapture` system (vicon, optitrack, qualisys, vrpn, or the library's mock) or the simulator's
-ground truth (`sim`) feeds the `BodyTracker`, which maps rigid bodies to vehicles, limits the rate
-and reports a vanished body as `VehicleEvent` "mocap_lost" on `vehicle/<vid>/event` (no poses for it
-until it is back: "mocap_found").
-
-With the `sim` backend, a `SimFault` "mocap_dropout" on `sim/fault/<vid>` hides that body for its
-duration (fault injection, docs/reliability.md). Counters and the poses published per vehicle go
-out on `stats/mocap/<instance>`.
+A `motioncapture` system (vicon, optitrack, qualisys, vrpn, or the library's mock) or the simulated
+one of `fleet sim` (`sim`: its frames on `sim/mocap`) feeds the `BodyTracker`, which maps rigid
+bodies to vehicles, limits the rate and reports a vanished body as `VehicleEvent` "mocap_lost" on
+`vehicle/<vid>/event` (no poses for it until it is back: "mocap_found"). Counters and the poses
+published per vehicle go out on `stats/mocap/<instance>`.
 """
 
 from __future__ import annotations
@@ -19,12 +16,11 @@ import time
 from collections.abc import Mapping
 
 from common.bus.keys import Keys
-from common.bus.messages import Pose, SimFault, SimTruth, VehicleEvent
-from common.bus.pubsub import Publisher
+from common.bus.messages import MocapFrame, Pose, VehicleEvent
 from common.bus.service import Service
 from common.bus.session import ZenohConfig
 from common.bus.stats import publish_stats
-from services.mocap_bridge.backends import LibBackend, SimBackend
+from services.mocap_bridge.backends import LibBackend, frame_bodies
 from services.mocap_bridge.config import MocapConfig, check_mocap
 from services.mocap_bridge.tracker import BodyPose, BodyTracker, Event
 
@@ -41,17 +37,15 @@ class MocapBridge(Service):
         self.config = config
         self.tracker: BodyTracker | None = None
         self.published: dict[str, int] = {}
-        self._poses: dict[str, Publisher[Pose]] = {}
-        self._events: dict[str, Publisher[VehicleEvent]] = {}
 
     async def main(self) -> None:
         cfg = self.config
+        self._poses = self.publishers(lambda vid: self.keys.vehicle(vid, "pose"), Pose)
+        self._events = self.publishers(lambda vid: self.keys.vehicle(vid, "event"), VehicleEvent)
         tracker = self.tracker = BodyTracker(cfg.bodies, cfg.rate_hz, cfg.lost_after_s, source=cfg.backend)
-        backend: LibBackend | SimBackend
+        backend: LibBackend | None = None
         if cfg.backend == "sim":
-            backend = SimBackend(cfg.sim, self._on_frame)
-            self.subscribe(self.keys.all_sim_truth, SimTruth, backend.on_truth)
-            self.subscribe(self.keys.all_sim_faults, SimFault, lambda f, _k: self._on_fault(backend, f))
+            self.subscribe(self.keys.sim_mocap, MocapFrame, lambda f, _k: self._on_frame(f.t, frame_bodies(f)))
         else:
             options = dict(cfg.options)
             if cfg.backend == "mock":
@@ -64,7 +58,8 @@ class MocapBridge(Service):
                 self._publish_events(tracker.check(time.time()))
                 await asyncio.sleep(min(cfg.lost_after_s / 2.0, 1.0 / cfg.rate_hz))
         finally:
-            backend.close()
+            if backend is not None:
+                backend.close()
 
     def _on_frame(self, t: float, seen: Mapping[str, BodyPose]) -> None:
         """A frame captured at `t`: poses and events. One older than `max_age_s` by now (the loop
@@ -80,18 +75,8 @@ class MocapBridge(Service):
         poses, events = self.tracker.frame(t, seen, now)
         self._publish_events(events)
         for pose in poses:
-            pub = self._poses.get(pose.vid)
-            if pub is None:
-                pub = self._poses[pose.vid] = self.publisher(self.keys.vehicle(pose.vid, "pose"), Pose)
-            pub.put(pose)
+            self._poses.put(pose.vid, pose)
             self.published[pose.vid] = self.published.get(pose.vid, 0) + 1
-
-    def _on_fault(self, backend: SimBackend, fault: SimFault) -> None:
-        if fault.kind != "mocap_dropout":
-            return
-        log.warning("mocap: fault injected: %s unseen for %.2f s", fault.vid, fault.duration_s)
-        self.counters.inc(f"fault:{fault.kind}:{fault.vid}")
-        backend.blind(fault.vid, time.time() + fault.duration_s)
 
     def _figures(self) -> dict[str, float]:
         return {"bodies": len(self.published), "poses": sum(self.published.values()),
@@ -104,7 +89,4 @@ class MocapBridge(Service):
     def _publish_events(self, events: list[Event]) -> None:
         for vid, kind, detail in events:
             log.warning("mocap: %s %s: %s", vid, kind, detail)
-            pub = self._events.get(vid)
-            if pub is None:
-                pub = self._events[vid] = self.publisher(self.keys.vehicle(vid, "event"), VehicleEvent)
-            pub.put(VehicleEvent(vid=vid, t=time.time(), kind=kind, detail=detail))
+            self._events.put(vid, VehicleEvent(vid=vid, t=time.time(), kind=kind, detail=detail))

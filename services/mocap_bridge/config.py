@@ -1,15 +1,15 @@
 """The mocap bridge's configuration (docs/mocap.md), a YAML file decoded strictly, or the defaults
-(simulated motion capture of every simulated vehicle at 100 Hz).
+(the simulated motion capture of `fleet sim`, every simulated vehicle at 100 Hz; its noise is the
+radios file's `mocap` model).
 
 ```yaml
-backend: vicon                  # sim | mock | vicon | optitrack | qualisys | vrpn
+backend: vicon                  # sim (fleet sim's frames) | mock | vicon | optitrack | qualisys | vrpn
 options: {hostname: 10.0.0.5}   # passed to motioncapture.connect (strings)
 rate_hz: 100                    # most poses per second per body
 bodies: {cf_01: cf1, cf_02: cf2}   # rigid-body name -> vehicle id (empty: the body's name is the vid)
 lost_after_s: 0.1               # a body unseen this long is reported lost
 latency_s: 0.0                  # real systems: subtracted from the arrival time for the capture stamp
 max_age_s: 0.1                  # a frame captured longer ago when the bridge gets to it is dropped
-sim: {pos_std: 0.001, yaw_std: 0.0087, latency_s: 0.006, dropout_rate_hz: 0.0, dropout_s: 0.2, seed: 0}
 ```
 """
 
@@ -33,19 +33,6 @@ LIB_BACKENDS: tuple[str, ...] = ("mock", "vicon", "optitrack", "qualisys", "vrpn
 """Backends served by the `motioncapture` library (libmotioncapture)."""
 
 
-class SimNoise(msgspec.Struct, **_Strict):
-    """The `sim` backend's imperfections: Gaussian position (m) and yaw (rad) noise, the delay from
-    capture to publication (s), and dropouts: each body starts one at random `dropout_rate_hz`
-    times per second (Poisson), lasting `dropout_s`. Defaults: docs/mocap.md."""
-
-    pos_std: NonNegative = 0.001
-    yaw_std: NonNegative = 0.0087
-    latency_s: NonNegative = 0.006
-    dropout_rate_hz: NonNegative = 0.0
-    dropout_s: NonNegative = 0.2
-    seed: int = 0
-
-
 class MocapConfig(msgspec.Struct, **_Strict):
     backend: Backend = "sim"
     options: dict[str, str] = {}
@@ -54,7 +41,6 @@ class MocapConfig(msgspec.Struct, **_Strict):
     lost_after_s: Positive = 0.1
     latency_s: NonNegative = 0.0
     max_age_s: Positive = 0.1
-    sim: SimNoise = SimNoise()
 
 
 def check_mocap(config: MocapConfig, source: str) -> None:

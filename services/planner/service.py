@@ -2,7 +2,8 @@
 planner -> paths). A request names a map, tasks, a planner, mu and a time limit; the reply is a
 validated plan or a clear error. With a mission id it also publishes each vehicle's plan on
 `vehicle/<vid>/plan`; a team plan (planner "collab", paper 002) goes to both robots on
-`vehicle/<vid>/team_plan`. The planners are those of `registry.py`."""
+`vehicle/<vid>/team_plan`. The planners are those of `registry.py`. A second queryable,
+`planner/graph`, serves the graph of a map to whoever draws it (the telemetry recorder)."""
 
 from __future__ import annotations
 
@@ -13,9 +14,10 @@ import logging
 import zenoh
 
 from common.bus.args import keys_from_args, run_service, zconfig_from_args
-from common.bus.messages import PlanReply, PlanRequest, VehiclePlan, VehicleTeamPlan
+from common.bus.messages import GraphReply, GraphRequest, PlanReply, PlanRequest, VehiclePlan, VehicleTeamPlan
 from common.bus.service import KeyedPublishers, Service
 from common.bus.vehicle_plans import robot_plans, vehicle_plans
+from common.errors import InputError
 from services.planner.registry import solve
 
 log = logging.getLogger(__name__)
@@ -34,7 +36,12 @@ class PlannerService(Service):
         self._team_plans = self.publishers(lambda vid: self.keys.vehicle(vid, "team_plan"), VehicleTeamPlan,
                                            congestion_control=block)
         self.serve(self.keys.planner_plan, PlanRequest, PlanReply, self.handle)
+        self.serve(self.keys.planner_graph, GraphRequest, GraphReply, self.graph)
         await self.stopped()
+
+    async def graph(self, req: GraphRequest) -> GraphReply:
+        """The graph of a map, as the plan file carries it (the recorder draws it)."""
+        return await asyncio.to_thread(graph_of, req)
 
     async def handle(self, req: PlanRequest) -> PlanReply:
         async with self._lock:  # one plan at a time: planning is CPU-bound
@@ -46,6 +53,15 @@ class PlannerService(Service):
         if reply.ok and req.mission and reply.team_plan is not None and req.team and self._team_plans is not None:
             self._team_plans.put_all(robot_plans(reply.team_plan, req.team, req.mission))
         return reply
+
+
+def graph_of(req: GraphRequest) -> GraphReply:
+    from services.planner.maps.loading import load_graph
+
+    try:
+        return GraphReply(ok=True, graph=load_graph(req.map, uniform=req.uniform).to_plan_graph())
+    except InputError as exc:
+        return GraphReply(ok=False, error=str(exc))
 
 
 def cmd_planner(args: argparse.Namespace) -> int:

@@ -1,6 +1,7 @@
 """The telemetry recorder: zenoh -> rerun. One recording per mission (`<out>/<mission>.rrd`),
-opened when the mission's plans arrive: the map graph, no-fly zones and obstacles, the planned
-paths, then live bodies coloured by mode, ground truth, battery and link quality."""
+opened when the mission's plans arrive: the map graph (asked of the planner, `planner/graph`),
+no-fly zones and obstacles, the planned paths, then live bodies coloured by mode, ground truth,
+battery and link quality."""
 
 from __future__ import annotations
 
@@ -10,14 +11,18 @@ import time
 from pathlib import Path
 
 from common.bus.args import keys_from_args, run_service, zconfig_from_args
-from common.bus.messages import SimTruth, Telemetry, VehiclePlan, VehicleState
+from common.bus.messages import GraphReply, GraphRequest, SimTruth, Telemetry, VehiclePlan, VehicleState
 from common.bus.priority import lower_priority
+from common.bus.pubsub import QueryError, query
 from common.bus.service import Service
 from common.domain.mapfile import load_map
 from common.errors import InputError
 from services.telemetry.rerun_log import FleetRecording
 
 log = logging.getLogger(__name__)
+
+GRAPH_TIMEOUT_S = 10.0
+"""How long the planner may take to build a map's graph for the recorder."""
 
 
 class TelemetryService(Service):
@@ -75,14 +80,19 @@ class TelemetryService(Service):
         path = self.out / f"{plan.mission or 'no-mission'}.rrd"
         self.recording = FleetRecording(plan.mission or "fleet", path, viewer=self.viewer, web=self.web)
         self.files.append(path)
-        try:
-            from services.planner.maps.loading import load_graph
-
-            graph = load_graph(plan.map)
-            self.recording.log_map(graph.to_plan_graph(), load_map(plan.map))
-        except InputError as exc:
-            log.warning("telemetry: cannot draw map %s: %s", plan.map, exc)
+        self.spawn(self._draw_map(self.recording, plan.map), name=f"map {plan.map}")
         log.info("recording mission %s to %s", plan.mission, path)
+
+    async def _draw_map(self, recording: FleetRecording, map_name: str) -> None:
+        """The planner's graph of the map (`planner/graph`) and the map file's zones and obstacles."""
+        try:
+            reply = await query(self.session, self.keys.planner_graph, GraphRequest(map=map_name), GraphReply,
+                                timeout=GRAPH_TIMEOUT_S)
+            if not reply.ok or reply.graph is None:
+                raise InputError(map_name, "", reply.error or "the planner sent no graph")
+            recording.log_map(reply.graph, load_map(map_name))
+        except (QueryError, InputError) as exc:
+            log.warning("telemetry: cannot draw map %s: %s", map_name, exc)
 
 
 def cmd_telemetry(args: argparse.Namespace) -> int:

@@ -8,36 +8,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from common.domain.mapfile import AirRegion, MapSpec, Obstacle, RoadNode, Roads, read_text
+from common.domain.movingai import read_grid
 from common.domain.planfile import Task
 from common.domain.vehicle_model import Speeds, VehicleModel
 from common.errors import InputError
 from services.planner.graph.fleet_graph import FleetGraph, build_graph
 
-FREE = set(".GS")
-BLOCKED = set("@OTW")
 GRID_MODEL = VehicleModel(radius=0.25, height=0.5, speed=Speeds(drive=1.0, takeoff=1.0, fly=1.0, land=1.0))
-
-
-def read_grid(path: str | Path) -> np.ndarray:
-    """A `.map` file -> boolean array [row, col], True where free."""
-    lines = read_text(Path(path)).splitlines()
-    try:
-        header = {k: v for k, v in (ln.split(None, 1) for ln in lines[:3])}
-        height, width = int(header["height"]), int(header["width"])
-        start = lines.index("map") + 1
-    except (ValueError, KeyError) as exc:
-        raise InputError(str(path), "header", f"not a MovingAI map ({exc})") from None
-    rows = lines[start:start + height]
-    if len(rows) != height or any(len(r) < width for r in rows):
-        raise InputError(str(path), "map", f"expected {height} rows of {width} cells")
-    for r, row in enumerate(rows):
-        bad = set(row[:width]) - FREE - BLOCKED
-        if bad:
-            raise InputError(str(path), f"row {r}", f"unknown cell characters {sorted(bad)}")
-    return np.array([[c in FREE for c in row[:width]] for row in rows])
 
 
 def cell_id(x: int, y: int) -> str:

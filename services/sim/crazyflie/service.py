@@ -2,12 +2,15 @@
 
 Every ``udp://`` vehicle of the selected radios becomes a `SimCrazyflie` at its configured start,
 behind its radio's link model (`SimRadio`, shared by the radio's vehicles). Ground truth goes out on
-`sim/truth/<vid>` at `truth_hz`; firmware watchdog trips go out as `VehicleEvent`s on
-`vehicle/<vid>/event`. The gateway talks to these exactly as to real vehicles (paper 000 §VI-C).
+`sim/truth/<vid>` at `truth_hz`, and each tick is also a capture of the simulated motion-capture
+system (`SimMocap`, the radios file's `mocap` model): one frame of every body on `sim/mocap`.
+Firmware watchdog trips go out as `VehicleEvent`s on `vehicle/<vid>/event`. The gateway talks to
+these exactly as to real vehicles (paper 000 §VI-C).
 
 Fault injection (docs/reliability.md): a `SimFault` on `sim/fault/<vid>` blacks out the vehicle's
-radio link for a while (`radio_blackout`) or sets its battery's used charge (`battery`); nothing
-happens unless one is published. Counters and figures go out on `stats/sim/<instance>`.
+radio link for a while (`radio_blackout`), hides its body from the motion capture
+(`mocap_dropout`) or sets its battery's used charge (`battery`); nothing happens unless one is
+published. Counters and figures go out on `stats/sim/<instance>`.
 """
 
 from __future__ import annotations
@@ -18,14 +21,14 @@ import time
 from collections.abc import Collection
 
 from common.bus.keys import Keys
-from common.bus.messages import SimFault, SimTruth, VehicleEvent
-from common.bus.pubsub import Publisher
+from common.bus.messages import MocapFrame, SimFault, SimTruth, VehicleEvent
 from common.bus.service import Service
 from common.bus.session import ZenohConfig
 from common.bus.stats import publish_stats
-from common.deploy.radios import RadiosFile, udp_address
+from common.deploy.radios import MocapModel, RadiosFile, udp_address
 from common.domain.vehicle_model import VehicleModel
 from services.sim.crazyflie.endpoint import SimCrazyflie
+from services.sim.crazyflie.mocap import SimMocap
 from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
 from services.sim.crazyflie.radio import SimRadio
 
@@ -37,7 +40,8 @@ class SimService(Service):
 
     def __init__(self, spec: RadiosFile, zconfig: ZenohConfig, instance: str = "sim", keys: Keys | None = None,
                  radios: Collection[str] | None = None, truth_hz: float = 100.0,
-                 params: PhysicsParams | None = None, model: VehicleModel | None = None) -> None:
+                 params: PhysicsParams | None = None, model: VehicleModel | None = None,
+                 mocap: MocapModel | None = None) -> None:
         super().__init__("sim", instance, zconfig, keys)
         unknown = set(radios or ()) - set(spec.radios)
         if unknown:
@@ -51,22 +55,26 @@ class SimService(Service):
         self.model = model or VehicleModel()
         self.radios: dict[str, SimRadio] = {}
         self.vehicles: dict[str, SimCrazyflie] = {}
-        self._events: dict[str, Publisher[VehicleEvent]] = {}
+        self.mocap_model = mocap or spec.mocap
 
     async def main(self) -> None:
+        self._truth = self.publishers(self.keys.sim_truth, SimTruth)
+        self._events = self.publishers(lambda vid: self.keys.vehicle(vid, "event"), VehicleEvent)
+        frames = self.publisher(self.keys.sim_mocap, MocapFrame)
+        self.mocap = SimMocap(self.mocap_model, frames.put)
         try:
-            truth = await self._open()
+            await self._open()
             self.subscribe(self.keys.all_sim_faults, SimFault, self._on_fault)
             self.spawn(publish_stats(self, self._figures), name="stats")
-            await self._publish_truth(truth)
+            await self._publish_truth()
         finally:
+            self.mocap.closed = True
             for cf in self.vehicles.values():
                 cf.close()
 
-    async def _open(self) -> dict[str, Publisher[SimTruth]]:
+    async def _open(self) -> None:
         loop = asyncio.get_running_loop()
         now = time.time()
-        truth: dict[str, Publisher[SimTruth]] = {}
         for name in self.selected:
             spec = self.spec.radios[name]
             radio = self.radios[name] = SimRadio(name, spec.link)
@@ -77,20 +85,21 @@ class SimService(Service):
                 car = SimFlyingCar(vid, self.model, self.params, pos=link.start, yaw=link.yaw, t=now)
                 cf = self.vehicles[vid] = SimCrazyflie(car, radio, self._on_event)
                 await loop.create_datagram_endpoint(lambda cf=cf: cf, local_addr=udp_address(link.uri))
-                truth[vid] = self.publisher(self.keys.sim_truth(vid), SimTruth)
-                self._events[vid] = self.publisher(self.keys.vehicle(vid, "event"), VehicleEvent)
         log.info("sim: %d vehicles on radios %s", len(self.vehicles), ", ".join(self.selected))
-        return truth
 
-    async def _publish_truth(self, truth: dict[str, Publisher[SimTruth]]) -> None:
-        """Advance every vehicle to now and publish its truth, every `period` s."""
+    async def _publish_truth(self) -> None:
+        """Advance every vehicle to now, publish its truth and capture a motion-capture frame, every `period` s."""
         loop = asyncio.get_running_loop()
         due = loop.time()
         while True:
             now = time.time()
+            truths = []
             for vid, cf in self.vehicles.items():
                 cf.advance(now)
-                truth[vid].put(cf.car.truth())
+                truth = cf.car.truth()
+                self._truth.put(vid, truth)
+                truths.append(truth)
+            self.mocap.capture(now, truths)
             due += self.period
             delay = due - loop.time()
             if delay < -self.period:  # fell behind (loaded machine): skip, do not burst
@@ -101,11 +110,13 @@ class SimService(Service):
 
     def _on_fault(self, fault: SimFault, _key: str) -> None:
         cf = self.vehicles.get(fault.vid)
-        if cf is None or fault.kind == "mocap_dropout":  # not ours, or the mocap bridge's
+        if cf is None:
             return
         log.warning("sim: fault injected into %s: %s", fault.vid, fault)
         self.counters.inc(f"fault:{fault.kind}:{fault.vid}")
-        if fault.kind == "radio_blackout":
+        if fault.kind == "mocap_dropout":
+            self.mocap.blind(fault.vid, time.time() + fault.duration_s)
+        elif fault.kind == "radio_blackout":
             cf.blackout(time.time() + fault.duration_s)
         else:
             cf.car.charge_used_ah = fault.charge_used_ah
@@ -121,4 +132,4 @@ class SimService(Service):
                 **{f"touchdown_mps:{vid}": cf.hardest_touchdown for vid, cf in self.vehicles.items()}}
 
     def _on_event(self, vid: str, kind: str, detail: str) -> None:
-        self._events[vid].put(VehicleEvent(vid=vid, t=time.time(), kind=kind, detail=detail))
+        self._events.put(vid, VehicleEvent(vid=vid, t=time.time(), kind=kind, detail=detail))
