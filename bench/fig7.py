@@ -1,6 +1,6 @@
 """Paper 000 Fig. 7 / §VII-B: prioritized SIPP vs the multi-commodity flow ILP on grid125.
 
-20 random scenarios (services.planner.maps.scenario.random_tasks, seeds 0..19) for each of 3, 4, 5 and 6
+20 random scenarios (services.planner.maps.tasks.random_tasks, seeds 0..19) for each of 3, 4, 5 and 6
 vehicles, both planners on the uniform-time-step graph (dt = 4 s), every plan checked by the
 independent validator; mean and median planning time and mean eq. 3 cost (as the validator
 recomputes it) per planner, beside the paper's figures. Times are warm: the graph, its contact
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
 from services.planner.maps.loading import GraphProblem, load_graph
-from services.planner.maps.scenario import random_tasks
+from services.planner.maps.tasks import random_tasks
 from services.planner.registry import run_planner
 from services.planner.validate import validate_plan
 

@@ -1,7 +1,7 @@
 """Prioritized SIPP on the MovingAI benchmark random-32-32-10 (Stern et al. 2019) with the first
 50, 100, ..., 300 agents of its scenario: solved or not, planning time, restarts, sum of costs.
 
-Grid semantics (services/planner/maps/movingai.py): unit cells, unit speed, bodies of radius 0.25, so
+Grid semantics (services/planner/maps/movingai_graph.py): unit cells, unit speed, bodies of radius 0.25, so
 only vertex and swap conflicts bring bodies into contact, in continuous time. mu = 0, so the eq. 3
 cost is the sum over agents of their arrival times (t_max = 1 s), the usual sum of costs.
 
@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
-from services.planner.maps.movingai import load_movingai, load_scen
+from services.planner.maps.movingai_graph import load_movingai, load_scen
 from services.planner.result import to_plan
 from services.planner.sipp.planner import plan_sipp
 from services.planner.validate import validate_plan

@@ -17,7 +17,7 @@ import numpy as np
 from bench.tables import bench_parser, format_table, new_figure, save_figure
 from common.domain.mapfile import MAPS_DIR
 from services.planner.maps.loading import GraphProblem, load_graph
-from services.planner.maps.scenario import load_scenario
+from services.planner.maps.tasks import load_scenario
 from services.planner.registry import run_planner
 from services.planner.validate import validate_plan
 

@@ -19,7 +19,7 @@ from bench.tables import bench_parser, format_table, new_figure, save_figure
 from common.domain.planfile import Task
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.maps.loading import load_graph
-from services.planner.maps.scenario import random_tasks
+from services.planner.maps.tasks import random_tasks
 from services.planner.result import to_plan
 from services.planner.sipp.planner import plan_sipp
 from services.planner.validate import validate_plan

@@ -32,6 +32,7 @@ from common.bus.pubsub import subscribe
 from common.bus.session import open_session
 from common.deploy.local import LocalFleet
 from common.domain.planfile import Task
+from services.mission.client import MissionTiming
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionResult, MissionRunner, MissionSpec
 from services.planner.graph.fleet_graph import FleetGraph
@@ -125,7 +126,7 @@ async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], sec
     rng = random.Random(seed)
     try:
         while time.time() - log.started < seconds:
-            spec = MissionSpec(map=MAP, tasks=tasks, planner="sipp", time_limit=60.0, ready_timeout_s=60.0,
+            spec = MissionSpec(map=MAP, tasks=tasks, planner="sipp", time_limit=60.0, timing=MissionTiming(ready_timeout_s=60.0),
                                slack_s=30.0, mission=f"soak{len(log.missions) + 1:03d}")
             runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
             await runner.run()

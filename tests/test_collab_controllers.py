@@ -46,16 +46,16 @@ def test_wall_following_stops_where_the_followed_wall_ends(corridor):
     # following the north wall (2 cells away) eastwards: it ends at the gap in col 9
     out = ctl.follow_wall(corridor, 0, 7, 1, "left", E)
     assert out[None] == (7, 9, 8)
-    assert ctl.phi(corridor, ctl.DronePose(0, 7, 1), ctl.WallFollow("left", E)) == ctl.DronePose(0, 7, 9, E)
+    assert ctl.phi(corridor, ctl.DronePose(0, 7, 1), ctl.WallFollowController("left", E)) == ctl.DronePose(0, 7, 9, E)
 
 
 def test_wall_following_opening_trigger_fires_at_the_first_opening_on_the_other_side(corridor):
     out = ctl.follow_wall(corridor, 0, 7, 1, "left", E)
     assert out[ctl.OPENING_RIGHT] == (7, 5, 4)
-    pose = ctl.phi(corridor, ctl.DronePose(0, 7, 1), ctl.WallFollow("left", E), ctl.OPENING_RIGHT)
+    pose = ctl.phi(corridor, ctl.DronePose(0, 7, 1), ctl.WallFollowController("left", E), ctl.OPENING_RIGHT)
     assert (pose.row, pose.col) == (7, 5)
-    assert ctl.triggers(ctl.WallFollow("left", E)) == (ctl.OPENING_RIGHT, ctl.LANDMARK_SIGHTED)
-    assert ctl.triggers(ctl.WallFollow("right", E)) == (ctl.OPENING_LEFT, ctl.LANDMARK_SIGHTED)
+    assert ctl.triggers(ctl.WallFollowController("left", E)) == (ctl.OPENING_RIGHT, ctl.LANDMARK_SIGHTED)
+    assert ctl.triggers(ctl.WallFollowController("right", E)) == (ctl.OPENING_LEFT, ctl.LANDMARK_SIGHTED)
 
 
 def test_wall_following_right_side_and_obstacle_ahead(corridor):
@@ -68,7 +68,7 @@ def test_wall_following_right_side_and_obstacle_ahead(corridor):
 def test_wall_following_needs_a_wall_in_ir_range():
     s = sensing(["#########", *["#.......#"] * 9, "#########"])
     assert ctl.follow_wall(s, 0, 5, 4, "left", E) == {}  # nearest wall 5 cells (2.5 m) away
-    assert ctl.phi(s, ctl.DronePose(0, 5, 4), ctl.WallFollow("left", E)) is None
+    assert ctl.phi(s, ctl.DronePose(0, 5, 4), ctl.WallFollowController("left", E)) is None
     assert ctl.follow_wall(s, 0, 2, 4, "right", E)  # the south wall is 2 cells away
 
 
@@ -88,7 +88,7 @@ def test_wall_following_into_an_unsensed_low_obstacle_has_no_intrinsic_end():
     assert not s.drone_free(0, 1, 4) and not s.front_sensed(0, 1, 4)
     out = ctl.follow_wall(s, 0, 1, 1, "right", E)
     assert None not in out
-    assert ctl.phi(s, ctl.DronePose(0, 1, 1), ctl.WallFollow("right", E)) is None
+    assert ctl.phi(s, ctl.DronePose(0, 1, 1), ctl.WallFollowController("right", E)) is None
     assert ctl.follow_wall(s, 1, 1, 1, "right", E)[None] == (1, 7, 6)  # at z = 2 m it flies over
 
 
@@ -99,9 +99,9 @@ def test_goto_landmark_stat_needs_the_landmark_in_view():
     targets = ctl.stat_targets(s, 0, 1, 3, 0)  # 3.5 m away: in camera range
     assert (1, 9) in targets and (5, 10) not in targets
     assert all(max(abs(r - 1), abs(c - 10)) <= 2 for r, c in targets)
-    assert ctl.phi(s, ctl.DronePose(0, 1, 3), ctl.GoToLandmarkStat(0, (1, 9))) == ctl.DronePose(0, 1, 9)
+    assert ctl.phi(s, ctl.DronePose(0, 1, 3), ctl.GoToLandmarkStatController(0, (1, 9))) == ctl.DronePose(0, 1, 9)
     assert ctl.stat_targets(s, 0, 1, 1, 0) == []  # 4.5 m away: out of camera range
-    assert ctl.phi(s, ctl.DronePose(0, 1, 1), ctl.GoToLandmarkStat(0, (1, 9))) is None
+    assert ctl.phi(s, ctl.DronePose(0, 1, 1), ctl.GoToLandmarkStatController(0, (1, 9))) is None
 
 
 def test_goto_landmark_dyn_needs_the_ugv_in_range_and_sight():
@@ -110,8 +110,8 @@ def test_goto_landmark_dyn_needs_the_ugv_in_range_and_sight():
     ugv = ctl.UgvPose(2, 3)
     targets = ctl.dyn_targets(s, 0, 2, 7, 2, 3)
     assert targets and all(max(abs(r - 2), abs(c - 3)) <= 2 for r, c in targets)
-    assert ctl.phi(s, ctl.DronePose(0, 2, 7), ctl.GoToLandmarkDyn((2, 4)), ugv=ugv) == ctl.DronePose(0, 2, 4)
-    assert ctl.phi(s, ctl.DronePose(0, 2, 7), ctl.GoToLandmarkDyn((2, 4))) is None  # no UGV
+    assert ctl.phi(s, ctl.DronePose(0, 2, 7), ctl.GoToLandmarkDynController((2, 4)), ugv=ugv) == ctl.DronePose(0, 2, 4)
+    assert ctl.phi(s, ctl.DronePose(0, 2, 7), ctl.GoToLandmarkDynController((2, 4))) is None  # no UGV
     assert ctl.dyn_targets(s, 0, 5, 2, 2, 3) == []  # behind the wall: no line of sight
     assert ctl.dyn_targets(s, 0, 2, 10, 2, 3) == []  # 3.5 m away: out of camera range
 
@@ -122,22 +122,22 @@ def test_metric_step_only_where_allowed_and_never_through_corners():
     assert ctl.metric_target(s, 0, 1, 1, N, 2) == (3, 1)
     assert ctl.metric_target(s, 0, 1, 1, NE, 1) is None  # would cut the corner of the pillar
     assert ctl.metric_target(s, 0, 1, 2, E, 2) is None  # ends in the no-metric zone
-    turned = ctl.phi(s, ctl.DronePose(0, 1, 1), ctl.MetricTurn(N))
+    turned = ctl.phi(s, ctl.DronePose(0, 1, 1), ctl.MetricTurnController(N))
     assert turned == ctl.DronePose(0, 1, 1, N)
-    assert ctl.phi(s, turned, ctl.MetricStep(2)) == ctl.DronePose(0, 3, 1, N)
-    assert ctl.phi(s, ctl.DronePose(0, 1, 4), ctl.MetricTurn(N)) is None
+    assert ctl.phi(s, turned, ctl.MetricStepController(2)) == ctl.DronePose(0, 3, 1, N)
+    assert ctl.phi(s, ctl.DronePose(0, 1, 4), ctl.MetricTurnController(N)) is None
 
 
 def test_altitude_needs_a_free_column():
     s = sensing(["#####", "#.t.#", "#####"], legend={"t": 0.75})
-    assert ctl.phi(s, ctl.DronePose(0, 1, 1), ctl.Altitude(1)) == ctl.DronePose(1, 1, 1)
-    assert ctl.phi(s, ctl.DronePose(1, 1, 2), ctl.Altitude(0)) is None  # table below
+    assert ctl.phi(s, ctl.DronePose(0, 1, 1), ctl.AltitudeController(1)) == ctl.DronePose(1, 1, 1)
+    assert ctl.phi(s, ctl.DronePose(1, 1, 2), ctl.AltitudeController(0)) is None  # table below
 
 
 def test_ugv_primitives_respect_zones_and_corners():
     rows = ["######", "#....#", "#.#..#", "#....#", "######"]
     s = sensing(rows, no_ugv=[(2.0, 0.0, 3.0, 3.0)])  # col 4
-    assert ctl.phi_ugv(s, ctl.UgvPose(1, 1, E), ctl.UgvForward()) == ctl.UgvPose(1, 2, E)
-    assert ctl.phi_ugv(s, ctl.UgvPose(1, 3, E), ctl.UgvForward()) is None  # forbidden zone
-    assert ctl.phi_ugv(s, ctl.UgvPose(1, 1, NE), ctl.UgvForward()) is None  # corner of the pillar
-    assert ctl.phi_ugv(s, ctl.UgvPose(1, 1, E), ctl.UgvTurn(-1)) == ctl.UgvPose(1, 1, 7)
+    assert ctl.phi_ugv(s, ctl.UgvPose(1, 1, E), ctl.UgvForwardController()) == ctl.UgvPose(1, 2, E)
+    assert ctl.phi_ugv(s, ctl.UgvPose(1, 3, E), ctl.UgvForwardController()) is None  # forbidden zone
+    assert ctl.phi_ugv(s, ctl.UgvPose(1, 1, NE), ctl.UgvForwardController()) is None  # corner of the pillar
+    assert ctl.phi_ugv(s, ctl.UgvPose(1, 1, E), ctl.UgvTurnController(-1)) == ctl.UgvPose(1, 1, 7)

@@ -22,8 +22,8 @@ from common.team.maps import load_env
 from common.team.sensing import Sensing
 from common.team.team_model import TeamModel
 from services.executor.service import ExecutorService
-from services.executor.team import RESEND_S, TeamRobot
-from services.mission.team import TeamMission, TeamMissionSpec
+from services.executor.team_robots import RESEND_S, TeamRobot
+from services.mission.team_mission import TeamMission, TeamMissionSpec
 from services.planner.service import PlannerService
 from services.sim.team.service import TeamSimService
 from services.sim.team.world import TeamWorld

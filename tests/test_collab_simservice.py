@@ -1,4 +1,4 @@
-"""The simulated team over zenoh (`fleet collab sim`, paper 002 §IV-E): actions run once in the
+"""The simulated team over zenoh (`fleet sim team`, paper 002 §IV-E): actions run once in the
 world with the drone's sensing, repeats are answered with their status, ground truth for both."""
 
 from __future__ import annotations

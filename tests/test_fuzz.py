@@ -37,7 +37,7 @@ from services.executor.service import ExecutorService
 from services.mocap_bridge.config import load_mocap
 from services.planner.graph.fleet_graph import build_graph
 from services.planner.maps.loading import load_graph, problem_from_request
-from services.planner.maps.scenario import load_scenario
+from services.planner.maps.tasks import load_scenario
 from services.planner.registry import run_planner
 
 REPO = Path(__file__).resolve().parents[1]

@@ -20,7 +20,7 @@ from services.planner.ilp.network import Fleet, carry_over, vehicle_columns
 from services.planner.ilp.planner import decode, plan_ilp
 from services.planner.ilp.solve import HorizonResult, solve_horizon
 from services.planner.maps.loading import GraphProblem, load_graph
-from services.planner.maps.scenario import load_scenario, random_tasks
+from services.planner.maps.tasks import load_scenario, random_tasks
 from services.planner.registry import run_planner
 from services.planner.result import PlanResult, to_plan
 from services.planner.validate import ValidationReport, validate_plan

@@ -14,7 +14,7 @@ from services.cli import main
 from services.planner.graph.fleet_graph import build_graph
 from services.planner.maps.generate import GENERATORS, to_yaml
 from services.planner.maps.loading import load_graph
-from services.planner.maps.scenario import load_scenario, random_tasks
+from services.planner.maps.tasks import load_scenario, random_tasks
 
 SHIPPED = ["town", "grid125", "city934"]
 

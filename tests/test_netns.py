@@ -33,6 +33,7 @@ from common.deploy.launcher import start, stop
 from common.deploy.local import COMPOSE_FILE
 from common.deploy.radios import dump_radios
 from common.domain.planfile import Task
+from services.mission.client import MissionTiming
 from services.mission.demo import demo_processes, demo_radios
 from services.mission.runner import MissionRunner, MissionSpec
 from services.planner.maps.loading import load_graph
@@ -66,7 +67,7 @@ def drive(endpoint: str, password_file: str, counts: str) -> int:
         print(json.dumps({"error": f"services not up: {missing}"}), flush=True)
         return 1
     # keep going through the gateway's stale-command landing (see the test's docstring)
-    spec = MissionSpec(map="town", tasks=TASKS, time_limit=20, abort_on_fault=False)
+    spec = MissionSpec(map="town", tasks=TASKS, time_limit=20, timing=MissionTiming(abort_on_fault=False))
     runner = MissionRunner(spec, config, keys, progress=False)
 
     async def report() -> None:

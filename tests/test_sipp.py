@@ -25,7 +25,7 @@ from common.domain.planfile import Task, read_plan
 from services.cli import main as fleet_main
 from services.planner.graph.fleet_graph import FleetGraph, build_graph
 from services.planner.maps.loading import load_graph, load_scenario
-from services.planner.maps.movingai import load_movingai, load_scen
+from services.planner.maps.movingai_graph import load_movingai, load_scen
 from services.planner.result import PlanResult, to_plan
 from services.planner.sipp.planner import plan_sipp
 from services.planner.sipp.safe_intervals import carve
@@ -84,7 +84,7 @@ def test_goals_on_other_vehicles_starts_including_a_cycle() -> None:
 
 @pytest.mark.parametrize("uniform", [False, True], ids=["base", "uniform"])
 def test_random_scenarios_on_grid125_validate(uniform: bool) -> None:
-    from services.planner.maps.scenario import random_tasks
+    from services.planner.maps.tasks import random_tasks
 
     graph = load_graph("grid125", uniform=uniform)
     for seed in range(4):

@@ -120,6 +120,3 @@ class Keys:
 
     def all_stats(self, service: str = "*") -> str:
         return f"{self.root}/stats/{service}/*"
-
-    def last_chunk(self, key: str) -> str:
-        return str(key).rsplit("/", 1)[-1]

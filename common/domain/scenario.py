@@ -1,5 +1,5 @@
 """The scenario file (paper 000 §IV): vehicle id -> start and goal, and optionally the map
-(maps/scenarios/*.yaml). Planners check it against the map's graph (`services/planner/maps/scenario.py`)."""
+(maps/scenarios/*.yaml). Planners check it against the map's graph (`services/planner/maps/tasks.py`)."""
 
 from __future__ import annotations
 

@@ -110,9 +110,6 @@ class VehicleModel(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
             return self.power.drive * t
         return self.power.fly * t + self.mass * G * max(dz, 0.0)
 
-    def wait_energy(self, duration: float, airborne: bool) -> float:
-        return self.wait_power(airborne) * duration
-
     def charge_ah(self, power_w: float, duration_s: float) -> float:
         """Charge drawn (Ah): eq. 4 I = P/V, eq. 5 I_c = I d / v = I t."""
         return power_w / self.voltage * duration_s / 3600.0

@@ -45,55 +45,55 @@ class UgvPose:
 
 
 @dataclass(frozen=True)
-class WallFollow:
+class WallFollowController:
     side: Side
     heading: int
 
 
 @dataclass(frozen=True)
-class GoToLandmarkStat:
+class GoToLandmarkStatController:
     landmark: int
     target: tuple[int, int]
 
 
 @dataclass(frozen=True)
-class GoToLandmarkDyn:
+class GoToLandmarkDynController:
     target: tuple[int, int]
 
 
 @dataclass(frozen=True)
-class MetricTurn:
+class MetricTurnController:
     heading: int
 
 
 @dataclass(frozen=True)
-class MetricStep:
+class MetricStepController:
     cells: int
 
 
 @dataclass(frozen=True)
-class Altitude:
+class AltitudeController:
     level: int
 
 
 @dataclass(frozen=True)
-class UgvForward:
+class UgvForwardController:
     pass
 
 
 @dataclass(frozen=True)
-class UgvTurn:
+class UgvTurnController:
     delta: int
     """+1 = 45 degrees counter-clockwise, -1 = clockwise."""
 
 
-DroneController = WallFollow | GoToLandmarkStat | GoToLandmarkDyn | MetricTurn | MetricStep | Altitude
-UgvController = UgvForward | UgvTurn
+DroneController = WallFollowController | GoToLandmarkStatController | GoToLandmarkDynController | MetricTurnController | MetricStepController | AltitudeController
+UgvController = UgvForwardController | UgvTurnController
 
 
 def triggers(c: DroneController | UgvController) -> tuple[str, ...]:
     """T(c): the perceptual triggers that may stop controller c early (002 §III-A)."""
-    if isinstance(c, WallFollow):
+    if isinstance(c, WallFollowController):
         return (OPENING_RIGHT if c.side == "left" else OPENING_LEFT, LANDMARK_SIGHTED)
     return ()
 
@@ -214,19 +214,19 @@ def phi(
     """Phi(s, c, tau) (002 §III-A): run drone controller `ctl` from `pose` until `trigger` or an
     intrinsic trigger, whichever comes first. None when `ctl` is not in C(s) (or needs the UGV)."""
     k, r, c = pose.level, pose.row, pose.col
-    if isinstance(ctl, WallFollow):
+    if isinstance(ctl, WallFollowController):
         out = follow_wall(s, k, r, c, ctl.side, ctl.heading)
         end = out.get(trigger) or out.get(None)
         return DronePose(k, end[0], end[1], ctl.heading) if end else None
-    if isinstance(ctl, GoToLandmarkStat):
+    if isinstance(ctl, GoToLandmarkStatController):
         ok = ctl.target in stat_targets(s, k, r, c, ctl.landmark)
         return DronePose(k, *ctl.target, pose.heading) if ok else None
-    if isinstance(ctl, GoToLandmarkDyn):
+    if isinstance(ctl, GoToLandmarkDynController):
         ok = ugv is not None and ctl.target in dyn_targets(s, k, r, c, ugv.row, ugv.col)
         return DronePose(k, *ctl.target, pose.heading) if ok else None
-    if isinstance(ctl, MetricTurn):
+    if isinstance(ctl, MetricTurnController):
         return DronePose(k, r, c, ctl.heading) if s.metric_allowed(r, c) else None
-    if isinstance(ctl, MetricStep):
+    if isinstance(ctl, MetricStepController):
         end = metric_target(s, k, r, c, pose.heading, ctl.cells)
         return DronePose(k, *end, pose.heading) if end else None
     return DronePose(ctl.level, r, c, pose.heading) if altitude_ok(s, k, r, c, ctl.level) else None
@@ -234,7 +234,7 @@ def phi(
 
 def phi_ugv(s: Sensing, pose: UgvPose, ctl: UgvController) -> UgvPose | None:
     """The UGV's metric motion primitives (002 §III-B: METRICMOTION)."""
-    if isinstance(ctl, UgvTurn):
+    if isinstance(ctl, UgvTurnController):
         return UgvPose(pose.row, pose.col, (pose.heading + ctl.delta) % 8)
     end = ugv_forward(s, pose.row, pose.col, pose.heading)
     return UgvPose(*end, pose.heading) if end else None

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.team.env import LandmarkSpec, MapSpec
+from common.team.env import LandmarkSpec, TeamMapSpec
 
 WIDTH, HEIGHT, RES = 64, 40, 0.5
 LEGEND = {
@@ -44,7 +44,7 @@ def _landmarks(points: list[tuple[float, float]]) -> list[LandmarkSpec]:
     return [LandmarkSpec(id=f"L{i}", x=x, y=y, z=1.5) for i, (x, y) in enumerate(points)]
 
 
-def conference_map() -> MapSpec:
+def conference_map() -> TeamMapSpec:
     """Conference rooms and patio (002 Fig. 5a)."""
     cv = _Canvas()
     cv.fill(18, 18, 0, 63, "#")  # rooms | hallway
@@ -72,7 +72,7 @@ def conference_map() -> MapSpec:
         cv.fill(22, 22, c, c + 1, ".")
         cv.fill(33, 33, c, c + 1, ".")
     lms = _landmarks([(0.6, 4.5), (8.0, 0.6), (3.0, 8.9), (16.0, 0.6), (21.4, 4.0), (26.0, 4.0), (29.5, 7.5)])
-    return MapSpec(
+    return TeamMapSpec(
         format="fleet-collab-map/1",
         name="office-conference",
         rows=cv.rows(),
@@ -84,7 +84,7 @@ def conference_map() -> MapSpec:
     )
 
 
-def cubicles_map(seed: int = 7) -> MapSpec:
+def cubicles_map(seed: int = 7) -> TeamMapSpec:
     """Cubicles and hallways (002 Fig. 5b); `seed` makes the cubicles erratic but reproducible."""
     rng = np.random.default_rng(seed)
     cv = _Canvas()
@@ -124,7 +124,7 @@ def cubicles_map(seed: int = 7) -> MapSpec:
     for c0 in (35, 47, 59):
         cv.fill(2, 36, c0, c0 + 2, ".")
     lms = _landmarks([(0.6, 6.0), (0.6, 14.0), (8.0, 19.4)])
-    return MapSpec(
+    return TeamMapSpec(
         format="fleet-collab-map/1",
         name="office-cubicles",
         rows=cv.rows(),

@@ -190,6 +190,3 @@ class Sensing:
     def flight_cells(self, r: int, c: int, r2: int, c2: int) -> list[tuple[int, int]]:
         """Absolute cells swept by a straight flight from (r, c) to (r2, c2)."""
         return [(r + a, c + b) for a, b in line_offsets(r2 - r, c2 - c)]
-
-    def flight_clear(self, k: int, r: int, c: int, r2: int, c2: int) -> bool:
-        return all(self.drone_free(k, a, b) for a, b in self.flight_cells(r, c, r2, c2))

@@ -9,7 +9,7 @@ vehicle taken over mid-mission resumes from the last state its previous owner pu
 Inputs: `vehicle/*/plan`, `vehicle/*/pose`, `vehicle/*/telemetry`, `vehicle/*/state` (for
 take-over), `mission/*/start`, `mission/*/abort`. Outputs for owned vehicles: `vehicle/<vid>/cmd`
 at the control rate, `vehicle/<vid>/state` at the state rate, `vehicle/<vid>/event` on faults
-(team plans of ground-air teams, paper 002: `services/executor/team.py`);
+(team plans of ground-air teams, paper 002: `services/executor/team_robots.py`);
 `stats/executor/<instance>`: counters, missed control deadlines, pose-to-command latency.
 
 Losing the router (docs/bus.md) makes every remote token vanish at once: that is not the death of
@@ -46,7 +46,7 @@ from common.bus.service import Service
 from common.bus.stats import publish_stats
 from common.flight.modes import Mode
 from services.executor.takeover import VehicleOwnership
-from services.executor.team import TeamExecutor
+from services.executor.team_robots import TeamExecutor
 from services.executor.vehicle_controller import VehicleController
 
 log = logging.getLogger(__name__)

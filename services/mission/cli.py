@@ -70,6 +70,7 @@ def _register_demo(sub: argparse._SubParsersAction) -> None:
 
 def spec_from_args(args: argparse.Namespace):
     from common.domain.scenario import read_scenario
+    from services.mission.client import MissionTiming
     from services.mission.runner import MissionSpec
 
     scen = read_scenario(args.scenario)
@@ -78,7 +79,7 @@ def spec_from_args(args: argparse.Namespace):
         raise InputError(args.scenario, "map", "the scenario names no map: give --map")
     extra = {"mission": args.id} if args.id else {}
     return MissionSpec(map=map_name, tasks=dict(scen.tasks), planner=args.planner, mu=args.mu,
-                       time_limit=args.time_limit, abort_on_fault=not args.keep_going, **extra)
+                       time_limit=args.time_limit, timing=MissionTiming(abort_on_fault=not args.keep_going), **extra)
 
 
 def cmd_mission_run(args: argparse.Namespace) -> int:
@@ -96,7 +97,7 @@ def cmd_mission_run(args: argparse.Namespace) -> int:
 
 def cmd_mission_team(args: argparse.Namespace) -> int:
     from common.bus.messages import TeamTask
-    from services.mission.team import TeamMission, TeamMissionSpec
+    from services.mission.team_mission import TeamMission, TeamMissionSpec
 
     source = "fleet mission team"
     if args.executors < 1 or args.time_scale <= 0:

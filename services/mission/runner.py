@@ -27,16 +27,8 @@ class MissionSpec:
     mu: float = 0.5
     time_limit: float = 30.0
     mission: str = field(default_factory=lambda: f"m{uuid.uuid4().hex[:8]}")
-    start_lead_s: float = 2.0
-    ready_timeout_s: float = 20.0
-    planner_timeout_s: float = 10.0
     slack_s: float = 20.0
-    abort_on_fault: bool = True
-    contact_timeout_s: float = 2.0
-
-    def timing(self) -> MissionTiming:
-        return MissionTiming(self.start_lead_s, self.ready_timeout_s, self.planner_timeout_s,
-                             self.contact_timeout_s, self.abort_on_fault)
+    timing: MissionTiming = MissionTiming()
 
 
 @dataclass
@@ -96,7 +88,7 @@ class MissionRunner(MissionClient[MissionResult]):
     """One mission of flying cars, as a short-lived service (`alive/mission/<id>`)."""
 
     def __init__(self, spec: MissionSpec, *args, progress: bool = True, **kwargs) -> None:
-        super().__init__(spec.mission, spec.tasks, spec.timing(), *args, progress=progress, **kwargs)
+        super().__init__(spec.mission, spec.tasks, spec.timing, *args, progress=progress, **kwargs)
         self.spec = spec
         self.reports = {vid: VehicleReport(vid) for vid in spec.tasks}
         self.plan: Plan | None = None
@@ -110,7 +102,7 @@ class MissionRunner(MissionClient[MissionResult]):
                            mission=s.mission)
 
     def planner_wait_s(self) -> float:
-        return self.spec.time_limit + self.spec.planner_timeout_s
+        return self.spec.time_limit + self.timing.planner_timeout_s
 
     def accept(self, reply: PlanReply) -> str | None:
         if reply.plan is None:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from common.bus.args import keys_from_args, run_service, zconfig_from_args
 from common.bus.messages import GraphReply, GraphRequest, SimTruth, Telemetry, VehiclePlan, VehicleState
-from common.bus.priority import lower_priority
+from common.bus.process_priority import lower_priority
 from common.bus.pubsub import QueryError, query
 from common.bus.service import Service
 from common.domain.mapfile import load_map

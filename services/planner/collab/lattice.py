@@ -102,7 +102,7 @@ class Lattice:
 
         for heading in (0, 2, 4, 6):
             for side in ("left", "right"):
-                allowed = ctl.triggers(ctl.WallFollow(side, heading))  # T(c), 002 §III-A
+                allowed = ctl.triggers(ctl.WallFollowController(side, heading))  # T(c), 002 §III-A
                 for trig, (r2, c2, n) in ctl.follow_wall(s, k, r, c, side, heading).items():
                     if trig is None or trig in allowed:
                         add(self.drone_id(k, r2, c2), n * res * m.cost_follow, ("WF", side, heading, trig))

@@ -25,7 +25,7 @@ from common.team.sensing import DIRS
 from services.planner.collab.lattice import Lattice
 
 
-class _Builder:
+class _TeamPlanBuilder:
     """Turns a team path into the two robots' step lists with sync points and merged UGV motions."""
 
     def __init__(self) -> None:
@@ -70,7 +70,7 @@ def build_team_plan(
     """A team path (`Lattice.team_id` states) -> TeamPlan, relabelling each transition with the cheapest
     controller that makes it (002 §III-A: several controller/trigger pairs may join two states)."""
     env, res = lat.s.env, lat.s.env.resolution
-    b = _Builder()
+    b = _TeamPlanBuilder()
     for a, z in zip(path, path[1:], strict=False):
         (d, u, _), (d2, u2, _) = lat.team_decode(a), lat.team_decode(z)
         if u != u2:

@@ -23,8 +23,6 @@ from common.domain.vehicle_model import EDGE_KINDS, CostScale, EdgeKind, NodeKin
 from common.errors import InputError
 from services.planner.graph.conflicts import Conflicts, compute_conflicts
 
-EDGE_CODE = {k: i for i, k in enumerate(EDGE_KINDS)}
-
 
 @dataclass
 class FleetGraph:
@@ -123,7 +121,7 @@ def airborne_mask(kinds: list[str], edges: list[tuple[int, int, str]], n: int) -
     return (kinds_arr == "air") | ((kinds_arr == "waypoint") & ~on_road)
 
 
-class _Builder:
+class _GraphBuilder:
     """Accumulates nodes and directed edges, then freezes into a FleetGraph."""
 
     def __init__(self, spec: MapSpec, source: str) -> None:
@@ -326,7 +324,7 @@ class _Builder:
 def build_graph(spec: MapSpec, dt: float | None = None, source: str | None = None, open_endpoints: bool = False) -> FleetGraph:
     """Build the 3D graph of a map; with `dt`, on the uniform-time-step graph (§V-E)."""
     src = source or spec.name
-    b = _Builder(spec, src)
+    b = _GraphBuilder(spec, src)
     b.ground()
     check_spots(b, src)
     b.air()
@@ -338,7 +336,7 @@ def build_graph(spec: MapSpec, dt: float | None = None, source: str | None = Non
     return graph
 
 
-def check_spots(b: _Builder, source: str) -> None:
+def check_spots(b: _GraphBuilder, source: str) -> None:
     """Well-formed infrastructure (§V-D): a vehicle on a spot must not touch another spot's vehicle,
     nor a vehicle on any road edge other than its own access edge."""
     r, h = b.model.radius, b.model.height

@@ -23,7 +23,7 @@ import numpy as np
 
 from common.domain.geometry import contact_intervals
 from services.planner.graph.fleet_graph import FleetGraph
-from services.planner.graph.tables import per_graph
+from services.planner.graph.memo import per_graph
 from services.planner.ilp.network import time_step
 
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from services.planner.graph.fleet_graph import FleetGraph
-from services.planner.graph.tables import per_graph
+from services.planner.graph.memo import per_graph
 
 TOL = 1e-9  # relative slack on budgets (float rounding)
 

@@ -26,8 +26,8 @@ import numpy as np
 
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.ilp.arcs import ArcTable
+from services.planner.ilp.first_plan import prioritized
 from services.planner.ilp.network import Columns, Fleet, carry_over, least_costs, vehicle_columns, within_cost
-from services.planner.ilp.priority import prioritized
 from services.planner.ilp.program import ModelSize, build_lp
 
 Status = Literal["optimal", "feasible", "infeasible", "timeout"]

@@ -10,7 +10,7 @@ from common.domain.mapfile import load_map, resolve_map_path
 from common.domain.planfile import Task
 from common.errors import InputError
 from services.planner.graph.fleet_graph import FleetGraph, build_graph
-from services.planner.maps.scenario import check_tasks, load_scenario, random_tasks
+from services.planner.maps.tasks import check_tasks, load_scenario, random_tasks
 
 
 @dataclass
@@ -41,7 +41,7 @@ def load_problem(args: argparse.Namespace) -> GraphProblem:
     """`fleet plan` arguments -> graph + tasks. ILP plans always use the uniform-time-step graph."""
     uniform = args.planner == "ilp" or args.uniform
     if args.movingai:
-        from services.planner.maps.movingai import load_movingai, load_scen
+        from services.planner.maps.movingai_graph import load_movingai, load_scen
 
         graph = load_movingai(args.movingai)
         if not args.scen:

@@ -15,7 +15,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from services.planner.graph.fleet_graph import FleetGraph
-from services.planner.graph.tables import per_graph
+from services.planner.graph.memo import per_graph
 
 SPOT_KINDS = ("parking", "helipad")
 MAX_GOALS = 2048  # tables kept per (graph, mu); the oldest are dropped beyond this

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from services.planner.graph.fleet_graph import FleetGraph
-from services.planner.graph.tables import per_graph
+from services.planner.graph.memo import per_graph
 from services.planner.sipp.windows import edge_pair_windows
 
 INF = math.inf

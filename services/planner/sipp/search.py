@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 from services.planner.graph.fleet_graph import FleetGraph
-from services.planner.graph.tables import per_graph
+from services.planner.graph.memo import per_graph
 from services.planner.sipp.heuristic import spot_mask
 from services.planner.sipp.safe_intervals import Reservations
 

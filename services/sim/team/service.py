@@ -1,4 +1,4 @@
-"""`fleet collab sim`: a simulated ground-air team on a map (paper 002 §V), over zenoh.
+"""`fleet sim team`: a simulated ground-air team on a map (paper 002 §V), over zenoh.
 
 It holds one `TeamWorld` (the map, the drone, the UGV and the sensing their controllers need) and
 runs each `TeamAction` an executor sends on `vehicle/<vid>/action` through the same code as

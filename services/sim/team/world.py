@@ -5,7 +5,7 @@ ranges, landmark and UGV sightings, through `Sensing`). It runs one controller a
 `controllers.phi` from the robots' actual poses: a GOTOLANDMARK_DYN flies to its offset from
 wherever the UGV actually is, so a broken sync point shows up as a failed precondition or a wrong
 end pose. `TeamSim` runs both robots' sequences of a plan in simulated time, honouring the sync
-points; the collab sim service (`simservice.py`) runs the actions executors send over zenoh.
+points; the team sim service (`service.py`, `fleet sim team`) runs the actions executors send over zenoh.
 """
 
 from __future__ import annotations
@@ -77,22 +77,22 @@ class TeamWorld:
         before = self.drone
         trigger = None
         if isinstance(a, tp.WallFollowing):
-            c: ctl.DroneController = ctl.WallFollow(a.side, round(a.heading_deg / 45.0) % 8)
+            c: ctl.DroneController = ctl.WallFollowController(a.side, round(a.heading_deg / 45.0) % 8)
             trigger = a.trigger
         elif isinstance(a, tp.GoToLandmarkStat):
             ids = [lm.id for lm in env.landmarks]
             if a.landmark not in ids:
                 return ActionOutcome(before, 0.0, f"unknown landmark {a.landmark}")
-            c = ctl.GoToLandmarkStat(ids.index(a.landmark), env.cell_of(a.target[0], a.target[1]))
+            c = ctl.GoToLandmarkStatController(ids.index(a.landmark), env.cell_of(a.target[0], a.target[1]))
         elif isinstance(a, tp.GoToLandmarkDyn):
             ux, uy, _ = self.xyz("ugv")
-            c = ctl.GoToLandmarkDyn(env.cell_of(ux + a.offset[0], uy + a.offset[1]))
+            c = ctl.GoToLandmarkDynController(env.cell_of(ux + a.offset[0], uy + a.offset[1]))
         elif isinstance(a, tp.MetricTurn):
-            c = ctl.MetricTurn(round(a.heading_deg / 45.0) % 8)
+            c = ctl.MetricTurnController(round(a.heading_deg / 45.0) % 8)
         elif isinstance(a, tp.MetricStep):
-            c = ctl.MetricStep(round(a.distance_m / (env.resolution * math.hypot(*DIRS[before.heading]))))
+            c = ctl.MetricStepController(round(a.distance_m / (env.resolution * math.hypot(*DIRS[before.heading]))))
         elif isinstance(a, tp.Altitude):
-            c = ctl.Altitude(env.level_of(a.z))
+            c = ctl.AltitudeController(env.level_of(a.z))
         else:
             return ActionOutcome(before, 0.0, f"{type(a).__name__} is not a drone action")
         after = ctl.phi(self.s, before, c, trigger, self.ugv)
@@ -109,10 +109,10 @@ class TeamWorld:
         turns = round(a.turn_deg / 45.0)
         pose = self.ugv
         for _ in range(abs(turns)):
-            pose = ctl.phi_ugv(self.s, pose, ctl.UgvTurn(1 if turns > 0 else -1))
+            pose = ctl.phi_ugv(self.s, pose, ctl.UgvTurnController(1 if turns > 0 else -1))
         n = round(a.distance_m / (self.env.resolution * math.hypot(*DIRS[pose.heading])))
         for _ in range(n):
-            nxt = ctl.phi_ugv(self.s, pose, ctl.UgvForward())
+            nxt = ctl.phi_ugv(self.s, pose, ctl.UgvForwardController())
             if nxt is None:
                 return ActionOutcome(pose, 0.0, f"UGV blocked at {_fmt(self.metres(pose))}")
             pose = nxt

@@ -1,4 +1,5 @@
-"""Per-graph memo for the SIPP planner's precomputed tables (adjacency lists, footprints, cost-to-go).
+"""Per-graph memo of the planners' precomputed tables (SIPP: adjacency lists, footprints, cost-to-go;
+the ILP: arc tables, networks).
 
 A FleetGraph is a mutable dataclass (unhashable), and the loader already caches one object per map
 file, so tables are keyed by the graph object's identity and dropped when the graph is collected.

@@ -47,10 +47,8 @@ class TeamMissionSpec:
     team: TeamTask
     time_limit: float = 30.0
     mission: str = field(default_factory=lambda: f"t{uuid.uuid4().hex[:8]}")
-    start_lead_s: float = 1.0
-    ready_timeout_s: float = 20.0
-    planner_timeout_s: float = 20.0
     stall_s: float = 60.0
+    timing: MissionTiming = MissionTiming(start_lead_s=1.0, planner_timeout_s=20.0)
 
 
 @dataclass
@@ -99,8 +97,7 @@ class TeamMission(MissionClient[TeamMissionResult]):
 
     def __init__(self, spec: TeamMissionSpec, *args, progress: bool = True, **kwargs) -> None:
         team = spec.team
-        timing = MissionTiming(spec.start_lead_s, spec.ready_timeout_s, spec.planner_timeout_s)
-        super().__init__(spec.mission, (team.drone, team.ugv), timing, *args, progress=progress, **kwargs)
+        super().__init__(spec.mission, (team.drone, team.ugv), spec.timing, *args, progress=progress, **kwargs)
         self.spec = spec
         self.reports = {team.drone: RobotReport(team.drone, "drone"), team.ugv: RobotReport(team.ugv, "ugv")}
         self.statuses: list[ActionStatus] = []
@@ -114,7 +111,7 @@ class TeamMission(MissionClient[TeamMissionResult]):
         return PlanRequest(map=s.map, tasks={}, planner="collab", time_limit=s.time_limit, mission=s.mission, team=s.team)
 
     def planner_wait_s(self) -> float:
-        return self.spec.time_limit + self.spec.team.improve_s + self.spec.planner_timeout_s
+        return self.spec.time_limit + self.spec.team.improve_s + self.timing.planner_timeout_s
 
     def accept(self, reply: PlanReply) -> str | None:
         if reply.team_plan is None:
