@@ -55,3 +55,11 @@ def test_bad_input_raises_input_error(argv, field):
     with pytest.raises(InputError) as err:
         run(*argv)
     assert err.value.field.startswith(field)
+
+
+def test_the_experiment_refuses_bad_limits(capsys):
+    from bench.collab_experiment import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--instances", "0"])
+    assert exit_.value.code == 2 and "--instances" in capsys.readouterr().err
