@@ -5,18 +5,30 @@
 proven ``mip_gap``. A path entry is the time a vehicle is at a node; consecutive entries at different
 nodes traverse the edge between them linearly; before the first entry a vehicle sits at its start,
 after the last at its goal forever.
+
+Every encoded plan names its format first (``"format": "fleet-plan/1"``); a reader refuses a file
+without it or with another one, naming the field, before reading anything else.
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import msgspec
 
 from common.domain.vehicle_model import EdgeKind, NodeKind, VehicleModel
+from common.errors import InputError
 
 PLAN_FORMAT = "fleet-plan/1"
+
+
+def _plan_format() -> str:
+    """The `format` field's default, as a factory: msgspec's omit_defaults cannot tell a factory's
+    value from a set one, so the field is always encoded (DESIGN.md: "The `format` field is always
+    written")."""
+    return PLAN_FORMAT
 
 
 class PlanModel(VehicleModel, frozen=True, forbid_unknown_fields=True):
@@ -48,7 +60,8 @@ class PathEntry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     t: float
 
 
-class Plan(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_defaults=True):
+class Plan(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_defaults=True, kw_only=True):
+    format: Literal["fleet-plan/1"] = msgspec.field(default_factory=_plan_format)
     map: str
     planner: str
     mu: float
@@ -58,24 +71,50 @@ class Plan(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_default
     paths: dict[str, list[PathEntry]]
     cost: float
     planning_time_s: float
-    format: Literal["fleet-plan/1"] = PLAN_FORMAT
     dt: float | None = None
     mip_gap: float | None = None
 
 
-class PlanFileError(ValueError):
-    """A plan file that cannot be read: names the file and the problem."""
+class PlanFileError(InputError, ValueError):
+    """A plan file that cannot be read: `source: field: problem` (field empty when the file as a whole
+    is unreadable)."""
+
+
+class _Header(msgspec.Struct):
+    """A plan file's format, read before the rest (unknown fields skipped)."""
+
+    format: Any = msgspec.UNSET
+
+
+_AT_FIELD = re.compile(r"\s*-\s*at `\$\.?([^`]*)`")
 
 
 def encode_plan(plan: Plan) -> bytes:
     return msgspec.json.format(msgspec.json.encode(plan), indent=1)
 
 
+def check_format(data: bytes | str, source: str = "<plan>") -> None:
+    """A plan file names its format, and it is the one this reader reads (else PlanFileError)."""
+    try:
+        header = msgspec.json.decode(data, type=_Header)
+    except msgspec.DecodeError:
+        return  # not a JSON object: the full decode says what is wrong
+    if header.format is msgspec.UNSET:
+        raise PlanFileError(source, "format", f"missing: a plan file names its format ({PLAN_FORMAT!r})")
+    if header.format != PLAN_FORMAT:
+        raise PlanFileError(source, "format", f"{header.format!r} is not a format this reader reads ({PLAN_FORMAT!r})")
+
+
 def decode_plan(data: bytes | str, source: str = "<plan>") -> Plan:
+    check_format(data, source)
     try:
         return msgspec.json.decode(data, type=Plan)
     except msgspec.DecodeError as exc:
-        raise PlanFileError(f"{source}: {exc}") from None
+        text = str(exc)
+        match = _AT_FIELD.search(text)
+        if match is None:
+            raise PlanFileError(source, "", text) from None
+        raise PlanFileError(source, match.group(1), text[: match.start()]) from None
 
 
 def write_plan(plan: Plan, path: str | Path) -> None:
