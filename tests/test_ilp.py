@@ -64,6 +64,9 @@ def validate_paths(graph: FleetGraph, tasks: dict[str, Task], result: PlanResult
 
 
 def test_town_8_vehicles_solved_to_the_gap() -> None:
+    """On the one-time-step graph (air nodes one fly step apart) the first horizon is solved to the
+    gap in about a second; one more step is cheaper, and its plan (optimal: HiGHS proves it in ~7 s)
+    comes back within the extension's time budget with an honest gap of about 2 %."""
     graph = load_graph("town", uniform=True)
     tasks = load_scenario(MAPS_DIR / "scenarios" / "town_8.yaml", graph)
     result = plan_valid(graph, tasks)
@@ -71,8 +74,8 @@ def test_town_8_vehicles_solved_to_the_gap() -> None:
     assert len(crossing) == 6
     for vid in crossing:
         assert airborne(graph, nodes(result, vid)), f"{vid} crossed the gap without flying"
-    assert result.mip_gap <= 1e-4
-    assert result.cost >= result.stats["lower_bound"] - 1e-9
+    assert result.mip_gap <= 0.03
+    assert result.cost * (1 - result.mip_gap) >= result.stats["lower_bound"] - 1e-9
 
 
 def test_goals_on_other_vehicles_starts_including_a_cycle() -> None:
@@ -122,23 +125,35 @@ def test_swap_without_a_passing_place_fails_clearly() -> None:
     assert "no collision-free plan within" in result.error
 
 
-# -- crossing air edges ------------------------------------------------------------------------------
+# -- crossing edges ----------------------------------------------------------------------------------
 
 
-def test_crossing_diagonals_in_the_air_are_avoided() -> None:
-    """On grid125 with mu = 0 each vehicle alone flies a diagonal; the two diagonals cross mid-air at
-    the same step without sharing a node: only the geometric edge-edge constraint separates them."""
-    graph = load_graph("grid125", uniform=True)
-    tasks = tasks_of(a=("P3_5_0", "P0_1_0"), c=("P3_0_0", "P0_3_0"))
-    alone = {v: plan_ilp(graph, {v: t}, 0.0, 10.0, 0) for v, t in tasks.items()}
+def crossing_map() -> FleetGraph:
+    """Two roads crossing in an X without a node where they cross (W-E and S-N, 0.85 m each, split
+    into 5 one-step pieces whose middle ones cross), joined by W-N and S-E; a spot beside each end."""
+    road = {"W": RoadNode(0.0, 0.0), "E": RoadNode(0.6, 0.6), "S": RoadNode(0.6, 0.0), "N": RoadNode(0.0, 0.6)}
+    spots = [ParkingSpot(id="PW", x=-0.2, y=0.0, road="W"), ParkingSpot(id="PE", x=0.8, y=0.6, road="E"),
+             ParkingSpot(id="PS", x=0.8, y=0.0, road="S"), ParkingSpot(id="PN", x=-0.2, y=0.6, road="N")]
+    spec = MapSpec(name="crossing", roads=Roads(nodes=road, two_way=[("W", "E"), ("S", "N"), ("W", "N"), ("S", "E")]),
+                   parking=spots,
+                   time_step=2.0)
+    return build_graph(spec, spec.time_step)
+
+
+def test_crossing_edges_without_a_shared_node_are_avoided() -> None:
+    """Each vehicle alone drives straight through the X; together they would meet mid-crossing at the
+    same step without sharing a node: only the geometric edge-edge constraint separates them."""
+    graph = crossing_map()
+    tasks = tasks_of(a=("PW", "PE"), c=("PS", "PN"))
+    alone = {v: plan_ilp(graph, {v: t}, 0.5, 10.0, 0) for v, t in tasks.items()}
     naive = PlanResult(ok=True, paths={v: r.paths[v] for v, r in alone.items()}, cost=sum(r.cost for r in alone.values()))
     occupied = [{(e.node, e.t) for e in p} for p in naive.paths.values()]
     assert not occupied[0] & occupied[1], "the naive paths must not meet at a node"
-    report = validate_paths(graph, tasks, naive, 0.0)
-    assert report.contacts, "the naive plan must collide"
-    assert all(c.pos_a[2] > 0 for c in report.contacts)  # in the air
-    result = plan_valid(graph, tasks, mu=0.0)
-    assert result.cost >= naive.cost - 1e-9
+    report = validate_paths(graph, tasks, naive, 0.5)
+    assert [(c.pos_a[0], c.pos_a[1]) for c in report.contacts] != []
+    assert all(abs(c.pos_a[0] - 0.3) < 0.15 and abs(c.pos_a[1] - 0.3) < 0.15 for c in report.contacts)
+    result = plan_valid(graph, tasks)
+    assert result.cost > naive.cost  # one of them had to wait
 
 
 # -- the battery (eq. 6) -------------------------------------------------------------------------------
@@ -162,12 +177,13 @@ def test_task_beyond_the_battery_fails_naming_the_vehicle() -> None:
 
 
 def test_battery_turns_a_flight_into_a_drive() -> None:
-    """mu = 0 (time only): the far corner is reached fastest through the air; with 0.01 Ah a flight
-    no longer fits (eq. 6), so the vehicle drives and arrives later."""
-    tasks = tasks_of(cf1=("P0_0_0", "P5_5_0"))
-    fast = plan_valid(load_graph("grid125", uniform=True), tasks, mu=0.0)
-    assert airborne(load_graph("grid125", uniform=True), nodes(fast, "cf1"))
-    graph = weak_battery("grid125", 0.01)
+    """mu = 0 (time only): the far corner of fig6 is reached fastest through the air; with 0.005 Ah
+    not even a hop fits (takeoff and landing alone draw 0.0024 Ah, the drive 0.0034 Ah; eq. 6), so
+    the vehicle drives and arrives later."""
+    tasks = tasks_of(cf1=("P0_0_0", "P6_6_0"))
+    fast = plan_valid(load_graph("fig6", uniform=True), tasks, mu=0.0)
+    assert airborne(load_graph("fig6", uniform=True), nodes(fast, "cf1"))
+    graph = weak_battery("fig6", 0.005)
     frugal = plan_valid(graph, tasks, mu=0.0)
     assert not airborne(graph, nodes(frugal, "cf1"))
     assert frugal.paths["cf1"][-1].t > fast.paths["cf1"][-1].t

@@ -16,7 +16,7 @@ from services.planner.maps.generate import GENERATORS, to_yaml
 from services.planner.maps.loading import load_graph
 from services.planner.maps.tasks import load_scenario, random_tasks
 
-SHIPPED = ["town", "grid125", "city934"]
+SHIPPED = ["town", "fig6", "grid125", "city934"]
 
 
 @pytest.mark.parametrize("name", SHIPPED)
@@ -48,6 +48,7 @@ def test_town_is_two_ground_regions_joined_through_the_air() -> None:
 
 
 def test_sizes_of_grid125_and_city934() -> None:
+    assert load_graph("fig6").n_nodes == 125
     assert 100 <= load_graph("grid125").n_nodes <= 150
     city = load_graph("city934")
     assert 850 <= city.n_nodes <= 1050
@@ -61,6 +62,41 @@ def test_uniform_graph_every_edge_one_step_never_faster() -> None:
     speeds = np.array([graph.model.edge_speed(k) for k in graph.edge_kinds])
     assert np.all(graph.length / graph.duration <= speeds + 1e-9)
     assert graph.counts()[0]["waypoint"] > 0
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_one_step_graph_spaces_nodes_a_step_apart_at_each_kinds_speed(name: str) -> None:
+    """§V-E as the paper builds it: air nodes one fly step apart, every edge split into ceil(d / dt)
+    pieces of one step (d its duration at its kind's speed), so a traversal is never faster and at
+    most 1 - d / (ceil(d / dt) dt) slower than its kind's speed; flights keep their speed."""
+    base, step = load_graph(name), load_graph(name, uniform=True)
+    spec = load_map(name)
+    dt = step.dt
+    nominal = step.nominal_duration()
+    assert np.allclose(nominal, step.length / [step.model.edge_speed(k) for k in step.edge_kinds])
+    assert np.all(nominal <= dt * (1 + 1e-6))
+    slow = step.slowdown()
+    assert np.all(slow >= -1e-9) and np.allclose(slow, 1 - nominal / dt)
+    # the straight fly edges of the air grid take exactly one step at fly speed
+    fly = np.array([k == "fly" for k in step.edge_kinds])
+    air = np.array(step.kinds) == "air"
+    grid = fly & air[step.edges[:, 0]] & air[step.edges[:, 1]]
+    spacing = max(spec.air.spacing, step.model.speed.fly * dt)
+    level = np.isclose(step.pos[step.edges[:, 0], 2], step.pos[step.edges[:, 1], 2])
+    straight = grid & level & np.isclose(step.length, spacing)
+    assert straight.any() and np.allclose(slow[straight], 0.0)
+    # no piece of a subdivided edge is shorter than half a step: ceil never splits finer than that
+    pieces = step.length / [step.model.edge_speed(k) for k in step.edge_kinds]
+    waypoint = np.array(step.kinds) == "waypoint"
+    split = waypoint[step.edges[:, 0]] | waypoint[step.edges[:, 1]]
+    assert np.all(pieces[split] > dt / 2 - 1e-9)
+    # eq. 3's normalisers are the largest edge energy and duration at the vehicle's speeds
+    at_speed = np.array([step.model.edge_energy(k, d, dz) for k, d, dz in
+                         zip(step.edge_kinds, step.length, step.pos[step.edges[:, 1], 2] - step.pos[step.edges[:, 0], 2],
+                             strict=True)])
+    assert step.scale.w_max == pytest.approx(at_speed.max())
+    assert step.scale.t_max == pytest.approx(nominal.max())
+    assert base.scale.t_max == pytest.approx(base.duration.max()) and np.allclose(base.slowdown(), 0.0)
 
 
 def _edge(graph, u: str, v: str) -> int:

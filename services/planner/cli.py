@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--uniform", action="store_true", help="export the uniform-time-step graph")
     p.set_defaults(handler=cmd_map_export)
     p = msub.add_parser("generate", help="regenerate a shipped map's YAML")
-    p.add_argument("name", choices=["town", "grid125", "city934"])
+    p.add_argument("name", choices=["town", "fig6", "grid125", "city934"])
     p.add_argument("--out", help="default maps/NAME.yaml")
     p.set_defaults(handler=cmd_map_generate)
 
@@ -75,7 +75,11 @@ def cmd_map_check(args: argparse.Namespace) -> int:
         conf = graph.conflicts
         n_pairs = sum(len(x) for x in conf.node_nodes) // 2
         print(f"  contact pairs: node-node {n_pairs}, edge-edge {conf.edge_pair_count()}")
-        print(f"  W_max {graph.scale.w_max:.3f} J, t_max {graph.scale.t_max:.3f} s")
+        print(f"  W_max {graph.scale.w_max:.3f} J, t_max {graph.scale.t_max:.3f} s (at the vehicle's speeds)")
+        if dt is not None:
+            slow = graph.slowdown()
+            print(f"  one step per edge: slow-down vs the kind's speed largest {slow.max(initial=0):.1%}, "
+                  f"mean {slow.mean() if len(slow) else 0:.1%}")
     print("ok")
     return 0
 

@@ -11,7 +11,8 @@ from services.planner.graph.fleet_graph import FleetGraph
 @dataclass
 class PlanResult:
     """ok: every vehicle has a path. On failure `error` says why and `failed_vehicle` names the
-    vehicle that could not be placed (prioritized planning) when there is one."""
+    vehicle that could not be placed (prioritized planning) when there is one. `priority`: the
+    order the vehicles were planned in, highest first (prioritized planning only)."""
 
     ok: bool
     paths: dict[str, list[PathEntry]] = field(default_factory=dict)
@@ -21,6 +22,7 @@ class PlanResult:
     failed_vehicle: str = ""
     mip_gap: float | None = None
     stats: dict[str, float] = field(default_factory=dict)
+    priority: list[str] = field(default_factory=list)
 
 
 def to_plan(graph: FleetGraph, map_name: str, planner: str, mu: float, tasks: dict[str, Task], result: PlanResult) -> Plan:

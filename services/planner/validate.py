@@ -67,13 +67,15 @@ class VehicleStats:
     """One vehicle's path priced with eq. 1-5 up to its last entry.
 
     arrival_s: the time from which it stays at its final node (the first entry of the trailing run of
-    entries at that node); charge_ah: eq. 4-5; energy_j: eq. 1-2 plus wait energy; cost: eq. 3 summed.
+    entries at that node); charge_ah: eq. 4-5; energy_j: eq. 1-2 plus wait energy; cost: eq. 3 summed;
+    duration_s: the time eq. 3 counts (first to last entry).
     """
 
     charge_ah: float
     energy_j: float
     cost: float
     arrival_s: float
+    duration_s: float = 0.0
 
 
 @dataclass
@@ -107,6 +109,17 @@ class ValidationReport:
     @property
     def ok(self) -> bool:
         return self.n_errors == 0
+
+    def cost_on(self, scale: CostScale, mu: float) -> float:
+        """The plan's eq. 3 cost recomputed with other normalisers W_max, t_max (and weight mu): eq. 3
+        is linear in each traversal's and wait's energy and time, so the total is mu E / W_max +
+        (1 - mu) T / t_max over the recomputed energy E and time T. Plans on different graphs of one
+        map (SIPP's base graph, the ILP's one-time-step graph, §V-E) compare on one definition this way."""
+        if len(self.vehicles) == 0 or math.isnan(self.cost):
+            return math.nan
+        energy = sum(s.energy_j for s in self.vehicles.values())
+        duration = sum(s.duration_s for s in self.vehicles.values())
+        return scale.cost(mu, energy, duration)
 
     @property
     def charge_ah(self) -> dict[str, float]:
@@ -289,7 +302,8 @@ def _vehicle_stats(path: list[PathEntry], graph: _Graph, plan: Plan) -> VehicleS
         energy += work
         cost += scale.cost(mu, work, tau)
         charge += model.charge_ah(power, tau)
-    return VehicleStats(charge_ah=charge, energy_j=energy, cost=cost, arrival_s=_arrival(path))
+    return VehicleStats(charge_ah=charge, energy_j=energy, cost=cost, arrival_s=_arrival(path),
+                        duration_s=path[-1].t - path[0].t)
 
 
 def _battery_errors(stats: dict[str, VehicleStats], usable_ah: float) -> list[str]:

@@ -2,9 +2,27 @@
 
 Nodes: parking, land (road), waypoint (subdivisions), air (layer grid and interface nodes), helipad.
 Edges: drive, takeoff, fly, land, each with length, duration, energy (eq. 1-2), charge (eq. 4-5);
-costs (eq. 3) for a given mu come from `FleetGraph.edge_cost`. With `dt` every edge is subdivided
-by waypoints so it takes exactly one time step (what the ILP needs, §V-E); its speed is then at most
-the nominal one.
+costs (eq. 3) for a given mu come from `FleetGraph.edge_cost`, normalised by the largest edge energy
+W_max and duration t_max *at the vehicle's speeds* (the plan file's `w_max`, `t_max`).
+
+The one-time-step graph of the ILP (§V-E, built with `dt`). The paper "add[s] waypoint nodes between
+the existing ground nodes so that the time it takes to move between nodes takes about 1 timestep" and
+"space[s] out the aerial nodes so that the time it takes to travel between nodes takes about 1
+timestep"; the planner then assumes exactly one step per edge. Here:
+- the air grid of each layer is laid out with spacing max(spacing, v_fly dt) instead of the map's
+  `spacing`, so a straight fly edge takes one step at fly speed (an `AirRegion.spacing` coarser than
+  that is kept and its edges split like any other);
+- then every edge of nominal duration d = length / v_kind is split by waypoint nodes into
+  n = ceil(d / dt) equal pieces (d / dt within 1e-6 of an integer counts as that integer).
+Rounding rule: up, so a piece, traversed linearly in exactly dt, is never faster than its kind's
+speed (DESIGN.md); its slow-down is 1 - d / (n dt): below 1/2 for an edge longer than a step, and
+1 - d / dt for one shorter than a step, which is where the largest deviations are (parking access,
+short interface edges, layer-to-layer edges, diagonals of the air grid: sqrt 2 steps -> 2 pieces,
+29 %). `FleetGraph.slowdown()` measures it; on the shipped maps (maps/README.md) fig6's time-step
+graph has none (its geometry is laid out on the step), town's and city934's are listed there.
+Edges of the time-step graph keep their duration dt and the energy and charge of traversing in dt
+(what the plan will do, what the validator prices); W_max and t_max stay at the vehicle's speeds,
+like the base graph's, so an independent checker can recompute them from the plan file alone.
 """
 
 from __future__ import annotations
@@ -40,13 +58,23 @@ class FleetGraph:
     edges: np.ndarray  # (E, 2) node indices
     edge_kinds: list[EdgeKind]
     length: np.ndarray
-    duration: np.ndarray
+    duration: np.ndarray  # s per traversal: length / speed, or dt on the time-step graph
     energy: np.ndarray
     charge: np.ndarray
     scale: CostScale
     out_edges: list[np.ndarray] = field(repr=False)
     edge_index: dict[tuple[int, int], int] = field(repr=False)
     open_endpoints: bool = False  # any ground node may be a start or goal (MovingAI grids)
+    nominal: np.ndarray | None = field(default=None, repr=False)  # s per edge at the vehicle's speeds
+
+    def nominal_duration(self) -> np.ndarray:
+        """Each edge's duration at its kind's speed (equal to `duration` off the time-step graph)."""
+        return self.duration if self.nominal is None else self.nominal
+
+    def slowdown(self) -> np.ndarray:
+        """Per edge 1 - nominal / executed duration: how much slower than its kind's speed a traversal
+        is (0 everywhere on the base graph; the deviation of the one-time-step graph, §V-E)."""
+        return 1.0 - self.nominal_duration() / self.duration
 
     @property
     def n_nodes(self) -> int:
@@ -110,6 +138,18 @@ class FleetGraph:
         return nodes, edges
 
 
+def equivalent_mu(mu: float, scale: CostScale, on: CostScale) -> float:
+    """The eq. 3 weight that, with the normalisers `on`, ranks plans as `mu` does with `scale`.
+
+    Eq. 3 normalises by the graph's largest edge energy and duration, so one mu weighs time against
+    energy differently on a map's base graph (t_max: its longest edge) and on its one-time-step
+    graph (t_max <= dt). mu' / W'_max : (1 - mu') / t'_max = mu / W_max : (1 - mu) / t_max makes
+    the two costs proportional: a planner on `on` given mu' minimises the same objective as one on
+    `scale` given mu (Fig. 7 compares SIPP on the base graph with the ILP on its step graph so)."""
+    a, b = mu / scale.w_max * on.w_max, (1.0 - mu) / scale.t_max * on.t_max
+    return a / (a + b) if a + b > 0 else mu
+
+
 def airborne_mask(kinds: list[str], edges: list[tuple[int, int, str]], n: int) -> np.ndarray:
     """A node is airborne when it is an air node, or a waypoint with no drive edge (on a takeoff,
     fly or landing edge). The validator uses the same rule on the plan file's graph."""
@@ -124,9 +164,10 @@ def airborne_mask(kinds: list[str], edges: list[tuple[int, int, str]], n: int) -
 class _GraphBuilder:
     """Accumulates nodes and directed edges, then freezes into a FleetGraph."""
 
-    def __init__(self, spec: MapSpec, source: str) -> None:
+    def __init__(self, spec: MapSpec, source: str, dt: float | None = None) -> None:
         self.spec = spec
         self.source = source
+        self.dt = dt
         self.model = spec.vehicle.envelope()  # bodies grown by the tracking margin
         self.ids: list[str] = []
         self.index: dict[str, int] = {}
@@ -190,15 +231,24 @@ class _GraphBuilder:
         pts = a[:, None, :] + frac[None, :, None] * (b - a)[:, None, :]
         return self.blocked(pts.reshape(-1, 3)).reshape(len(a), steps).any(axis=1)
 
+    def air_spacing(self) -> float:
+        """The air grid's spacing: the map's, or on the time-step graph at least one fly step (§V-E)."""
+        air = self.spec.air
+        assert air is not None
+        if self.dt is None:
+            return air.spacing
+        return max(air.spacing, self.model.edge_speed("fly") * self.dt)
+
     def air(self) -> None:
         air = self.spec.air
         if air is None:
             return
+        spacing = self.air_spacing()
         xmin, ymin, xmax, ymax = air.bounds
-        nx_ = int(math.floor((xmax - xmin) / air.spacing + 1e-9)) + 1
-        ny_ = int(math.floor((ymax - ymin) / air.spacing + 1e-9)) + 1
+        nx_ = int(math.floor((xmax - xmin) / spacing + 1e-9)) + 1
+        ny_ = int(math.floor((ymax - ymin) / spacing + 1e-9)) + 1
         keys = [(li, i, j) for li in range(len(air.layers)) for i in range(nx_) for j in range(ny_)]
-        pts = np.array([(xmin + i * air.spacing, ymin + j * air.spacing, air.layers[li]) for li, i, j in keys])
+        pts = np.array([(xmin + i * spacing, ymin + j * spacing, air.layers[li]) for li, i, j in keys])
         free = ~self.blocked(pts)
         grid: dict[tuple[int, int, int], int] = {
             key: self.node(f"a{key[0]}_{key[1]}_{key[2]}", tuple(p), "air")
@@ -230,8 +280,9 @@ class _GraphBuilder:
         free airspace, with a takeoff edge up and a landing edge down, and fly edges to the layer."""
         air = self.spec.air
         assert air is not None
+        spacing = self.air_spacing()
         xmin, ymin, xmax, ymax = air.bounds
-        margin = air.spacing / 2
+        margin = spacing / 2
         bases = [(nid, "land") for nid in self.spec.roads.nodes] + [(p.id, "helipad") for p in self.spec.helipads]
         for nid, _ in bases:
             base = np.array(self.pos[self.index[nid]])
@@ -249,11 +300,11 @@ class _GraphBuilder:
                 for (li, _, _), v in grid.items()
                 if li == layer
             ]
-            near = [(d, v) for d, v in near if d <= air.spacing * 1.01]
+            near = [(d, v) for d, v in near if d <= spacing * 1.01]
             if not near:
                 continue
             dmin, vmin = min(near)
-            if dmin < 0.25 * air.spacing:
+            if dmin < 0.25 * spacing:
                 iface = vmin
             else:
                 iface = self.node(f"i_{nid}", tuple(top), "air")
@@ -264,7 +315,8 @@ class _GraphBuilder:
 
     # -- uniform time steps -----------------------------------------------------------------------
     def subdivide(self, dt: float) -> None:
-        """Split every edge into ceil(duration / dt) pieces joined by waypoint nodes (§V-E)."""
+        """Split every edge into ceil(duration / dt) pieces joined by waypoint nodes (§V-E; the
+        rounding rule of the module docstring)."""
         old = dict(self.edges)
         self.edges = {}
         done: set[tuple[int, int]] = set()
@@ -301,6 +353,9 @@ class _GraphBuilder:
         energy = np.array(
             [self.model.edge_energy(k, d, dz, t) for k, d, dz, t in zip(kinds, length, vec[:, 2], duration, strict=True)]
         )
+        at_speed = np.array(
+            [self.model.edge_energy(k, d, dz) for k, d, dz in zip(kinds, length, vec[:, 2], strict=True)]
+        )
         charge = np.array([self.model.edge_charge(k, t) for k, t in zip(kinds, duration, strict=True)])
         g = nx.DiGraph()
         for i, (nid, k) in enumerate(zip(self.ids, self.kinds, strict=True)):
@@ -311,20 +366,21 @@ class _GraphBuilder:
         for e, (u, _) in enumerate(edges):
             out_edges[u].append(e)
         airborne = airborne_mask(self.kinds, [(int(u), int(v), k) for (u, v), k in zip(edges, kinds, strict=True)], len(self.ids))
-        scale = CostScale(w_max=float(energy.max(initial=1e-9)), t_max=float(duration.max(initial=1e-9)))
+        scale = CostScale(w_max=float(at_speed.max(initial=1e-9)), t_max=float(nominal.max(initial=1e-9)))
         return FleetGraph(
             name=self.spec.name, model=self.model, g=g, dt=dt, ids=list(self.ids), index=dict(self.index),
             pos=pos, kinds=list(self.kinds), airborne=airborne, edges=edges, edge_kinds=kinds, length=length,
             duration=duration, energy=energy, charge=charge, scale=scale,
             out_edges=[np.array(o, dtype=np.int64) for o in out_edges],
             edge_index={(int(u), int(v)): e for e, (u, v) in enumerate(edges)},
+            nominal=nominal if dt is not None else None,
         )
 
 
 def build_graph(spec: MapSpec, dt: float | None = None, source: str | None = None, open_endpoints: bool = False) -> FleetGraph:
     """Build the 3D graph of a map; with `dt`, on the uniform-time-step graph (§V-E)."""
     src = source or spec.name
-    b = _GraphBuilder(spec, src)
+    b = _GraphBuilder(spec, src, dt)
     b.ground()
     check_spots(b, src)
     b.air()

@@ -1,7 +1,8 @@
 """Multi-commodity flow ILP planner (paper 000 §V-E, Alg. 3, eq. 6-7; Yu & LaValle 2015).
 
 `plan_ilp` solves the time-expanded network model (ilp_network, ilp_arcs, ilp_model) with HiGHS on
-the uniform-time-step graph, where every edge takes exactly one step dt.
+the one-time-step graph (services/planner/graph/fleet_graph.py: nodes spaced about one step apart at
+each edge kind's speed, rounded up), where every edge takes exactly one step dt.
 
 Horizon policy. The cost of the best plan within T steps never increases with T (a plan for T
 extends to T+1 by staying at the goals, which is free), but a longer horizon makes a bigger model.

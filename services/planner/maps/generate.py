@@ -1,5 +1,6 @@
-"""Generators of the shipped maps (`fleet map generate NAME`): the town of paper 000 §VII-C, a
-grid map like Fig. 6 (about 125 nodes) and a city like Fig. 8 (about 934 nodes).
+"""Generators of the shipped maps (`fleet map generate NAME`): the town of paper 000 §VII-C, the
+125-node map of Fig. 6/7 (`fig6`), an older grid like it (`grid125`, 120 nodes) and a city like
+Fig. 8 (about 934 nodes).
 
 The YAML files in maps/ are these generators' output; edit the generator, not the file.
 """
@@ -147,6 +148,53 @@ def grid125() -> MapSpec:
     )
 
 
+FIG6_STEP = 2.0  # s: the time step fig6 is laid out on
+
+
+def fig6() -> MapSpec:
+    """Paper 000 Fig. 6/7's 125-node map: a 7 x 7 road grid (0.6 m blocks) with 28 rim parking spots
+    and one air layer over it, a no-fly tower over the centre; 49 road + 28 parking + 48 air nodes.
+
+    Laid out on its time step (§V-E) so that its one-time-step graph deviates from no speed: with
+    dt = 2 s a road block (0.6 m at 0.1 m/s) is three steps, a parking access (0.2 m) one, a takeoff
+    or landing (0.4 m at 0.2 m/s) one, a fly edge (0.6 m at 0.3 m/s, no diagonals) one; the air grid
+    lies right over the road grid, so every takeoff rises into a grid node.
+    """
+    n, s, off = 7, 0.6, 0.2
+    speed = VEHICLE.speed
+    assert abs(s / speed.fly - FIG6_STEP) < 1e-9 and abs(off / speed.drive - FIG6_STEP) < 1e-9
+
+    def spots(i: int, j: int) -> list[tuple[float, float]]:
+        out = []
+        if j == 0:
+            out.append((0.0, -off))
+        if j == n - 1:
+            out.append((0.0, off))
+        if i == 0:
+            out.append((-off, 0.0))
+        if i == n - 1:
+            out.append((off, 0.0))
+        return out
+
+    r = _Roads()
+    _grid(r, n, s, spots)
+    side = (n - 1) * s
+    mid = side / 2
+    layer = round(speed.takeoff * FIG6_STEP, 6)
+    return MapSpec(
+        name="fig6",
+        description="Paper 000 Fig. 6/7: 125 nodes; road grid, rim parking, one air layer, a central no-fly tower; "
+        "laid out on a 2 s time step.",
+        size=(side, side),
+        roads=r.roads(),
+        parking=r.spots,
+        air=AirRegion(bounds=(0.0, 0.0, side, side), layers=[layer], spacing=s, diagonals=False),
+        no_fly=[square("tower", mid - 0.2, mid - 0.2, 0.4)],
+        vehicle=VEHICLE,
+        time_step=FIG6_STEP,
+    )
+
+
 def city934() -> MapSpec:
     """Like paper 000 Fig. 8: a 10 x 10 street grid with 150 parking spots, two air layers and
     three no-fly zones; about 934 nodes."""
@@ -174,7 +222,7 @@ def city934() -> MapSpec:
     )
 
 
-GENERATORS: dict[str, Callable[[], MapSpec]] = {"town": town, "grid125": grid125, "city934": city934}
+GENERATORS: dict[str, Callable[[], MapSpec]] = {"town": town, "fig6": fig6, "grid125": grid125, "city934": city934}
 
 
 def to_yaml(spec: MapSpec) -> str:

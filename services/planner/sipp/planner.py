@@ -80,7 +80,7 @@ def plan_sipp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: 
         orders += 1
         outcome = _plan_order(setup, order)
         if isinstance(outcome, dict):
-            return _solved(graph, list(tasks), outcome, t0, orders)
+            return _solved(graph, list(tasks), outcome, t0, orders, order)
         if outcome.vid == order[0] or time.perf_counter() > setup.deadline:
             return _failed(outcome, t0, orders)
         order = _next_order(order, outcome.vid, setup.blockers, rng, tried)
@@ -203,13 +203,15 @@ def _entries(graph: FleetGraph, path: TimedPath) -> list[PathEntry]:
     return out
 
 
-def _solved(graph: FleetGraph, vids: list[str], paths: dict[str, TimedPath], t0: float, orders: int) -> PlanResult:
+def _solved(graph: FleetGraph, vids: list[str], paths: dict[str, TimedPath], t0: float, orders: int,
+            order: list[str]) -> PlanResult:
     return PlanResult(
         ok=True,
         paths={vid: _entries(graph, paths[vid]) for vid in vids},
         cost=sum(p.cost for p in paths.values()),
         planning_time_s=time.perf_counter() - t0,
         stats={"orders": orders},
+        priority=list(order),
     )
 
 
