@@ -1,6 +1,8 @@
 """The mocap bridge: the `motioncapture` mock backend end to end (rate, rigid-body mapping, capture
-stamps), the sim backend (noisy poses of the simulated motion capture, a vanished body reported and not
-frozen), and the tracker's rate limit and lost / found logic on synthetic frames."""
+stamps; a y-up system's frame taken to the map's, the start-up check naming a missing body), the sim
+backend (noisy poses of the simulated motion capture, a vanished body reported and not frozen), the
+tracker's rate limit and lost / found logic on synthetic frames, the frame transform, the mapping
+errors, and the shipped example files."""
 
 from __future__ import annotations
 
@@ -14,6 +16,8 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from common.bus.keys import Keys
 from common.bus.messages import Pose, SimTruth, VehicleEvent
@@ -22,12 +26,14 @@ from common.bus.session import ZenohConfig
 from common.deploy.radios import MocapModel, simulated_radios
 from common.errors import InputError
 from services.mocap_bridge.bridge import MocapBridge
-from services.mocap_bridge.config import MocapConfig, load_mocap
-from services.mocap_bridge.tracker import BodyTracker, yaw_of
+from services.mocap_bridge.config import FrameSpec, MocapConfig, load_mocap
+from services.mocap_bridge.frame import FrameTransform, wrap_angle
+from services.mocap_bridge.tracker import BodyTracker, StartupReport, yaw_of
 from services.sim.crazyflie.service import SimService
 from tests.support.loadgen import running
 
 KEYS = Keys()
+REPO = Path(__file__).resolve().parents[1]
 
 
 class Poses:
@@ -148,8 +154,141 @@ def test_mocap_config_errors(tmp_path: Path) -> None:
     assert load_mocap(path).options == {"hostname": "10.0.0.5"}
     for text, field in [("backend: kinect\n", "backend"), ("rate_hz: 0\n", "rate_hz"),
                         ("bodies: {a: cf1, b: cf1}\n", "bodies.b"), ("bodies: {a: 'x/y'}\n", "bodies.a"),
-                        ("latency_s: -1\n", "latency_s")]:
+                        ("latency_s: -1\n", "latency_s"), ("backend: vicon\nframe: {up: x}\n", "frame.up"),
+                        ("backend: vicon\nframe: {origin: [0, 0]}\n", "frame.origin"),
+                        ("backend: vicon\nframe: {origin: [0, .nan, 0]}\n", "frame.origin"),
+                        ("backend: vicon\nframe: {yaw: 90}\n", "frame"), ("frame: {up: y}\n", "frame"),
+                        ("startup_wait_s: -1\n", "startup_wait_s")]:
         path.write_text(text)
         with pytest.raises(InputError) as err:
             load_mocap(path)
-        assert err.value.field == field
+        assert err.value.field == field and err.value.source == str(path), text
+
+
+def test_a_rigid_body_named_twice_is_an_error_naming_both_lines(tmp_path: Path) -> None:
+    path = tmp_path / "mocap.yaml"
+    path.write_text("backend: vicon\nbodies:\n  cf_01: cf1\n  cf_02: cf2\n  cf_01: cf3\n")
+    with pytest.raises(InputError) as err:
+        load_mocap(path)
+    assert err.value.field == "bodies.cf_01"
+    assert "rigid body cf_01 named twice (lines 3 and 5)" in err.value.problem
+    path.write_text("backend: vicon\nbackend: mock\n")
+    with pytest.raises(InputError) as err:
+        load_mocap(path)
+    assert err.value.field == "backend" and "key backend named twice" in err.value.problem
+
+
+@pytest.mark.parametrize("system", ["vicon", "optitrack", "qualisys", "vrpn"])
+def test_shipped_examples_load(system: str) -> None:
+    config = load_mocap(REPO / "deploy" / f"mocap-{system}.yaml")
+    assert config.backend == system and config.options["hostname"]
+    assert sorted(config.bodies.values()) == [f"cf{k}" for k in range(1, 9)]
+    assert config.frame.up == ("y" if system == "optitrack" else "z")
+
+
+def _pose(transform: FrameTransform, p, axis, angle: float):
+    """A body at `p` turned by `angle` about the unit `axis` (both in the system's frame), transformed."""
+    h = angle / 2.0
+    return transform.pose(p, math.cos(h), *(math.sin(h) * a for a in axis))
+
+
+def test_frame_transform() -> None:
+    identity = FrameTransform()
+    assert identity.identity
+    assert _pose(identity, (1.0, 2.0, 0.5), (0, 0, 1), 0.3) == pytest.approx((1.0, 2.0, 0.5, 0.3))
+    y_up = FrameTransform(up="y")
+    # a body 0.5 m above the floor of a y-up system, 2 m along its -z axis: map y is the system's -z
+    assert _pose(y_up, (1.0, 0.5, -2.0), (0, 1, 0), 0.0) == pytest.approx((1.0, 2.0, 0.5, 0.0))
+    # turned 30 deg about the system's up axis (its y): a yaw of 30 deg, CCW seen from above
+    assert _pose(y_up, (0.0, 0.0, 0.0), (0, 1, 0), math.radians(30))[3] == pytest.approx(math.radians(30))
+    # a roll about the system's x axis is no yaw
+    assert _pose(y_up, (0.0, 0.0, 0.0), (1, 0, 0), 0.4)[3] == pytest.approx(0.0, abs=1e-12)
+    # the map's origin at the system's (2, 0.1, -1) (y up), its +x axis along the system's -z (map y):
+    # 90 deg CCW from the system's +x
+    placed = FrameTransform(up="y", origin=(2.0, 0.1, -1.0), yaw_deg=90.0)
+    assert placed.position((2.0, 0.1, -1.0)) == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
+    assert placed.position((2.0, 1.1, -2.0)) == pytest.approx((1.0, 0.0, 1.0), abs=1e-12)  # 1 m along its +x, 1 m up
+    assert placed.position((3.0, 0.1, -1.0)) == pytest.approx((0.0, -1.0, 0.0), abs=1e-12)  # the system's +x: map -y
+    assert _pose(placed, (2.0, 0.1, -1.0), (0, 1, 0), math.radians(90))[3] == pytest.approx(0.0, abs=1e-12)
+    assert _pose(placed, (2.0, 0.1, -1.0), (0, 1, 0), 0.0)[3] == pytest.approx(-math.pi / 2)
+    assert wrap_angle(3 * math.pi) == pytest.approx(math.pi) and wrap_angle(-math.pi / 2) == pytest.approx(-math.pi / 2)
+    nan = y_up.pose((math.nan, 0.0, 0.0), 1.0, 0.0, 0.0, 0.0)
+    assert math.isnan(nan[0])  # an occluded body stays not seen
+    with pytest.raises(ValueError):
+        FrameTransform(up="x")
+
+
+_unit = st.floats(-1.0, 1.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(q=st.tuples(_unit, _unit, _unit, _unit).filter(lambda q: sum(v * v for v in q) > 0.01),
+       p=st.tuples(*[st.floats(-5.0, 5.0)] * 3), origin=st.tuples(*[st.floats(-5.0, 5.0)] * 3),
+       up=st.sampled_from(["y", "z"]), yaw_deg=st.floats(-360.0, 360.0))
+def test_transformed_yaw_is_the_heading_of_the_transformed_body_axis(q, p, origin, up, yaw_deg) -> None:
+    """The yaw of a transformed pose is the map heading of the body's +x axis, found by transforming two
+    points of that axis as positions: orientation and position go through the same frame change."""
+    n = math.sqrt(sum(v * v for v in q))
+    w, x, y, z = (v / n for v in q)
+    # the body's +x axis in the system's frame: the first column of the rotation matrix of q
+    ax = (1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y))
+    transform = FrameTransform(up, origin, yaw_deg)
+    a = transform.position(p)
+    b = transform.position(tuple(pi + ai for pi, ai in zip(p, ax, strict=True)))
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    if math.hypot(dx, dy) < 0.05:
+        return  # the body's x axis (nearly) vertical: no heading
+    yaw = transform.pose(p, w, x, y, z)[3]
+    assert wrap_angle(yaw - math.atan2(dy, dx)) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_startup_report_names_missing_and_unmapped_bodies() -> None:
+    tracker = BodyTracker({"cf_01": "cf1", "cf_07": "cf7", "cf_08": "cf8"}, rate_hz=100.0, lost_after_s=0.1)
+    none = tracker.startup_report()
+    assert not none.ok and "no frame from the vicon system within 10 s" in none.message("vicon", 10)
+    tracker.frame(0.0, {"cf_01": (0.0, 0.0, 0.0, 0.0), "CF07": (0.0, 0.0, 0.0, 0.0), "wand": (0.0, 0.0, 0.0, 0.0)}, 0.0)
+    assert not tracker.all_found()
+    report = tracker.startup_report()
+    assert report.missing == {"cf_07": "cf7", "cf_08": "cf8"} and report.unmapped == ["CF07", "wand"]
+    assert report.look_alikes() == {"cf_07": "CF07"}
+    assert StartupReport(1, {"cf10": "v1", "cf_7": "v7"}, ["cf100", "CF-007"], []).look_alikes() == {"cf_7": "CF-007"}
+    assert report.message("vicon", 10) == (
+        "2 of 3 mapped rigid bodies not seen within 10 s: cf_07 (vehicle cf7; did you mean 'CF07'?), "
+        "cf_08 (vehicle cf8); seen but not mapped: CF07, wand")
+    tracker.frame(0.01, {"cf_07": (0.0, 0.0, 0.0, 0.0), "cf_08": (0.0, 0.0, 0.0, 0.0)}, 0.01)
+    assert tracker.all_found() and tracker.startup_report().ok
+    assert tracker.startup_report().message("vicon", 10).startswith("every mapped rigid body seen (3)")
+    identity = BodyTracker({}, rate_hz=100.0, lost_after_s=0.1)
+    identity.frame(0.0, {"cf2": (0.0, 0.0, 0.0, 0.0), "x/y": (0.0, 0.0, 0.0, 0.0)}, 0.0)
+    assert not identity.all_found()  # nothing to expect: the bridge waits the whole time, then lists them
+    assert identity.startup_report().message("mock", 1) == "no body mapping: bodies seen as vehicles: cf2; not vehicle ids, ignored: x/y"
+    assert isinstance(identity.startup_report(), StartupReport)
+
+
+def test_mock_y_up_system_is_taken_to_the_map_frame_and_a_missing_body_is_named(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session], caplog: pytest.LogCaptureFixture) -> None:
+    """An OptiTrack-like y-up system (the library's mock): poses in the map's frame; the start-up check
+    names the mapped body that never shows up, with the near-namesake it sees instead."""
+    s = math.sin(math.radians(30) / 2)
+    c = math.cos(math.radians(30) / 2)
+    config = MocapConfig(
+        backend="mock", bodies={"cf_01": "v1", "cf_02": "v2"}, startup_wait_s=0.5,
+        frame=FrameSpec(up="y", origin=(1.0, 0.0, 0.0), yaw_deg=0.0),
+        options={"rigid_bodies": f"cf_01(2.0,0.5,-3.0,{c},0,{s},0);CF02(0,0,0,1,0,0,0)"})
+    bridge = MocapBridge(config, ZenohConfig.client(zenoh_router))
+    session = zsession()
+
+    async def main() -> None:
+        seen = Poses(session)
+        with caplog.at_level("WARNING", logger="services.mocap_bridge.bridge"):
+            async with running(bridge):
+                await asyncio.sleep(1.0)
+        assert set(seen.poses) == {"v1"}
+        p = seen.poses["v1"][-1][1]
+        assert (p.x, p.y, p.z) == pytest.approx((1.0, 3.0, 0.5), abs=1e-6)  # y up -> z up, origin removed
+        assert p.yaw == pytest.approx(math.radians(30), abs=1e-6)
+        assert bridge.startup is not None and bridge.startup.missing == {"cf_02": "v2"}
+        assert "1 of 2 mapped rigid bodies not seen within 0.5 s: cf_02 (vehicle v2; did you mean 'CF02'?)" in caplog.text
+        assert bridge._figures()["missing_bodies"] == 1
+
+    asyncio.run(main())

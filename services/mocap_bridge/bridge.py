@@ -6,6 +6,11 @@ one of `fleet sim` (`sim`: its frames on `sim/mocap`) feeds the `BodyTracker`, w
 bodies to vehicles, limits the rate and reports a vanished body as `VehicleEvent` "mocap_lost" on
 `vehicle/<vid>/event` (no poses for it until it is back: "mocap_found"). Counters and the poses
 published per vehicle go out on `stats/mocap/<instance>`.
+
+At start the bridge waits up to `startup_wait_s` for every mapped rigid body and then logs one line:
+every body seen, or which are missing (with their vehicles, a seen but unmapped body of nearly the
+same name as a likely typo, and the bodies seen that are not ours), or that no frame came at all.
+The result is `startup` (a `StartupReport`) and `missing_bodies` in the stats.
 """
 
 from __future__ import annotations
@@ -22,7 +27,8 @@ from common.bus.session import ZenohConfig
 from common.bus.stats import publish_stats
 from services.mocap_bridge.backends import LibBackend, frame_bodies
 from services.mocap_bridge.config import MocapConfig, check_mocap
-from services.mocap_bridge.tracker import BodyPose, BodyTracker, Event
+from services.mocap_bridge.frame import FrameTransform
+from services.mocap_bridge.tracker import BodyPose, BodyTracker, Event, StartupReport
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +43,7 @@ class MocapBridge(Service):
         self.config = config
         self.tracker: BodyTracker | None = None
         self.published: dict[str, int] = {}
+        self.startup: StartupReport | None = None
 
     async def main(self) -> None:
         cfg = self.config
@@ -50,9 +57,12 @@ class MocapBridge(Service):
             options = dict(cfg.options)
             if cfg.backend == "mock":
                 options.setdefault("frequency", str(round(cfg.rate_hz)))
-            backend = LibBackend(cfg.backend, options, cfg.latency_s, self._on_frame, self._on_backend_error)
+            frame = FrameTransform(cfg.frame.up, cfg.frame.origin, cfg.frame.yaw_deg)
+            backend = LibBackend(cfg.backend, options, cfg.latency_s, self._on_frame, self._on_backend_error, frame)
             backend.start(asyncio.get_running_loop())
         self.spawn(publish_stats(self, self._figures), name="stats")
+        if cfg.startup_wait_s > 0:
+            self.spawn(self._startup_check(tracker), name="startup check")
         try:
             while True:  # lost bodies are noticed even when no frame comes at all
                 self._publish_events(tracker.check(time.time()))
@@ -78,9 +88,25 @@ class MocapBridge(Service):
             self._poses.put(pose.vid, pose)
             self.published[pose.vid] = self.published.get(pose.vid, 0) + 1
 
+    async def _startup_check(self, tracker: BodyTracker) -> None:
+        """Wait up to `startup_wait_s` for every mapped body; log which are missing (module docstring)."""
+        wait_s = self.config.startup_wait_s
+        deadline = time.monotonic() + wait_s
+        while time.monotonic() < deadline and not tracker.all_found():
+            await asyncio.sleep(0.05)
+        report = self.startup = tracker.startup_report()
+        text = f"mocap: {report.message(self.config.backend, wait_s)}"
+        if report.ok:
+            log.info(text)
+        else:
+            log.warning(text)
+
     def _figures(self) -> dict[str, float]:
-        return {"bodies": len(self.published), "poses": sum(self.published.values()),
-                "late_frames": self.counters.get("late_frames", 0)}
+        figures = {"bodies": len(self.published), "poses": sum(self.published.values()),
+                   "late_frames": self.counters.get("late_frames", 0)}
+        if self.startup is not None:
+            figures["missing_bodies"] = len(self.startup.missing)
+        return figures
 
     def _on_backend_error(self, message: str) -> None:
         if self.counters.inc("backend_error") == 1:

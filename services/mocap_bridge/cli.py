@@ -9,7 +9,7 @@ from common.bus.args import add_zenoh_args, keys_from_args, run_service, zconfig
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     mocap = subparsers.add_parser("mocap", help="motion capture (or simulated) -> vehicle poses")
-    mocap.add_argument("--config", help="mocap file (YAML, docs/mocap.md); default: simulated, 100 Hz")
+    mocap.add_argument("--config", help="mocap file (YAML, docs/mocap.md; examples deploy/mocap-*.yaml); default: simulated, 100 Hz")
     add_zenoh_args(mocap, default_instance="mocap")
     mocap.set_defaults(handler=_mocap)
 

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 from common.bus.keys import check_chunk
 from common.bus.messages import Pose
@@ -45,6 +47,9 @@ class BodyTracker:
         self._due: dict[str, float] = {}
         self._seen: dict[str, float] = {}
         self._lost: set[str] = set()
+        self.frames = 0
+        self.found: set[str] = set()
+        """Rigid bodies of ours seen at least once (with a finite pose)."""
 
     def vid_of(self, body: str) -> str | None:
         """The vehicle of `body`, or None (counted in `ignored`, logged once) if it is not one of ours."""
@@ -66,11 +71,13 @@ class BodyTracker:
         events: list[Event] = []
         if not self._seen:  # the system runs: a configured body must show up from now on
             self._seen = dict.fromkeys(self.bodies.values(), now)
+        self.frames += 1
         for body, (x, y, z, yaw) in seen.items():
             vid = self.vid_of(body)
             if vid is None or not all(math.isfinite(v) for v in (x, y, z, yaw)):
                 continue  # an occluded body some systems report as NaN: not seen
             self._seen[vid] = now
+            self.found.add(body)
             if vid in self._lost:
                 self._lost.discard(vid)
                 events.append((vid, "mocap_found", f"rigid body {body} visible again"))
@@ -90,3 +97,56 @@ class BodyTracker:
                 self._lost.add(vid)
                 events.append((vid, "mocap_lost", f"not seen for {now - at:.2f} s: no poses until it is back"))
         return events
+
+    def all_found(self) -> bool:
+        """Every mapped body seen at least once (never true without a mapping: nothing to expect)."""
+        return bool(self.bodies) and self.found.issuperset(self.bodies)
+
+    def startup_report(self) -> StartupReport:
+        """Which mapped bodies were never seen, and which bodies were seen but are not ours."""
+        missing = {body: vid for body, vid in self.bodies.items() if body not in self.found}
+        return StartupReport(self.frames, missing, sorted(self.ignored), sorted(self.found), bool(self.bodies))
+
+
+def _plain(name: str) -> str:
+    """A body name without case, punctuation or leading zeros: `CF_07` and `cf7` are alike."""
+    return re.sub(r"(?<!\d)0+(?=\d)", "", re.sub(r"[^a-z0-9]", "", name.lower()))
+
+
+@dataclass(frozen=True)
+class StartupReport:
+    """The rigid bodies after the bridge's start-up wait: `missing` maps each mapped body never seen
+    to its vehicle; `unmapped` the bodies seen that are not ours; `found` ours that were seen."""
+
+    frames: int
+    missing: dict[str, str]
+    unmapped: list[str]
+    found: list[str]
+    mapped: bool = True
+
+    def look_alikes(self) -> dict[str, str]:
+        """Missing body -> a seen but unmapped body of nearly the same name (a likely typo)."""
+        plain = {_plain(name): name for name in self.unmapped}
+        return {body: plain[_plain(body)] for body in self.missing if _plain(body) in plain}
+
+    @property
+    def ok(self) -> bool:
+        return self.frames > 0 and not self.missing
+
+    def message(self, system: str, wait_s: float) -> str:
+        if self.frames == 0:
+            if system == "sim":
+                return f"no frame from the simulated system within {wait_s:g} s: is `fleet sim` running?"
+            return (f"no frame from the {system} system within {wait_s:g} s: is it streaming, and is this host "
+                    "on its network (docs/mocap.md, 'Systems')?")
+        if not self.mapped:
+            return (f"no body mapping: bodies seen as vehicles: {', '.join(self.found) or 'none'}"
+                    + (f"; not vehicle ids, ignored: {', '.join(self.unmapped)}" if self.unmapped else ""))
+        unmapped = f"; seen but not mapped: {', '.join(self.unmapped)}" if self.unmapped else ""
+        if not self.missing:
+            return f"every mapped rigid body seen ({len(self.found)}){unmapped}"
+        alike = self.look_alikes()
+        names = ", ".join(f"{body} (vehicle {vid}" + (f"; did you mean {alike[body]!r}?" if body in alike else "")
+                          + ")" for body, vid in sorted(self.missing.items()))
+        total = len(self.missing) + len(self.found)
+        return f"{len(self.missing)} of {total} mapped rigid bodies not seen within {wait_s:g} s: {names}{unmapped}"
