@@ -1,8 +1,10 @@
-"""`fleet up`, `fleet down`, `fleet ps`: compose.yaml's services as local processes."""
+"""`fleet up`, `fleet down`, `fleet ps`: compose.yaml's services as local processes; `fleet compose
+lab`: a compose file for real vehicles (common/deploy/lab.py)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -27,6 +29,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("ps", help="list what `fleet up` started")
     p.add_argument("--run-dir", type=Path, default=DEFAULT_RUN_DIR)
     p.set_defaults(handler=cmd_ps)
+    p = sub.add_parser("compose", help="write compose files")
+    kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND")
+    lab = kinds.add_parser("lab", help="a compose file for real vehicles: one gateway per radio of a radios file, "
+                                       "the Crazyradios passed through, a motion-capture system")
+    lab.add_argument("--radios", required=True, help="the lab's radios file (radio://<serial>/... URIs), e.g. under deploy/")
+    lab.add_argument("--mocap", required=True, help="the lab's mocap file (docs/mocap.md), e.g. deploy/mocap-vicon.yaml")
+    lab.add_argument("--executors", type=int, default=2, help="executor replicas by default (FLEET_EXECUTORS)")
+    lab.add_argument("--name", default="fleet-lab", help="the compose project name")
+    lab.add_argument("--out", help="write here (compose paths are made relative to its directory); default: stdout")
+    lab.set_defaults(handler=cmd_compose_lab)
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -80,4 +92,18 @@ def cmd_ps(args: argparse.Namespace) -> int:
 
     for p in status(args.run_dir):
         print(f"{p['instance']:<16} pid {p['pid']:<8} {'running' if p['alive'] else 'exited'}")
+    return 0
+
+
+def cmd_compose_lab(args: argparse.Namespace) -> int:
+    from common.deploy.lab import lab_compose
+
+    text, warnings = lab_compose(args.radios, args.mocap, args.out, args.executors, args.name)
+    for warning in warnings:
+        print(f"fleet compose lab: warning: {warning}", file=sys.stderr)
+    if args.out:
+        Path(args.out).write_text(text)
+        print(f"wrote {args.out}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
     return 0
