@@ -30,6 +30,10 @@ def main() -> None:
     parser.add_argument("--time-limit", type=float, default=60.0)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
+    for path in (args.map, args.scen):
+        if not Path(path).is_file():
+            parser.error(f"{path} is missing: the MovingAI benchmark files live in ../shared/benchmarks/movingai "
+                         "(or give --map and --scen)")
 
     graph = load_movingai(args.map)
     t0 = time.perf_counter()

@@ -273,3 +273,129 @@ def test_time_to_cross_the_town_is_plausible() -> None:
     graph = load_graph("town")
     t = nx.shortest_path_length(graph.g, "WP1", "EP1", weight="duration")
     assert 5 < t < 60 and math.isfinite(t)
+
+
+# --- MovingAI grids with several connected components (issue 18) ---------------------------------------
+
+
+def _write_movingai(tmp_path, name: str, free: np.ndarray, pairs: list[tuple[tuple[int, int], tuple[int, int]]]):
+    """A `.map` of the free cells [row, col] and a `.scen` of (x, y) start/goal pairs."""
+    h, w = free.shape
+    rows = ["".join("." if c else "@" for c in row) for row in free]
+    (tmp_path / f"{name}.map").write_text(f"type octile\nheight {h}\nwidth {w}\nmap\n" + "\n".join(rows) + "\n")
+    lines = [f"0\t{name}.map\t{w}\t{h}\t{sx}\t{sy}\t{gx}\t{gy}\t0" for (sx, sy), (gx, gy) in pairs]
+    (tmp_path / f"{name}.scen").write_text("version 1\n" + "\n".join(lines) + "\n")
+    return tmp_path / f"{name}.map", tmp_path / f"{name}.scen"
+
+
+def _components(free: np.ndarray) -> np.ndarray:
+    """4-connected component label per cell (-1 blocked), by scipy."""
+    from scipy.ndimage import label
+
+    labels, _ = label(free)
+    return labels - 1
+
+
+def _pairs_in_largest(free: np.ndarray, k: int, seed: int) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """k start/goal pairs on distinct cells of the largest component, as a MovingAI .scen pairs them."""
+    comp = _components(free)
+    largest = np.bincount(comp[comp >= 0]).argmax()
+    cells = np.argwhere(comp == largest)
+    rng = np.random.default_rng(seed)
+    pick = cells[rng.choice(len(cells), 2 * k, replace=False)]
+    return [((int(pick[2 * i][1]), int(pick[2 * i][0])), (int(pick[2 * i + 1][1]), int(pick[2 * i + 1][0])))
+            for i in range(k)]
+
+
+def random_32_32_20() -> np.ndarray:
+    """Like MovingAI random-32-32-20: 32 x 32, 20 % of the cells blocked at random (here seeded), which
+    leaves isolated free cells; one is planted for certain at (1, 1)."""
+    rng = np.random.default_rng(20)
+    free = np.ones((32, 32), dtype=bool)
+    free.flat[rng.choice(32 * 32, 205, replace=False)] = False
+    free[0:3, 0:3] = False
+    free[1, 1] = True
+    return free
+
+
+def den520d_like() -> np.ndarray:
+    """Like MovingAI den520d (257 x 256, a game map of caves, 28k free cells): cellular-automaton
+    caves, seeded: 32k free cells, a large cave of 22k, over a hundred closed pockets and isolated
+    free cells (one planted for certain)."""
+    rng = np.random.default_rng(520)
+    free = rng.random((257, 256)) < 0.5
+    for _ in range(4):
+        p = np.pad(free, 1).astype(int)
+        neighbours = sum(np.roll(np.roll(p, dy, 0), dx, 1) for dy in (-1, 0, 1) for dx in (-1, 0, 1))[1:-1, 1:-1]
+        free = neighbours >= 5
+    free[[0, -1], :] = free[:, [0, -1]] = False
+    free[5:8, 5:8] = False
+    free[6, 6] = True
+    return free
+
+
+def _load_and_plan(tmp_path, name: str, free: np.ndarray, agents: int, plan: bool) -> None:
+    from services.planner.maps.movingai_graph import load_movingai, load_scen
+    from services.planner.result import to_plan
+    from services.planner.sipp.planner import plan_sipp
+    from services.planner.validate import validate_plan
+
+    comp = _components(free)
+    sizes = np.bincount(comp[comp >= 0])
+    assert len(sizes) > 1 and sizes.min() == 1, "the generated grid must have isolated free cells"
+    map_path, scen_path = _write_movingai(tmp_path, name, free, _pairs_in_largest(free, agents, 0))
+    graph = load_movingai(map_path)
+    assert graph.n_nodes == free.sum()
+    assert len(np.unique(graph.component)) == len(sizes)
+    tasks = load_scen(scen_path, graph, agents)
+    assert len(tasks) == agents
+    if plan:
+        result = plan_sipp(graph, tasks, 0.0, 120.0, 0)
+        assert result.ok, result.error
+        assert validate_plan(to_plan(graph, name, "sipp", 0.0, tasks, result)).ok
+
+
+def test_random_32_32_20_with_isolated_cells_loads_and_plans(tmp_path) -> None:
+    _load_and_plan(tmp_path, "random-32-32-20", random_32_32_20(), 30, plan=True)
+
+
+def test_den520d_with_isolated_cells_and_pockets_loads(tmp_path) -> None:
+    _load_and_plan(tmp_path, "den520d", den520d_like(), 20, plan=False)
+
+
+@pytest.mark.scale
+def test_den520d_with_isolated_cells_and_pockets_plans(tmp_path) -> None:
+    """Planning pays the per-graph contact tables first: about 15 s for 32k cells (`-m scale`)."""
+    _load_and_plan(tmp_path, "den520d", den520d_like(), 20, plan=True)
+
+
+def test_movingai_task_across_components_names_its_scen_line(tmp_path) -> None:
+    from common.errors import InputError
+    from services.planner.maps.movingai_graph import load_movingai, load_scen
+
+    free = random_32_32_20()
+    pairs = _pairs_in_largest(free, 3, 1)
+    pairs.insert(2, (pairs[2][0], (1, 1)))  # to the isolated cell planted at x = 1, y = 1
+    map_path, scen_path = _write_movingai(tmp_path, "random-32-32-20", free, pairs)
+    graph = load_movingai(map_path)
+    assert load_scen(scen_path, graph, 2)  # the lines before it are fine
+    with pytest.raises(InputError) as err:
+        load_scen(scen_path, graph, 4)
+    assert err.value.field == "line 4"  # line 1 is `version 1`
+    assert "different connected components" in str(err.value) and "1_1" in str(err.value)
+    assert str(scen_path) in str(err.value)
+
+
+def test_a_scenario_across_components_is_refused_naming_the_task(tmp_path) -> None:
+    from common.domain.planfile import Task
+    from common.errors import InputError
+    from services.planner.maps.movingai_graph import load_movingai
+    from services.planner.maps.tasks import check_tasks
+
+    free = random_32_32_20()
+    map_path, _ = _write_movingai(tmp_path, "r", free, [])
+    graph = load_movingai(map_path)
+    (sx, sy), _ = _pairs_in_largest(free, 1, 2)[0]
+    with pytest.raises(InputError, match="different connected components") as err:
+        check_tasks({"v1": Task(start=f"{sx}_{sy}", goal="1_1")}, graph, "request")
+    assert err.value.field == "tasks.v1"

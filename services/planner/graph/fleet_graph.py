@@ -33,6 +33,8 @@ from functools import cached_property
 
 import networkx as nx
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from common.domain.geometry import bodies_touch, distance_to_polygon, point_in_polygon, segment_hits_body
 from common.domain.mapfile import MapSpec
@@ -83,6 +85,18 @@ class FleetGraph:
     @property
     def n_edges(self) -> int:
         return len(self.edges)
+
+    @cached_property
+    def component(self) -> np.ndarray:
+        """Strongly connected component id per node: a task is solvable only within one (MovingAI
+        grids may have several, with isolated cells; maps' spots must all share one)."""
+        n = self.n_nodes
+        adj = csr_matrix((np.ones(self.n_edges), (self.edges[:, 0], self.edges[:, 1])), shape=(n, n))
+        return connected_components(adj, directed=True, connection="strong")[1]
+
+    def joined(self, a: str, b: str) -> bool:
+        """Whether b is reachable from a and a from b."""
+        return bool(self.component[self.index[a]] == self.component[self.index[b]])
 
     @cached_property
     def conflicts(self) -> Conflicts:
@@ -378,7 +392,9 @@ class _GraphBuilder:
 
 
 def build_graph(spec: MapSpec, dt: float | None = None, source: str | None = None, open_endpoints: bool = False) -> FleetGraph:
-    """Build the 3D graph of a map; with `dt`, on the uniform-time-step graph (§V-E)."""
+    """Build the 3D graph of a map; with `dt`, on the uniform-time-step graph (§V-E). With
+    `open_endpoints` (MovingAI grids: any ground node may be a start or goal) the graph may have
+    several components (isolated cells): tasks are checked to lie within one when they are read."""
     src = source or spec.name
     b = _GraphBuilder(spec, src, dt)
     b.ground()
@@ -388,7 +404,8 @@ def build_graph(spec: MapSpec, dt: float | None = None, source: str | None = Non
         b.subdivide(dt)
     graph = b.freeze(dt)
     graph.open_endpoints = open_endpoints
-    check_reachable(graph, src)
+    if not open_endpoints:
+        check_reachable(graph, src)
     return graph
 
 

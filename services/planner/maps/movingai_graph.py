@@ -52,7 +52,9 @@ def load_movingai(path: str | Path, air: bool = False) -> FleetGraph:
 
 
 def load_scen(path: str | Path, graph: FleetGraph, agents: int) -> dict[str, Task]:
-    """The first `agents` tasks of a `.scen` file (x = column, y = row)."""
+    """The first `agents` tasks of a `.scen` file (x = column, y = row). A grid may have several
+    connected components (isolated free cells, closed rooms); only the ones the tasks use matter,
+    and a task whose start and goal lie in different components is an InputError naming its line."""
     lines = [ln for ln in read_text(Path(path)).splitlines() if ln.strip()]
     if not lines or not lines[0].startswith("version"):
         raise InputError(str(path), "line 1", "not a MovingAI scenario (expected 'version 1')")
@@ -67,8 +69,12 @@ def load_scen(path: str | Path, graph: FleetGraph, agents: int) -> dict[str, Tas
             sx, sy, gx, gy = (int(v) for v in parts[4:8])
         except ValueError:
             raise InputError(str(path), f"line {i + 2}", "expected start_x start_y goal_x goal_y integers") from None
-        for what, node in (("start", cell_id(sx, sy)), ("goal", cell_id(gx, gy))):
+        start, goal = cell_id(sx, sy), cell_id(gx, gy)
+        for what, node in (("start", start), ("goal", goal)):
             if node not in graph.index:
                 raise InputError(str(path), f"line {i + 2}", f"{what} {node} is not a free cell of {graph.name}")
-        tasks[f"a{i:0{width}d}"] = Task(start=cell_id(sx, sy), goal=cell_id(gx, gy))
+        if not graph.joined(start, goal):
+            raise InputError(str(path), f"line {i + 2}", f"start {start} and goal {goal} are in different connected "
+                             f"components of {graph.name}: no path joins them")
+        tasks[f"a{i:0{width}d}"] = Task(start=start, goal=goal)
     return tasks

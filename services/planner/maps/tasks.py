@@ -44,6 +44,9 @@ def check_tasks(tasks: dict[str, Task], graph: FleetGraph, source: str) -> None:
             if node in seen:
                 raise InputError(source, where, f"{node!r} is also the {field} of {seen[node]!r}")
             seen[node] = vid
+        if not graph.joined(task.start, task.goal):
+            raise InputError(source, f"tasks.{vid}", f"{task.start!r} and {task.goal!r} are in different connected "
+                             f"components of {graph.name!r}: no path joins them")
 
 
 def random_tasks(graph: FleetGraph, n: int, seed: int) -> dict[str, Task]:
