@@ -4,7 +4,8 @@ For mu = 0, 0.1, ..., 1: the total energy (J, eq. 1-2 plus waits) and the makesp
 as the independent validator recomputes them, for prioritized SIPP on the base graph, SIPP on the
 uniform-time-step graph and the ILP on the uniform-time-step graph (each ILP run within its own time
 limit: when HiGHS does not close the gap in time, the plan is its best incumbent and the table gives
-the gap). mu = 0 minimises time only, mu = 1 energy only: vehicles then drive and wait on the ground
+the gap). On the one-time-step graph eq. 3's normalisers differ from the base graph's, so planners
+there get `equivalent_mu(mu)`: every row of one mu minimises the same cost (the base graph's). mu = 0 minimises time only, mu = 1 energy only: vehicles then drive and wait on the ground
 where they can and fly only where they must (over the gap between the two road regions).
 
     python -m bench.mu_sweep [--scenario maps/scenarios/town_8.yaml] [--ilp-time-limit 10] [--no-ilp] [--out out]
@@ -16,6 +17,7 @@ import numpy as np
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
 from common.domain.mapfile import MAPS_DIR
+from services.planner.graph.fleet_graph import equivalent_mu
 from services.planner.maps.loading import GraphProblem, load_graph
 from services.planner.maps.tasks import load_scenario
 from services.planner.registry import run_planner
@@ -32,7 +34,7 @@ def main() -> None:
 
     variants = [("sipp", False), ("sipp", True)] + ([] if args.no_ilp else [("ilp", True)])
     problems = {}
-    for uniform in {u for _, u in variants}:
+    for uniform in (False, True):
         graph = load_graph("town", uniform=uniform)
         problems[uniform] = GraphProblem(graph, "town", load_scenario(args.scenario, graph))
     mus = [round(m, 1) for m in np.linspace(0.0, 1.0, 11)]
@@ -43,7 +45,8 @@ def main() -> None:
         limit = args.ilp_time_limit if planner == "ilp" else args.sipp_time_limit
         results[label] = []
         for mu in mus:
-            plan, result = run_planner(problems[uniform], planner, mu, limit, 0)
+            plan_mu = equivalent_mu(mu, problems[False].graph.scale, problems[uniform].graph.scale) if uniform else mu
+            plan, result = run_planner(problems[uniform], planner, plan_mu, limit, 0)
             if plan is None:
                 results[label].append(None)
                 rows.append([label, mu, "failed", "", "", "", "", result.error[:60]])
