@@ -25,11 +25,12 @@ _S = {"frozen": True, "forbid_unknown_fields": True, "tag_field": "type"}
 
 class WallFollowing(msgspec.Struct, tag="WALLFOLLOWING", **_S):
     """Fly along `heading_deg` holding the distance to the wall on `side`; stop at `trigger`
-    (null: the intrinsic end, WALL_END or OBSTACLE)."""
+    (null: the intrinsic end, WALL_END or OBSTACLE next to the drone; "OBSTACLE": an obstacle within
+    1 m of the IR sensor facing the travel, front or back, common/team/controllers.py)."""
 
     side: Literal["left", "right"]
     heading_deg: float
-    trigger: Literal["OPENING_LEFT", "OPENING_RIGHT", "LANDMARK_SIGHTED"] | None = None
+    trigger: Literal["OPENING_LEFT", "OPENING_RIGHT", "LANDMARK_SIGHTED", "OBSTACLE"] | None = None
 
 
 class GoToLandmarkStat(msgspec.Struct, tag="GOTOLANDMARK_STAT", **_S):

@@ -3,8 +3,18 @@
 Drone controllers: WALLFOLLOWING left/right (IR side sensors; intrinsic triggers WALL_END and
 OBSTACLE, perceptual triggers OPENING_LEFT/RIGHT and LANDMARK_SIGHTED), GOTOLANDMARK_STAT (a
 static landmark in view), GOTOLANDMARK_DYN (the UGV's markers in view and range), METRICTURN and
-METRICSTEP (short optical-flow motions, only where `no_metric` does not forbid them) and ALTITUDE
-(laser altimeter). The UGV has metric motion primitives (forward one cell, turn 45 degrees).
+METRICSTEP (short optical-flow motions, only where `no_metric` does not forbid them; the paper
+always groups them to turn corners, METRICSTEP(0.5 m) -> METRICTURN(+-90) -> METRICSTEP(1.0 m):
+`corner_target`) and ALTITUDE (laser altimeter). The UGV has metric motion primitives (forward one
+cell, turn 45 degrees).
+
+OBSTACLE (002 §V-A: "when an obstacle was within a certain distance of the front or back of the
+UAV"): intrinsic, when the next cell of the flight is blocked and sensed; and perceptual, when an
+obstacle first comes within `OBSTACLE_CELLS` of the IR sensor facing the direction of travel. The
+drone keeps its yaw parallel to the wall and may fly along it forwards or backwards, so that sensor
+is its front or its back one; the lattice's WALLFOLLOWING heading is the direction of travel, so one
+rule serves both (in a static world the sensor facing away from the travel sees only the free cells
+just flown through, and could not trigger).
 
 Everything works on lattice cells: a drone pose is (level, row, col, heading), a UGV pose
 (row, col, heading); headings are 0..7 in steps of 45 degrees counter-clockwise from +x. The same
@@ -27,6 +37,11 @@ ARRIVED = "ARRIVED"
 OPENING_LEFT = "OPENING_LEFT"
 OPENING_RIGHT = "OPENING_RIGHT"
 LANDMARK_SIGHTED = "LANDMARK_SIGHTED"
+
+OBSTACLE_CELLS = 2
+"""OBSTACLE as a perceptual trigger: an obstacle within this many cells (1 m) ahead of the travel."""
+CORNER_M = (0.5, 1.0)
+"""The paper's corner group: METRICSTEP(0.5 m) -> METRICTURN(+-90 deg) -> METRICSTEP(1.0 m) (002 fn. 3)."""
 
 
 @dataclass(frozen=True)
@@ -106,10 +121,11 @@ def wall_side(side: Side, heading: int) -> int:
 def follow_wall(s: Sensing, k: int, r: int, c: int, side: Side, heading: int) -> dict[str | None, tuple[int, int, int]]:
     """Phi for WALLFOLLOWING, all triggers in one walk: {trigger: (row, col, cells travelled)}.
 
-    Key None is the intrinsic end: OBSTACLE (the front sensor sees the cell ahead blocked) or
-    WALL_END (the side reading differs from the distance held at the start: the wall ended, opened
-    or jogged). Perceptual triggers fire at the first cell where they are sensed, if before the
-    intrinsic end. A blocked cell ahead that the sensors cannot see (an obstacle top below the
+    Key None is the intrinsic end: OBSTACLE (the sensor facing the travel, front or back, sees the
+    cell ahead blocked) or WALL_END (the side reading differs from the distance held at the start:
+    the wall ended, opened or jogged). Perceptual triggers fire at the first cell where they are
+    sensed, if before the intrinsic end; OBSTACLE also fires perceptually where an obstacle first
+    comes within OBSTACLE_CELLS ahead (when it is already that close at the start, it does not). A blocked cell ahead that the sensors cannot see (an obstacle top below the
     drone's altitude but within its clearance) would be a crash: then there is no intrinsic end
     and only earlier perceptual triggers remain. Empty when no wall is within IR range (002 §III-B).
     """
@@ -123,6 +139,7 @@ def follow_wall(s: Sensing, k: int, r: int, c: int, side: Side, heading: int) ->
     out: dict[str | None, tuple[int, int, int]] = {}
     opp_wall = s.side_range(k, r, c, opp) > 0
     bits = s.landmarks_seen(k, r, c)
+    near = _obstacle_ahead(s, k, r, c, dr, dc)
     n = 0
     while True:
         r2, c2 = r + dr, c + dc
@@ -131,6 +148,10 @@ def follow_wall(s: Sensing, k: int, r: int, c: int, side: Side, heading: int) ->
                 out[None] = (r, c, n)
             return out
         r, c, n = r2, c2, n + 1
+        now_near = _obstacle_ahead(s, k, r, c, dr, dc)
+        if now_near and not near and OBSTACLE not in out:
+            out[OBSTACLE] = (r, c, n)
+        near = now_near
         if s.side_range(k, r, c, perp) != held:
             out[None] = (r, c, n)
             return out
@@ -142,6 +163,11 @@ def follow_wall(s: Sensing, k: int, r: int, c: int, side: Side, heading: int) ->
         if now_bits & ~bits and LANDMARK_SIGHTED not in out:
             out[LANDMARK_SIGHTED] = (r, c, n)
         bits = now_bits
+
+
+def _obstacle_ahead(s: Sensing, k: int, r: int, c: int, dr: int, dc: int) -> bool:
+    """The IR sensor facing the travel sees an obstacle within OBSTACLE_CELLS."""
+    return any(s.front_sensed(k, r + dr * j, c + dc * j) for j in range(1, OBSTACLE_CELLS + 1))
 
 
 def landmark_cell(s: Sensing, i: int) -> tuple[int, int]:
@@ -191,6 +217,22 @@ def metric_target(s: Sensing, k: int, r: int, c: int, heading: int, cells: int) 
         if not (s.drone_free(k, a, b) and s.metric_allowed(a, b)):
             return None
     return r2, c2
+
+
+def corner_target(
+    s: Sensing, k: int, r: int, c: int, heading: int, turn: int, cells: tuple[int, int]
+) -> tuple[tuple[int, int], tuple[int, int]] | None:
+    """Phi of the paper's metric group for turning a corner (002 fn. 3): METRICSTEP(cells[0]) along
+    cardinal `heading`, METRICTURN to heading + turn (turn +2 = 90 deg counter-clockwise, -2
+    clockwise), METRICSTEP(cells[1]). Returns (the cell after the first step, the end cell), or None
+    where a step is blocked or metric motion is not allowed (the turn happens in the middle cell)."""
+    if heading % 2 or turn not in (2, -2):
+        return None
+    mid = metric_target(s, k, r, c, heading, cells[0])
+    if mid is None or not s.metric_allowed(*mid):
+        return None
+    end = metric_target(s, k, *mid, (heading + turn) % 8, cells[1])
+    return None if end is None else (mid, end)
 
 
 def altitude_ok(s: Sensing, k: int, r: int, c: int, k2: int) -> bool:

@@ -30,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--improve", type=float, default=1.0, help="seconds to improve after it")
     p.add_argument("--out", help="write the plan as JSON here (`fleet sim replay FILE` executes it)")
     p.add_argument("--json", action="store_true", help="print JSON instead of the listing")
+    p.add_argument("--slc", choices=["free", "paper"], default="free",
+                   help="drone primitives: free metric steps (default) or the paper's corner groups and OBSTACLE trigger")
     p.set_defaults(handler=cmd_plan)
 
 
@@ -49,9 +51,10 @@ def _problem(args: argparse.Namespace, planner):
 def cmd_plan(args: argparse.Namespace) -> int:
     from common.domain.team_plan import encode_json, format_team_plan
     from common.team.maps import load_env
+    from services.planner.collab.lattice import SlcOptions
     from services.planner.collab.planner import TeamPlanner
 
-    planner = TeamPlanner(load_env(args.map))
+    planner = TeamPlanner(load_env(args.map), options=SlcOptions.paper() if args.slc == "paper" else SlcOptions())
     problem = _problem(args, planner)
     out = planner.plan(problem, args.planner, args.time_limit, args.improve)
     if out.plan is None:

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Hashable
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from scipy import ndimage, sparse
@@ -28,6 +30,30 @@ from common.team.sensing import DIRS, Sensing, line_offsets
 ANY_HEADING = 8
 Edge = tuple[int, float]
 Label = tuple[Hashable, ...]
+
+
+@dataclass(frozen=True)
+class SlcOptions:
+    """Which drone motion primitives the lattice offers (002 §V-A).
+
+    metric: "corner", the paper's only use of the metric controllers, a group that turns a corner
+    (METRICSTEP(0.5 m) -> METRICTURN(+-90 deg) -> METRICSTEP(1.0 m), from a cardinal heading; in the
+    plan it is preceded by a METRICTURN to that heading, a no-op when already flying along it); or
+    "free", a METRICTURN to any of 8 headings then one METRICSTEP of `TeamModel.metric_cells`.
+    obstacle_trigger: offer WALLFOLLOWING's perceptual OBSTACLE trigger (front or back, 1 m) beside
+    T(c)'s opening and landmark triggers.
+
+    The default is the lattice as it was first built ("free", no OBSTACLE trigger), which the
+    service and the tests plan with; `SlcOptions.paper()` is the paper's set, which the Tables I-II
+    reproduction (bench/collab_experiment.py) and `fleet collab plan --slc paper` use.
+    """
+
+    metric: Literal["corner", "free"] = "free"
+    obstacle_trigger: bool = False
+
+    @classmethod
+    def paper(cls) -> SlcOptions:
+        return cls(metric="corner", obstacle_trigger=True)
 
 
 def _dedupe(rows: np.ndarray, cols: np.ndarray, costs: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -49,9 +75,10 @@ def ugv_area(sensing: Sensing, cell: tuple[int, int]) -> np.ndarray:
 class Lattice:
     """Successor generation for drone, UGV and team states on one map, for one UGV area."""
 
-    def __init__(self, sensing: Sensing, ugv_area: np.ndarray) -> None:
+    def __init__(self, sensing: Sensing, ugv_area: np.ndarray, options: SlcOptions | None = None) -> None:
         self.s = sensing
         self.m = sensing.model
+        self.options = options or SlcOptions()
         h, w = sensing.shape
         self.h, self.w = h, w
         self.ncell = h * w
@@ -103,6 +130,8 @@ class Lattice:
         for heading in (0, 2, 4, 6):
             for side in ("left", "right"):
                 allowed = ctl.triggers(ctl.WallFollowController(side, heading))  # T(c), 002 §III-A
+                if self.options.obstacle_trigger:
+                    allowed += (ctl.OBSTACLE,)
                 for trig, (r2, c2, n) in ctl.follow_wall(s, k, r, c, side, heading).items():
                     if trig is None or trig in allowed:
                         add(self.drone_id(k, r2, c2), n * res * m.cost_follow, ("WF", side, heading, trig))
@@ -113,7 +142,15 @@ class Lattice:
                 for r2, c2 in ctl.stat_targets(s, k, r, c, i):
                     add(self.drone_id(k, r2, c2), math.hypot(r2 - r, c2 - c) * res * m.cost_landmark, ("STAT", i))
             i += 1
-        if s.metric_allowed(r, c):
+        if s.metric_allowed(r, c) and self.options.metric == "corner":
+            cells = tuple(round(x / res) for x in ctl.CORNER_M)
+            for heading in (0, 2, 4, 6):
+                for turn in (2, -2):
+                    ends = ctl.corner_target(s, k, r, c, heading, turn, cells)
+                    if ends:
+                        cost = 2 * m.cost_metric_turn + sum(ctl.CORNER_M) * m.cost_metric
+                        add(self.drone_id(k, *ends[1]), cost, ("CORNER", heading, turn, *cells))
+        elif s.metric_allowed(r, c):
             for heading in range(8):
                 for n in m.metric_cells:
                     end = ctl.metric_target(s, k, r, c, heading, n)

@@ -96,6 +96,15 @@ def build_team_plan(
             turn = lat.m.cost_metric_turn + lat.m.cost_action
             b.add_drone(MetricTurn(45.0 * heading), _xyz(lat, d), turn, False)
             b.add_drone(MetricStep(n * math.hypot(*DIRS[heading]) * res), end, step_cost - turn, False)
+        elif kind == "CORNER":  # 002 fn. 3: METRICSTEP(0.5 m) -> METRICTURN(+-90) -> METRICSTEP(1.0 m)
+            _, heading, turn, n1, n2 = label
+            m, k, r, c = lat.m, *lat.drone_pose(d)
+            mid = _xyz(lat, lat.drone_id(k, r + DIRS[heading][0] * n1, c + DIRS[heading][1] * n1))
+            align = m.cost_metric_turn + m.cost_action
+            b.add_drone(MetricTurn(45.0 * heading), _xyz(lat, d), align, False)
+            b.add_drone(MetricStep(n1 * res), mid, n1 * res * m.cost_metric, False)
+            b.add_drone(MetricTurn(45.0 * ((heading + turn) % 8)), mid, m.cost_metric_turn, False)
+            b.add_drone(MetricStep(n2 * res), end, step_cost - align - n1 * res * m.cost_metric - m.cost_metric_turn, False)
         elif kind == "ALT":
             b.add_drone(Altitude(end[2]), end, step_cost, False)
         else:

@@ -14,7 +14,7 @@ from common.team.problem import TeamProblem, check_problem, problem_in_metres
 from common.team.sensing import Sensing
 from common.team.team_model import TeamModel
 from services.planner.collab.arastar import arastar
-from services.planner.collab.lattice import Lattice, ugv_area
+from services.planner.collab.lattice import Lattice, SlcOptions, ugv_area
 from services.planner.collab.pad import PadConfig, pad
 from services.planner.collab.plan_builder import build_team_plan
 
@@ -44,16 +44,17 @@ class TeamPlanOutcome:
 class TeamPlanner:
     """Plans on one map; the SLC graph of each UGV area is built once and reused across queries."""
 
-    def __init__(self, env: Env, model: TeamModel | None = None) -> None:
+    def __init__(self, env: Env, model: TeamModel | None = None, options: SlcOptions | None = None) -> None:
         self.env = env
         self.sensing = Sensing(env, model or TeamModel())
+        self.options = options or SlcOptions()
         self._lattices: dict[bytes, Lattice] = {}
 
     def lattice(self, ugv_cell: tuple[int, int]) -> Lattice:
         area = ugv_area(self.sensing, ugv_cell)
         key = area.tobytes()
         if key not in self._lattices:
-            self._lattices[key] = Lattice(self.sensing, area)
+            self._lattices[key] = Lattice(self.sensing, area, self.options)
         return self._lattices[key]
 
     def problem_at(self, drone_start: Vec3, ugv_start: Vec3, goal: Vec3, source: str = "problem") -> TeamProblem:
