@@ -25,5 +25,10 @@ lint: $(STAMP)
 soak: $(STAMP)
 	$(VENV)/bin/pytest -m soak -o addopts='-q'
 
+# Every paper reproduction -> docs/results.md + docs/results/*.png (JSON under out/results/), ~10 min.
+.PHONY: results
+results: $(STAMP)
+	nice -n 10 $(PY) -m bench.results
+
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info

@@ -43,51 +43,73 @@ def city_tasks(graph: FleetGraph, n: int, seed: int) -> dict[str, Task]:
     return {f"cf{i + 1:0{width}d}": Task(start=s, goal=g) for i, (s, g) in enumerate(zip(starts, goals, strict=True))}
 
 
-def main() -> None:
-    parser = bench_parser(__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[20, 40, 80, 120])
-    parser.add_argument("--trials", type=int, default=5, help="random scenarios per size")
-    parser.add_argument("--mu", type=float, default=0.5)
-    parser.add_argument("--time-limit", type=float, default=60.0)
-    args = parser.parse_args()
-
+def run(sizes: list[int], trials: int, mu: float, time_limit: float, log=print) -> dict:
+    """SIPP on `trials` seeded scenarios per fleet size; every plan validated. JSON-able."""
     graph = load_graph("city934")
     t0 = time.perf_counter()
-    plan_sipp(graph, random_tasks(graph, 2, 0), args.mu, args.time_limit, 0)  # build the per-graph tables
-    print(f"city934: {graph.n_nodes} nodes, {graph.n_edges} edges; tables built in {time.perf_counter() - t0:.2f} s")
-
-    rows, times, costs = [], {}, {}
-    for n in args.sizes:
-        runs = []
-        for seed in range(args.trials):
+    plan_sipp(graph, random_tasks(graph, 2, 0), mu, time_limit, 0)  # build the per-graph tables
+    tables_s = time.perf_counter() - t0
+    log(f"city934: {graph.n_nodes} nodes, {graph.n_edges} edges; tables built in {tables_s:.2f} s")
+    runs = []
+    for n in sizes:
+        for seed in range(trials):
             tasks = city_tasks(graph, n, seed)
-            result = plan_sipp(graph, tasks, args.mu, args.time_limit, seed)
-            valid = result.ok and validate_plan(to_plan(graph, "city934", "sipp", args.mu, tasks, result)).ok
-            runs.append((result, valid))
-        solved = [r for r, _ in runs if r.ok]
-        times[n] = [r.planning_time_s for r, _ in runs]
-        costs[n] = [r.cost / n for r in solved]
-        rows.append([
-            n, f"{len(solved)}/{len(runs)}", sum(v for _, v in runs),
-            f"{statistics.median(times[n]):.3f}", f"{max(times[n]):.3f}",
-            f"{statistics.mean(r.cost for r in solved):.2f}" if solved else "-",
-            f"{statistics.mean(costs[n]):.3f}" if solved else "-",
-            f"{statistics.mean(r.stats['orders'] for r, _ in runs):.1f}",
-        ])
-    headers = ["vehicles", "solved", "valid", "median s", "max s", "mean cost", "cost/vehicle", "orders"]
-    print(f"\nSIPP on city934, mu = {args.mu}, {args.trials} random scenarios per size")
-    print(format_table(headers, rows))
+            result = plan_sipp(graph, tasks, mu, time_limit, seed)
+            report = validate_plan(to_plan(graph, "city934", "sipp", mu, tasks, result)) if result.ok else None
+            runs.append({
+                "vehicles": n, "seed": seed, "ok": result.ok, "valid": bool(report and report.ok),
+                "seconds": result.planning_time_s, "cost": result.cost if result.ok else None,
+                "orders": result.stats.get("orders", 0), "makespan_s": report.makespan if report else None,
+                "fliers": sum(any(graph.airborne[graph.index[e.node]] for e in p) for p in result.paths.values()),
+                "error": result.error,
+            })
+        log(f"  {n} vehicles: {sum(r['ok'] for r in runs if r['vehicles'] == n)}/{trials} solved")
+    return {"map": "city934", "nodes": graph.n_nodes, "edges": graph.n_edges, "mu": mu, "time_limit_s": time_limit,
+            "sizes": sizes, "trials": trials, "tables_s": tables_s, "runs": runs}
 
+
+def table(results: dict) -> tuple[list[str], list[list]]:
+    rows = []
+    for n in results["sizes"]:
+        mine = [r for r in results["runs"] if r["vehicles"] == n]
+        solved = [r for r in mine if r["ok"]]
+        times = [r["seconds"] for r in mine]
+        rows.append([
+            n, f"{len(solved)}/{len(mine)}", sum(r["valid"] for r in mine), f"{statistics.median(times):.3f}",
+            f"{max(times):.3f}", f"{statistics.mean(r['cost'] for r in solved):.2f}" if solved else "-",
+            f"{statistics.mean(r['cost'] / n for r in solved):.3f}" if solved else "-",
+            f"{statistics.mean(r['fliers'] for r in solved):.1f}" if solved else "-",
+            f"{statistics.mean(r['orders'] for r in mine):.1f}",
+        ])
+    return ["vehicles", "solved", "valid", "median s", "max s", "mean cost", "cost/vehicle", "fliers", "orders"], rows
+
+
+def figure(results: dict, out, name: str = "scale_city"):
+    sizes, runs, mu = results["sizes"], results["runs"], results["mu"]
+    times = {n: [r["seconds"] for r in runs if r["vehicles"] == n] for n in sizes}
+    costs = {n: [r["cost"] / n for r in runs if r["vehicles"] == n and r["ok"]] for n in sizes}
     fig, (ax_t, ax_c) = new_figure(2)
-    sizes = list(times)
     ax_t.plot(sizes, [statistics.median(times[n]) for n in sizes], "o-", label="median")
     for n in sizes:
         ax_t.scatter([n] * len(times[n]), times[n], s=10, color="grey", alpha=0.6)
     ax_t.set(xlabel="vehicles", ylabel="planning time (s)", title="SIPP planning time, city934")
     ax_t.legend()
     ax_c.plot(sizes, [statistics.mean(costs[n]) if costs[n] else float("nan") for n in sizes], "s-", color="C1")
-    ax_c.set(xlabel="vehicles", ylabel="mean eq. 3 cost per vehicle", title=f"cost per vehicle (mu = {args.mu})")
-    print(f"wrote {save_figure(fig, args.out, 'scale_city')}")
+    ax_c.set(xlabel="vehicles", ylabel="mean eq. 3 cost per vehicle", title=f"cost per vehicle (mu = {mu})")
+    return save_figure(fig, out, name)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = bench_parser(__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[20, 40, 80, 120])
+    parser.add_argument("--trials", type=int, default=5, help="random scenarios per size")
+    parser.add_argument("--mu", type=float, default=0.5)
+    parser.add_argument("--time-limit", type=float, default=60.0)
+    args = parser.parse_args(argv)
+    results = run(args.sizes, args.trials, args.mu, args.time_limit)
+    print(f"\nSIPP on city934, mu = {args.mu}, {args.trials} random scenarios per size")
+    print(format_table(*table(results)))
+    print(f"wrote {figure(results, args.out)}")
 
 
 if __name__ == "__main__":
