@@ -213,12 +213,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--slc", choices=["paper", "free"], default="paper",
                         help="drone primitives: the paper's (corner groups, OBSTACLE trigger) or free metric steps")
     parser.add_argument("--eps-track", type=float, default=EPS_TRACK, help="PAD's tracking bound eps_track")
+    parser.add_argument("--dry-run", action="store_true", help="print the settings as JSON and exit")
     args = parser.parse_args(argv)
     if args.paper_limits:
         args.time_limit, args.improve = PAPER_LIMITS
     if args.instances < 1 or args.time_limit <= 0 or args.improve < 0 or args.eps_track < 1:
         parser.error("--instances, --time-limit must be positive, --improve not negative, --eps-track at least 1")
     options = SlcOptions.paper() if args.slc == "paper" else SlcOptions()
+    if args.dry_run:
+        print(json.dumps({"instances": args.instances, "time_limit": args.time_limit, "improve": args.improve,
+                          "slc": asdict(options), "eps_track": args.eps_track}))
+        return 0
     print(run(args.instances, args.time_limit, args.improve, Path(args.out), Path(args.json) if args.json else None,
               options=options, eps_track=args.eps_track))
     print(f"\nfigure: {args.out}")

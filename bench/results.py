@@ -90,10 +90,10 @@ def table2() -> dict:
            "energy_j": energy_j, "mass": model.mass, "rows": {}}
     for name, power, speed in (("Flying Car", model.power.fly, model.speed.fly),
                                ("Wheels", model.power.drive, model.speed.drive)):
-        seconds = model.capacity_ah / model.charge_ah(power, 1.0)
+        seconds = model.run_time_s(power)
         out["rows"][name] = {
             "speed": speed, "run_min": seconds / 60, "distance_m": seconds * speed, "power_w": power,
-            "cot": power / (model.mass * 9.81 * speed), "usable_min": model.usable_ah / model.charge_ah(power, 1.0) / 60,
+            "cot": model.cost_of_transport(power, speed), "usable_min": model.run_time_s(power, usable=True) / 60,
         }
     paper = {k: v[1] * 60 * v[3] for k, v in TABLE2_PAPER.items()}  # J delivered in the paper's runs
     out["paper_energy_j"] = paper

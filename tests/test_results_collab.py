@@ -5,10 +5,12 @@ eps_track 2, and the paper's limits as an option of the experiment (its full run
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
-from bench import collab_experiment
 from common.domain.team_plan import MetricStep, MetricTurn, decode_json, encode_json
 from common.team import controllers as ctl
 from common.team.env import grid_env
@@ -21,6 +23,13 @@ from services.planner.collab.pad import PadConfig
 from services.planner.collab.planner import TeamPlanner
 
 E, N, W, S = 0, 2, 4, 6
+REPO = Path(__file__).resolve().parents[1]
+
+
+def experiment(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
+    """`python -m bench.collab_experiment ARGS` (tests do not import bench)."""
+    return subprocess.run([sys.executable, "-m", "bench.collab_experiment", *args], cwd=REPO, capture_output=True,
+                          text=True, timeout=timeout)
 ROOM = ["##########", *["#........#"] * 6, "##########"]  # 8 x 6 free cells inside a wall
 
 
@@ -94,27 +103,23 @@ def test_pad_needs_more_than_one_iteration_with_the_papers_primitives(cubicles) 
     assert max(iterations) > 1 and sum(i > 1 for i in iterations) >= 2
 
 
-def test_paper_limits_option(monkeypatch, tmp_path, capsys) -> None:
-    seen = {}
-
-    def fake_run(instances, time_limit, improve_s, png, json_path, maps=None, options=None, eps_track=None):
-        seen.update(time_limit=time_limit, improve=improve_s, options=options, eps_track=eps_track)
-        return "tables"
-
-    monkeypatch.setattr(collab_experiment, "run", fake_run)
-    assert collab_experiment.main(["--paper-limits", "--instances", "1", "--json", ""]) == 0
-    assert (seen["time_limit"], seen["improve"]) == (180.0, 5.0) == collab_experiment.PAPER_LIMITS
-    assert seen["options"] == SlcOptions.paper() and seen["eps_track"] == 2.0
-    collab_experiment.main(["--instances", "1", "--json", "", "--slc", "free"])
-    assert (seen["time_limit"], seen["improve"], seen["options"]) == (10.0, 1.0, SlcOptions())
+def test_paper_limits_option() -> None:
+    run = experiment("--paper-limits", "--dry-run")
+    assert run.returncode == 0, run.stderr
+    settings = json.loads(run.stdout)
+    assert (settings["time_limit"], settings["improve"]) == (180.0, 5.0)
+    assert settings["slc"] == {"metric": "corner", "obstacle_trigger": True} and settings["eps_track"] == 2.0
+    default = json.loads(experiment("--slc", "free", "--dry-run").stdout)
+    assert (default["time_limit"], default["improve"], default["slc"]["metric"]) == (10.0, 1.0, "free")
 
 
 @pytest.mark.scale
 def test_experiment_at_the_papers_limits(tmp_path) -> None:
     """Two problems per map at 3 min + 5 s (minutes: kept out of the default suite, `-m scale`)."""
     out = tmp_path / "runs.json"
-    assert collab_experiment.main(["--paper-limits", "--instances", "2", "--out", str(tmp_path / "c.png"),
-                                   "--json", str(out)]) == 0
+    run = experiment("--paper-limits", "--instances", "2", "--out", str(tmp_path / "c.png"), "--json", str(out),
+                     timeout=2 * 2 * 2 * 190.0)
+    assert run.returncode == 0, run.stderr
     runs = json.loads(out.read_text())
     assert len(runs) == 2 * 2 * 2
     assert all(r["solved"] for r in runs if r["method"] == "pad")

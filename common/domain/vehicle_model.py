@@ -120,6 +120,15 @@ class VehicleModel(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     def wait_charge(self, duration: float, airborne: bool) -> float:
         return self.charge_ah(self.wait_power(airborne), duration)
 
+    def run_time_s(self, power_w: float, usable: bool = False) -> float:
+        """Seconds a full battery (or only its usable part, above the reserve) lasts at `power_w`
+        (eq. 4-5): Table II's run time as the model sees it."""
+        return (self.usable_ah if usable else self.capacity_ah) / self.charge_ah(power_w, 1.0)
+
+    def cost_of_transport(self, power_w: float, speed: float) -> float:
+        """Table II's COT: P / (m g v), dimensionless."""
+        return power_w / (self.mass * G * speed)
+
 
 class CostScale(msgspec.Struct, frozen=True):
     """The normalisers of eq. 3: the largest edge energy W_max (J) and duration t_max (s) in the graph."""
