@@ -123,3 +123,11 @@ def test_experiment_at_the_papers_limits(tmp_path) -> None:
     runs = json.loads(out.read_text())
     assert len(runs) == 2 * 2 * 2
     assert all(r["solved"] for r in runs if r["method"] == "pad")
+
+
+def test_the_experiment_refuses_bad_limits() -> None:
+    """The same check as tests/test_collab_cli.py's, run as a process (that one imports bench, which
+    the import contracts forbid tests to do)."""
+    run = subprocess.run([sys.executable, "-m", "bench.collab_experiment", "--instances", "0"], cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "--instances" in run.stderr
