@@ -65,7 +65,7 @@ def test_typed_roundtrip_delivers_messages_in_order_with_their_keys(zsession: Se
             pub.put(pose(seq))
         received = [await asyncio.wait_for(got.get(), 2) for _ in range(3)]
         with pytest.raises(TypeError):
-            pub.put(Telemetry(vid="v1", t=0, gateway="g", vbat=4, link_quality=1, sent=0, acked=0,
+            pub.put(Telemetry(vid="v1", t=0, gateway="g", vbat=4, link_quality=1, sent=0,
                               dropped=0, cmd_rate_hz=0))  # type: ignore[arg-type]
         sub.close()
         await eventually(lambda: not pub.matched)

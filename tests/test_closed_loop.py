@@ -165,7 +165,7 @@ def test_abort_lands_a_flying_vehicle_and_stops_a_driving_one() -> None:
 
 def link_lost_during(start: float, end: float) -> Hook:
     def hook(ctrl: VehicleController, now: float) -> None:
-        ctrl.on_telemetry(Telemetry(vid="cf1", t=now, gateway="sim", vbat=4.0, link_quality=1.0, sent=0, acked=0,
+        ctrl.on_telemetry(Telemetry(vid="cf1", t=now, gateway="sim", vbat=4.0, link_quality=1.0, sent=0,
                                     dropped=0, cmd_rate_hz=100.0, link_ok=not start <= now < end), now)
     return hook
 
@@ -232,7 +232,7 @@ def test_telemetry_silence_in_the_air_lands_and_a_plan_is_not_loaded_mid_air() -
     def hook(ctrl: VehicleController, now: float) -> None:
         if now < silent_from:
             ctrl.on_telemetry(Telemetry(vid="cf1", t=now, gateway="sim", vbat=4.0, link_quality=1.0, sent=0,
-                                        acked=0, dropped=0, cmd_rate_hz=100.0), now)
+                                        dropped=0, cmd_rate_hz=100.0), now)
         elif not refused:
             refused.append(ctrl.load(plan_for("cf1", STEPS, MODEL, t0=now)))
 

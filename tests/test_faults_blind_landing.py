@@ -12,13 +12,13 @@ import contextlib
 import pytest
 
 from common.bus.messages import FlightSetpoint, Pose, Setpoint, StopSetpoint, WheelSetpoint
-from common.crazyflie import crtp
 from common.deploy.radios import GatewayParams
 from common.domain.vehicle_model import VehicleModel
 from services.executor.vehicle_controller import VehicleController
 from services.radio_gateway.vehicle import Refused, VehicleChannel
 from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
 from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps
+from tests.support.gateway_packets import decode
 
 MODEL = VehicleModel()
 STEPS = reference_steps(MODEL)
@@ -54,7 +54,7 @@ def blind_landing(silent_at: float, physics: PhysicsParams,
         ch.supervise(now)
         raw, _ = ch.flight_packet(now)
         if raw is not None:
-            packet = crtp.decode_uplink(raw)
+            packet = decode(raw)
             car.apply(packet if isinstance(packet, FlightSetpoint) else StopSetpoint(), now)
         car.step(DT)
     return car, silent_z, top

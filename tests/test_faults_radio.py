@@ -48,14 +48,17 @@ def test_firmware_levels_at_half_a_second_cuts_at_two_and_the_gateway_reports_th
         async with running(sim, gw, cmd):
             await until(lambda: all(v in sim.vehicles and sim.vehicles[v].car.z > 0.4 for v in ("cf0", "cf1")),
                         8.0, "both hovering")
-            await until(lambda: watch.kinds("cf0") == ["link_up"], 2.0, "cf0's link up")
+            await until(lambda: "link_up" in watch.kinds("cf0"), 2.0, "cf0's link up")
             t = watch.inject(SimFault(vid="cf0", kind="radio_blackout", duration_s=2.5))
-            kinds = ("sim_watchdog_level", "link_lost", "sim_watchdog_cut", "link_up", "firmware_watchdog")
+            kinds = ("sim_watchdog_level", "link_lost", "sim_watchdog_cut", "link_up", "vehicle_locked", "rebooted")
             await until(lambda: set(kinds) <= set(watch.kinds("cf0")), 6.0,
-                        lambda: f"events {', '.join(k for k in kinds if k not in watch.kinds('cf0'))} of cf0")
+                        lambda: f"events {', '.join(k for k in kinds if k not in watch.kinds('cf0'))} of cf0 "
+                                f"(has {[(round(at - t, 2), e.kind) for at, e in watch.events if e.vid == 'cf0']})")
             lost = [tel for tel in watch.telemetry["cf0"] if tel.t > t and not tel.link_ok]
             assert lost and all(tel.link_quality == 0.0 for tel in lost)
-            return {kind: watch.first("cf0", kind, since=t) - t for kind in kinds[:4]}
+            await until(lambda: "link_up" in watch.kinds("cf0", since=watch.first("cf0", "rebooted", since=t)), 8.0,
+                        lambda: f"cf0 reconnected after its reboot ({[(round(at - t, 2), e.kind, e.detail) for at, e in watch.events if e.vid == 'cf0' and at > t]})")
+            return {kind: watch.first("cf0", kind, since=t) - t for kind in kinds}
 
     try:
         after = asyncio.run(main())
@@ -63,11 +66,13 @@ def test_firmware_levels_at_half_a_second_cuts_at_two_and_the_gateway_reports_th
         watch.close()
     print("s after the link went:", {k: round(v, 2) for k, v in after.items()})
     assert 0.45 <= after["sim_watchdog_level"] < 0.8
-    assert 0.75 <= after["link_lost"] < 1.5  # 1 s after the last status reply (5 Hz)
-    assert 1.95 <= after["sim_watchdog_cut"] < 2.3
-    assert 2.5 <= after["link_up"] < 3.5
+    assert 0.9 <= after["link_lost"] < 1.5  # 1 s after the last log block (10 Hz)
+    assert 1.95 <= after["sim_watchdog_cut"] < 2.3  # the watchdog's timeout: free fall, then Locked
+    assert 2.5 <= after["link_up"] < 3.5 and 2.5 <= after["vehicle_locked"] < 3.5  # back in range, locked
+    assert after["rebooted"] < 5.0  # the gateway reboots it through the radio
     cf0, cf1 = sim.vehicles["cf0"], sim.vehicles["cf1"]
     assert cf0.watchdog_levels == 1 and cf0.watchdog_cuts == 1 and cf0.hardest_touchdown > 1.0  # it fell
+    assert cf0.firmware.running and not cf0.firmware.supervisor.locked  # rebooted, flyable again
     assert cf1.watchdog_levels == 0 and cf1.car.z > 0.4 and "link_lost" not in watch.kinds("cf1")
     assert cf0.blacked_out > 0
 
@@ -87,9 +92,9 @@ def test_a_link_lost_mid_flight_lands_the_vehicle_and_aborts_the_mission(tmp_pat
 
     cut = marks["cut"]
     kinds = watch.kinds("cf1", since=cut)
-    print("cf1 events after the cut:", kinds)
-    assert {"sim_watchdog_level", "link_lost", "link_up", "firmware_watchdog"} <= set(kinds)
-    assert "sim_watchdog_cut" not in kinds
+    print("cf1 events after the cut:", [(round(t - cut, 2), e.kind, e.detail) for t, e in watch.events if e.vid == "cf1" and t > cut])
+    assert {"sim_watchdog_level", "link_lost", "link_up"} <= set(kinds)
+    assert "sim_watchdog_cut" not in kinds and "vehicle_locked" not in kinds  # back in range before 2 s
     assert any(not tel.link_ok for tel in watch.telemetry["cf1"] if tel.t > cut)
     assert not result.ok and "cf1: link_lost" in result.reason, result.reason
     assert any(e.kind == "link_lost" and e.node for _, e in watch.events if e.vid == "cf1")  # the executor's

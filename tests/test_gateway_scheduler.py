@@ -1,6 +1,8 @@
 """The gateway's packet schedule and per-vehicle rules, on a simulated clock (no I/O): the budget is
 shared equally between flying vehicles, wheel commands are serialised at the switch's rate, stale
-commands become landings or stops, stops and the thrust unlock go out as the firmware needs."""
+commands become landings or stops, stops, the thrust unlock, the settling after a flight (stops
+while the supervisor says flying, then notify-setpoint-stop), arming and crash-recovery requests
+and the emergency stop go out as the firmware needs; link health from the firmware's log blocks."""
 
 from __future__ import annotations
 
@@ -11,12 +13,14 @@ import pytest
 from common.bus.messages import FlightSetpoint, StopSetpoint, WheelSetpoint
 from common.crazyflie import crtp
 from common.deploy.radios import GatewayParams
-from services.radio_gateway.linkstats import LinkStats
+from services.radio_gateway.health import LinkHealth
 from services.radio_gateway.scheduler import Scheduler
 from services.radio_gateway.vehicle import Drive, VehicleChannel
+from tests.support.gateway_packets import Notify, Supervisor, decode
 
 HOVER = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=48000)
 TICK = 0.01
+FLYING_INFO, LANDED_INFO = 0x021E, 0x020E  # supervisor.info: can fly, armed, auto-arm (+ flying)
 
 
 def _radio(flyers: int, drivers: int, budget: float = 500.0, params: GatewayParams | None = None):
@@ -26,9 +30,10 @@ def _radio(flyers: int, drivers: int, budget: float = 500.0, params: GatewayPara
     return chans, Scheduler(chans, budget, params, 0.0)
 
 
-def _run(chans, sched, seconds: float, command=None, t0: float = 0.0, answered=None):
+def _run(chans, sched, seconds: float, command=None, t0: float = 0.0, answered=None, info=None):
     """Tick for `seconds`; `command(ch, now)` gives each channel's setpoint (None: silent) every tick;
-    a status request sent at `now` is answered (everything received) if `answered(now)`."""
+    a status request sent at `now` is answered (everything received) if `answered(now)`; a log block
+    with `supervisor.info = info(now)` arrives every 0.1 s unless that is None."""
     sent: dict[str, list[tuple[float, object]]] = {ch.vid: [] for ch in chans}
     events = []
     now = t0
@@ -38,15 +43,18 @@ def _run(chans, sched, seconds: float, command=None, t0: float = 0.0, answered=N
             sp = command(ch, now) if command else None
             if sp is not None:
                 ch.command(sp, now)
+            bits = info(now) if info else None
+            if bits is not None and round(now / TICK) % 10 == 0:
+                events += [(ch.vid, e) for e in ch.health.on_log({"pm.vbatMV": 3900, "supervisor.info": bits}, now)]
             events += [(ch.vid, e) for e in ch.supervise(now)]
         batch, caused = sched.tick(now)
         events += caused
         for vid, raw in batch:
-            packet = crtp.decode_uplink(raw)
+            packet = decode(raw)
             sent[vid].append((now, packet))
             if isinstance(packet, crtp.StatusRequest) and answered and answered(now):
                 ch = sched._by_vid[vid]
-                events += [(vid, e) for e in ch.on_status(_status(ch, 0, echo=packet.sent), now + TICK / 2)]
+                events += [(vid, e) for e in ch.on_status(_status(ch, 0, echo=packet.seq), now + TICK / 2)]
     return sent, events
 
 
@@ -64,7 +72,7 @@ def test_four_flyers_and_two_drivers_fit_the_default_budget() -> None:
     for i in range(4):
         packets = sent[f"f{i}"]
         flights = [p for _t, p in packets if isinstance(p, FlightSetpoint)]
-        assert flights[0].thrust == 0 and flights[1] == HOVER  # the firmware's thrust lock is opened first
+        assert [f.thrust for f in flights[:3]] == [0, 0, 0] and flights[3] == HOVER  # the thrust lock opened first
         assert _kinds(packets)["FlightSetpoint"] >= 195  # 100 Hz
         assert 9 <= _kinds(packets)["StatusRequest"] <= 11  # 5 Hz
         assert max(b[0] - a[0] for a, b in zip(packets, packets[1:], strict=False)) <= TICK + 1e-9
@@ -117,59 +125,116 @@ def test_stale_commands_land_a_flyer_and_stop_a_driver() -> None:
     assert flyer.mode == Drive.FLIGHT and not flyer.took_over
 
 
-def test_a_stop_goes_out_three_times_with_zero_wheels_then_only_status() -> None:
+def test_after_a_flight_stops_go_out_while_the_supervisor_says_flying_then_notify_setpoint_stop() -> None:
+    """Firmware 2023.06+: a stop followed by silence while the supervisor still believes the vehicle
+    flies (2 s after its motors stopped) locks it; the gateway keeps it fed, then hands over."""
     chans, sched = _radio(1, 0)
+    (ch,) = chans
+    _run(chans, sched, 0.3, lambda c, now: HOVER, info=lambda now: FLYING_INFO)
+    sent, _ = _run(chans, sched, 3.0, lambda c, now: StopSetpoint(), t0=0.3,
+                   info=lambda now: FLYING_INFO if now < 2.4 else LANDED_INFO)
+    packets = sent[ch.vid]
+    stops = [t for t, p in packets if isinstance(p, crtp.Stop)]
+    notifies = [t for t, p in packets if isinstance(p, Notify)]
+    assert len(notifies) == 3 and min(notifies) > 2.4  # once the supervisor reports it landed
+    assert max(b - a for a, b in zip(stops, stops[1:], strict=False)) <= 0.1 + TICK  # never 0.5 s silent
+    assert max(stops) < min(notifies) and len([p for _t, p in packets if isinstance(p, crtp.Wheels)]) == 3
+    assert ch.mode == Drive.IDLE and not ch.wants_flight_slot
+    assert not any(isinstance(p, FlightSetpoint) for _t, p in packets)
+
+
+def test_settling_continues_while_the_car_drives_off_and_ends_after_a_bound_without_supervisor_news() -> None:
+    params = GatewayParams()
+    chans, sched = _radio(1, 0, params=params)
     (ch,) = chans
     _run(chans, sched, 0.3, lambda c, now: HOVER)
-    sent, _ = _run(chans, sched, 1.0, lambda c, now: StopSetpoint(), t0=0.3)
-    kinds = _kinds(sent[ch.vid])
-    assert kinds["Stop"] == 3 and kinds["Wheels"] == 3 and kinds["FlightSetpoint"] == 0
-    assert ch.mode == Drive.IDLE and not ch.wants_flight_slot
+    sent, _ = _run(chans, sched, 4.0, lambda c, now: StopSetpoint() if now < 0.315 else WheelSetpoint(left=0.1, right=0.1),
+                   t0=0.3)  # no log block: the supervisor's state is unknown
+    packets = sent[ch.vid]
+    notifies = [t for t, p in packets if isinstance(p, Notify)]
+    assert len(notifies) == 3 and params.settle_max_s < min(notifies) - 0.3 < params.settle_max_s + 0.2
+    assert _kinds(packets)["Wheels"] > 30 and ch.mode == Drive.DRIVE and not ch.wants_flight_slot
 
 
-def test_link_stats_from_status_replies() -> None:
-    stats = LinkStats(started=0.0, timeout_s=1.0, lost_after=2)
-    assert not stats.reporting(0.5) and stats.reporting(1.1)  # silent past the timeout: report it lost
-    assert stats.on_status(crtp.Status(100, 90, 80, 3900, 0, 0, 0), 1.0) == [("link_up", "status after 0 packets sent")]
-    events = stats.on_status(crtp.Status(200, 185, 170, 3890, 0, 0, crtp.FLAG_WATCHDOG_LEVEL), 1.5)
-    assert [e[0] for e in events] == ["firmware_watchdog"]
-    assert (stats.acked, stats.dropped, stats.vbat) == (185, 15, 3.89)
-    assert stats.cmd_rate_hz == pytest.approx(180.0) and stats.link_quality == pytest.approx(0.95)
-    assert stats.on_status(crtp.Status(150, 140, 130, 3900, 0, 0, 0), 1.6) == []  # older than the last
-    assert stats.on_status(crtp.Status(300, 301, 0, 3900, 0, 0, 0), 1.6) == []  # impossible
-    assert stats.stale_replies == 2 and stats.dropped == 15
-    stats.sent = 200
-    stats.request(1.6)
-    assert stats.check(2.6) == []  # silent for 1.1 s, but only one request unanswered
-    stats.request(2.55)
-    assert stats.check(2.6) == []  # the second one could still be answered
-    assert [e[0] for e in stats.check(2.7)] == ["link_lost"] and stats.check(3.0) == []
-    assert stats.link_quality == 0.0
+def test_link_health_from_log_blocks_and_wheel_app_replies() -> None:
+    health = LinkHealth(started=0.0, timeout_s=1.0, period_s=0.1)
+    assert not health.reporting(0.5) and health.reporting(1.1)  # silent past the timeout: report it lost
+    assert [e[0] for e in health.on_log({"pm.vbatMV": 3900, "supervisor.info": 0x020E}, 1.0)] == ["link_up"]
+    for i in range(1, 10):
+        health.on_log({"pm.vbatMV": 3890, "supervisor.info": 0x020E}, 1.0 + 0.1 * i)
+    assert health.vbat == 3.89 and health.link_quality == 1.0 and health.supervisor == 0x020E
+    assert [e[0] for e in health.on_log({"supervisor.info": 0x0044}, 2.0)] == ["vehicle_locked"]
+    health.on_log({"supervisor.info": 0x0044}, 2.3)  # 2.1 and 2.2 lost
+    assert 0.8 < health.link_quality < 0.9
+    status = crtp.Status(echo_seq=100, received=95, uptime_ms=5000, rejected=0, vbat_mv=3900, wheel_left_mm_s=0,
+                         wheel_right_mm_s=0, setpoint_age_ms=12, flags=crtp.FLAG_WHEEL_WATCHDOG)
+    assert [e[0] for e in health.on_status(status, 2.4)] == ["wheel_watchdog"]
+    assert health.app_lost == 5 and health.setpoint_age_ms == 12
+    assert health.on_status(crtp.Status(90, 80, 5000, 0, 3900, 0, 0, 0, 0), 2.5) == []  # older than the last
+    assert health.on_status(crtp.Status(200, 201, 5000, 0, 3900, 0, 0, 0, 0), 2.5) == []  # impossible
+    assert health.stale_replies == 2
+    assert health.check(3.2) == []  # 0.9 s since the last block
+    assert [e[0] for e in health.check(3.4)] == ["link_lost"] and health.check(3.5) == []
+    assert health.link_quality == 0.0
 
 
-def test_a_silent_vehicle_is_probed_and_its_link_judged_lost_after_a_second() -> None:
+def test_a_silent_vehicle_is_judged_lost_a_second_after_its_last_log_block() -> None:
     chans, sched = _radio(1, 0)
     (ch,) = chans
-    sent, events = _run(chans, sched, 1.75, answered=lambda now: now < 1.0)
-    assert [e[1][0] for e in events] == ["link_up"] and ch.stats.link_ok  # < 1 s since the last reply
-    later, lost = _run(chans, sched, 1.5, answered=lambda now: False, t0=1.75)
-    assert [e[1][0] for e in lost] == ["link_lost"] and not ch.stats.link_ok
-    requests = [t for t, p in sent[ch.vid] + later[ch.vid] if isinstance(p, crtp.StatusRequest)]
-    last_reply = max(t for t in requests if t < 1.0)
-    assert last_reply > 0.75
-    silent = [t for t in requests if last_reply < t <= last_reply + 1.0]
-    assert len(silent) >= GatewayParams().lost_after_requests + 1  # probed at 20 Hz, not 5 Hz
-    judged = [t for t in requests if t > last_reply + 1.2]
-    assert len(judged) <= 5 * (3.25 - last_reply - 1.2) + 1  # lost: back to 5 Hz
+    _, events = _run(chans, sched, 1.5, info=lambda now: 0x020E if now < 1.0 else None)
+    assert [e[1][0] for e in events] == ["link_up"] and ch.health.link_ok  # < 1 s since the last block
+    _, lost = _run(chans, sched, 1.0, t0=1.5)
+    assert [e[1][0] for e in lost] == ["link_lost"] and not ch.health.link_ok
 
 
 def test_a_stalled_gateway_does_not_take_its_stall_for_a_lost_link() -> None:
-    """The process slept 1.5 s (a loaded machine): no requests went out, so no replies are missing."""
+    """The process slept 1.5 s (a loaded machine): the gateway excuses the silence it could not see."""
     chans, sched = _radio(1, 0)
     (ch,) = chans
-    _, events = _run(chans, sched, 1.0, answered=lambda now: True)
-    _, after = _run(chans, sched, 0.5, answered=lambda now: True, t0=2.5)
-    assert [e[1][0] for e in events + after] == ["link_up"] and ch.stats.link_ok
+    _, events = _run(chans, sched, 1.0, info=lambda now: 0x020E)
+    ch.health.excuse(2.5)
+    _, after = _run(chans, sched, 0.5, info=lambda now: 0x020E, t0=2.5)
+    assert [e[1][0] for e in events + after] == ["link_up"] and ch.health.link_ok
+
+
+def test_flight_setpoints_go_before_status_requests_and_only_flying_cars_are_asked_for_status() -> None:
+    params = GatewayParams()
+    chans = [VehicleChannel("car", params, 0.0), VehicleChannel("drone", params, 0.0, wheels=False)]
+    sched = Scheduler(chans, 100.0, params, 0.0)  # one packet per tick: every flight slot is contested
+    sent, _ = _run(chans, sched, 2.0, lambda c, now: HOVER)
+    for vid in ("car", "drone"):
+        assert _kinds(sent[vid])["FlightSetpoint"] >= 95  # ~50 Hz each: the budget's share, no less
+    assert _kinds(sent["drone"])["StatusRequest"] == 0
+
+
+def test_arming_and_crash_recovery_requests_follow_the_supervisor() -> None:
+    chans, sched = _radio(1, 0)
+    (ch,) = chans
+    brushless_disarmed = 0x0201  # can arm, not armed, no auto-arm
+    sent, events = _run(chans, sched, 1.0, lambda c, now: HOVER, info=lambda now: brushless_disarmed)
+    arms = [t for t, p in sent[ch.vid] if p == Supervisor(1)]
+    assert 2 <= len(arms) <= 3 and "arming" in [e[1][0] for e in events]  # repeated every 0.5 s
+    chans, sched = _radio(1, 0)
+    (ch,) = chans
+    sent, _ = _run(chans, sched, 0.6, info=lambda now: 0x0280)  # crashed, not tumbled
+    assert Supervisor(2) in [p for _t, p in sent[ch.vid]]
+    sent, _ = _run(chans, sched, 0.6, info=lambda now: 0x02A0, t0=0.6)  # crashed and still tumbled
+    assert Supervisor(2) not in [p for _t, p in sent[ch.vid]]
+
+
+def test_an_emergency_stop_goes_first_repeatedly_and_refuses_commands() -> None:
+    chans, sched = _radio(3, 0, budget=200.0)
+    _run(chans, sched, 0.3, lambda c, now: HOVER)
+    for ch in chans:
+        ch.emergency_stop()
+    sent, _ = _run(chans, sched, 0.3)
+    for ch in chans:
+        packets = [p for _t, p in sent[ch.vid]]
+        assert packets[0] == Supervisor(3) and packets.count(Supervisor(3)) == GatewayParams().estop_repeats
+        assert not any(isinstance(p, FlightSetpoint) for p in packets)
+        with pytest.raises(ValueError, match="emergency stop"):
+            ch.command(HOVER, 0.7)
+
 
 
 def test_a_stop_followed_at_once_by_driving_still_stops_the_motors() -> None:
@@ -178,17 +243,18 @@ def test_a_stop_followed_at_once_by_driving_still_stops_the_motors() -> None:
     (ch,) = chans
     _run(chans, sched, 0.3, lambda c, now: HOVER)
     sent, _ = _run(chans, sched, 0.5, lambda c, now: StopSetpoint() if now < 0.315 else WheelSetpoint(left=0.1, right=0.1),
-                   t0=0.3)
-    kinds = _kinds(sent[ch.vid])
-    assert kinds["Stop"] == 3 and kinds["FlightSetpoint"] == 0 and kinds["Wheels"] >= 5
-    assert ch.mode == Drive.DRIVE and not ch.wants_flight_slot
+                   t0=0.3, info=lambda now: LANDED_INFO)
+    packets = sent[ch.vid]
+    assert [p for _t, p in packets if isinstance(p, crtp.Stop | FlightSetpoint)][:3] == [crtp.Stop()] * 3
+    assert _kinds(packets)["FlightSetpoint"] == 0 and _kinds(packets)["Wheels"] >= 5
+    assert ch.mode == Drive.DRIVE and not ch.wants_flight_slot  # landed: settled, handed over
 
 
 def _status(ch: VehicleChannel, flags: int, echo: int | None = None) -> crtp.Status:
     """A reply to request `echo` (default: one sent now), everything received."""
-    sent = ch.stats.sent + 1 if echo is None else echo
-    return crtp.Status(echo_sent=sent, received=sent, setpoints=0, vbat_mv=3900, wheel_left_mm_s=0,
-                       wheel_right_mm_s=0, flags=flags)
+    seq = ch.health.app_seq + 1 if echo is None else echo
+    return crtp.Status(echo_seq=seq, received=seq, uptime_ms=1000, rejected=0, vbat_mv=3900, wheel_left_mm_s=0,
+                       wheel_right_mm_s=0, setpoint_age_ms=5, flags=flags)
 
 
 def test_motors_reported_running_after_the_stops_were_lost_are_stopped_again() -> None:
@@ -196,9 +262,9 @@ def test_motors_reported_running_after_the_stops_were_lost_are_stopped_again() -
     (ch,) = chans
     _run(chans, sched, 0.3, lambda c, now: HOVER)
     _run(chans, sched, 0.2, lambda c, now: StopSetpoint() if now < 0.32 else WheelSetpoint(left=0.05, right=0.05),
-         t0=0.3)  # the stops went out (and were lost): driving now
+         t0=0.3, info=lambda now: LANDED_INFO)  # the stops went out (and were lost): driving now
     assert ch.mode == Drive.DRIVE and not ch.wants_flight_slot
-    assert [e[0] for e in ch.on_status(_status(ch, crtp.FLAG_MOTORS), 0.5)] == ["link_up", "motors_restopped"]
+    assert [e[0] for e in ch.on_status(_status(ch, crtp.FLAG_MOTORS), 0.5)] == ["motors_restopped"]
     sent, _ = _run(chans, sched, 0.1, lambda c, now: WheelSetpoint(left=0.05, right=0.05), t0=0.5)
     assert _kinds(sent[ch.vid])["Stop"] == 3 and ch.mode == Drive.DRIVE
     assert ch.on_status(_status(ch, 0), 0.6) == [] and not ch.wants_flight_slot  # stopped: nothing more

@@ -62,7 +62,7 @@ def cmd(owner: str) -> Cmd:
 
 
 def telemetry(gateway: str) -> Telemetry:
-    return Telemetry(vid="x", t=time.time(), gateway=gateway, vbat=3.9, link_quality=1.0, sent=0, acked=0,
+    return Telemetry(vid="x", t=time.time(), gateway=gateway, vbat=3.9, link_quality=1.0, sent=0,
                      dropped=0, cmd_rate_hz=0.0)
 
 

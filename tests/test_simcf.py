@@ -1,20 +1,19 @@
-"""The simulated radio's link model, and a simulated Crazyflie over real UDP driven through the
-gateway's cflib link code: setpoints move the physics, status replies count, malformed packets are
-counted and dropped, the commander watchdog is noticed."""
+"""The simulated radio's link model, and a simulated Crazyflie over real UDP with a bare socket as the
+client: the wheel app answers version 2 of the wheel protocol with what an app can know, its
+watchdog stops the wheels, malformed packets are counted, cflib's scan is answered, and the
+request/reply traffic cflib waits for is never lost while streams are."""
 
 from __future__ import annotations
 
 import asyncio
+import socket
 import time
 
 import pytest
 
-from common.bus.messages import FlightSetpoint
 from common.crazyflie import crtp
-from common.crazyflie.thrust import hover_command
 from common.deploy.radios import LinkModel, free_udp_ports
-from services.radio_gateway.link import CrtpLink
-from services.sim.crazyflie.endpoint import SimCrazyflie
+from services.sim.crazyflie.endpoint import SimCrazyflie, reliable
 from services.sim.crazyflie.physics import SimFlyingCar
 from services.sim.crazyflie.radio import SimRadio
 
@@ -24,62 +23,88 @@ def test_link_model_budget_loss_and_latency() -> None:
     times = [radio.uplink(0.0) for _ in range(8)]  # a burst: one slot of 2 ms each, in order
     assert times[:6] == pytest.approx([0.002 + 0.002 * i for i in range(6)])
     assert times[6:] == [None, None] and radio.congested == 2  # would wait more than 10 ms
+    assert radio.uplink(0.0, reliable=True) == pytest.approx(0.002 + 0.002 * 6)  # a request waits its turn
     assert radio.uplink(1.0) == pytest.approx(1.002)
     lossy = SimRadio("r", LinkModel(budget_pps=1e6, loss=0.1, seed=3))
     delivered = sum(lossy.uplink(i * 1e-3) is not None for i in range(20000))
     assert delivered / 20000 == pytest.approx(0.9, abs=0.01)
     assert sum(lossy.downlink(0.0) is not None for _ in range(20000)) / 20000 == pytest.approx(0.9, abs=0.01)
+    assert all(lossy.uplink(30.0 + i * 1e-3, reliable=True) is not None for i in range(1000))
 
 
-async def _vehicle(loss: float = 0.0) -> tuple[SimCrazyflie, int, list[tuple[str, str, str]]]:
+def test_what_cflib_waits_for_is_reliable_and_streams_are_not() -> None:
+    assert reliable(bytes((0x5C, 3))) and reliable(bytes((0x2D, 0, 0))) and reliable(bytes((0xFD, 0)))
+    assert reliable(bytes((0x9D, 1, 1))) and reliable(bytes((0xDD, 0))) and reliable(bytes((0x8C, 7)))
+    assert not reliable(crtp.encode_stop()) and not reliable(bytes((0x52, 1, 0, 0, 0)))  # setpoints, log data
+    assert not reliable(crtp.encode_wheels(0.1, 0.1)) and not reliable(bytes((0xFC, 0)))  # app channel, pings
+
+
+async def _vehicle(loss: float = 0.0) -> tuple[SimCrazyflie, int]:
     port = free_udp_ports(1)[0]
-    events: list[tuple[str, str, str]] = []
-    cf = SimCrazyflie(SimFlyingCar("v1", t=time.time()), SimRadio("r", LinkModel(loss=loss)),
-                      lambda *e: events.append(e))
+    cf = SimCrazyflie(SimFlyingCar("v1", t=time.time()), SimRadio("r", LinkModel(loss=loss)))
     await asyncio.get_running_loop().create_datagram_endpoint(lambda: cf, local_addr=("127.0.0.1", port))
-    return cf, port, events
+    return cf, port
 
 
-async def _until(predicate, timeout: float = 3.0) -> None:
-    async with asyncio.timeout(timeout):
-        while not predicate():
-            await asyncio.sleep(0.01)
-
-
-def test_sim_crazyflie_flies_answers_status_and_drops_garbage() -> None:
+def test_the_wheel_app_drives_answers_status_v2_and_its_watchdog_stops_the_wheels() -> None:
     async def main() -> None:
-        cf, port, events = await _vehicle()
-        replies: list[bytes] = []
+        cf, port = await _vehicle()
+        client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        client.setblocking(False)
+        client.connect(("127.0.0.1", port))
         loop = asyncio.get_running_loop()
-        link = CrtpLink("v1", f"udp://127.0.0.1:{port}", lambda _v, raw: loop.call_soon_threadsafe(replies.append, raw),
-                        lambda *_: None)
+
+        async def reply() -> bytes:
+            """The next packet on the link or the app channel (console lines, e.g. "SUP: Ready to fly", skipped)."""
+            while True:
+                raw = await asyncio.wait_for(loop.sock_recv(client, 64), 2.0)
+                if raw[0] >> 4 in (crtp.PORT_LINK, crtp.PORT_PLATFORM):
+                    return raw
+
         try:
-            climb = crtp.encode_setpoint(FlightSetpoint(roll=0, pitch=0, yawrate=0, thrust=hover_command(0.041) + 4000))
-            link.send(crtp.encode_setpoint(FlightSetpoint(roll=0, pitch=0, yawrate=0, thrust=0)))
-            for _ in range(50):  # 0.5 s of a climbing setpoint at 100 Hz
-                link.send(climb)
+            client.send(crtp.NULL_PACKET)  # cflib's scan
+            assert await reply() == crtp.NULL_PACKET
+            for _ in range(20):
+                client.send(crtp.encode_wheels(0.1, 0.1))
                 await asyncio.sleep(0.01)
-            link.send(b"\x3c\x01\x02")  # a truncated setpoint: counted and dropped
-            link.send(crtp.encode_wheels(0.1, 0.1))
-            link.send(crtp.encode_status_request(54))
-            await _until(lambda: replies)
-            status = crtp.decode_downlink(replies[-1])
+            client.send(bytes((0xDE, 1, crtp.MSG_WHEELS, 0, 0, 0, 0)))  # version 1: rejected
+            client.send(crtp.encode_status_request(22))
+            status = crtp.decode_downlink(await reply())
             assert isinstance(status, crtp.Status)
-            assert status.echo_sent == 54 and status.received == 53 and status.setpoints == 52
-            assert status.flags & crtp.FLAG_MOTORS and status.flags & crtp.FLAG_FLYING
-            assert 3.0 < status.vbat_mv / 1000 < 4.3
-            assert cf.malformed == 1 and cf.flight_setpoints == 51
+            assert (status.echo_seq, status.received, status.rejected) == (22, 22, 1)
+            assert status.wheel_left_mm_s == 100 and status.setpoint_age_ms > 0
+            assert status.flags & crtp.FLAG_ARMED and not status.flags & (crtp.FLAG_MOTORS | crtp.FLAG_LOCKED)
+            assert 3000 < status.vbat_mv < 4300 and status.uptime_ms > 0
             cf.advance(time.time())
-            assert cf.car.z > 0.01 and cf.car.vz > 0.0
-            assert cf.max_flight_gap < 0.1 and cf.watchdog_levels == 0
-            await asyncio.sleep(0.6)  # no setpoint for more than 0.5 s while armed
+            assert cf.car.wheel_left > 0.05
+            await asyncio.sleep(0.7)  # no WHEELS for more than 0.5 s
             cf.advance(time.time())
-            assert cf.watchdog_levels == 1 and events[0][:2] == ("v1", "sim_watchdog_level")
-            link.send(crtp.encode_status_request(55))
-            await _until(lambda: len(replies) > 1)
-            assert crtp.decode_downlink(replies[-1]).flags & crtp.FLAG_WATCHDOG_LEVEL
+            client.send(crtp.encode_status_request(23))
+            status = crtp.decode_downlink(await reply())
+            assert status.flags & crtp.FLAG_WHEEL_WATCHDOG and status.wheel_left_mm_s == 0
+            assert cf.wheel_watchdogs == 1 and cf.car.wheel_left < 0.01
         finally:
-            link.close()
+            client.close()
+            cf.close()
+
+    asyncio.run(main())
+
+
+def test_a_stock_crazyflie_has_no_app_and_malformed_packets_are_counted() -> None:
+    async def main() -> None:
+        port = free_udp_ports(1)[0]
+        cf = SimCrazyflie(SimFlyingCar("v1", t=time.time()), SimRadio("r", LinkModel(loss=0.0)), wheels=False)
+        await asyncio.get_running_loop().create_datagram_endpoint(lambda: cf, local_addr=("127.0.0.1", port))
+        client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        client.connect(("127.0.0.1", port))
+        try:
+            client.send(crtp.encode_status_request(1))
+            client.send(bytes((0x3C, 1, 2)))  # a truncated RPYT setpoint
+            client.send(bytes((0x7C, 7, 0)))  # a truncated position setpoint
+            await asyncio.sleep(0.2)
+            assert cf.firmware.malformed == 2 and cf.firmware.app is None and cf.received == 3
+        finally:
+            client.close()
             cf.close()
 
     asyncio.run(main())

@@ -67,6 +67,11 @@ class Keys:
         return f"{self.root}/planner/plan"
 
     @property
+    def estop(self) -> str:
+        """The operator's emergency stop (`EmergencyStop`)."""
+        return f"{self.root}/estop"
+
+    @property
     def planner_graph(self) -> str:
         return f"{self.root}/planner/graph"
 

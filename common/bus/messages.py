@@ -113,7 +113,14 @@ class VehicleState(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 
 class Telemetry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Gateway -> everyone (`vehicle/<vid>/telemetry`): battery and link health."""
+    """Gateway -> everyone (`vehicle/<vid>/telemetry`): battery, link and firmware health.
+
+    From the firmware's log block: `vbat` (V), `pm_state` (0 battery, 1 charging, 2 charged,
+    3 low power), `supervisor` (`supervisor.info` bits, -1 unknown; docs/firmware_model.md), `rssi`
+    (-dBm). From the gateway: `link_quality` (fraction of the log blocks that arrived), `sent`
+    (packets handed to the link), `skipped` (packets not sent: not connected or link busy),
+    `dropped` (the wheel app's lost app-channel packets), `cmd_rate_hz` (flight and wheel packets
+    sent per second). `capabilities`, `firmware`: what the vehicle is and runs."""
 
     vid: str
     t: float
@@ -121,12 +128,28 @@ class Telemetry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     vbat: float
     link_quality: float
     sent: int
-    acked: int
     dropped: int
     cmd_rate_hz: float
     link_ok: bool = True
     owner: str = ""
     stale_cmd: bool = False
+    skipped: int = 0
+    supervisor: int = -1
+    pm_state: int = 0
+    rssi: float = 0.0
+    capabilities: str = "fly+drive"
+    firmware: str = ""
+    estopped: bool = False
+
+
+class EmergencyStop(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """The operator's emergency stop (`estop`, operator role only): every gateway sends the
+    supervisor's emergency stop to every vehicle (motors off, Locked). `release`: the gateways
+    accept commands again and reboot the vehicles the stop locked."""
+
+    t: float
+    reason: str = ""
+    release: bool = False
 
 
 class VehicleEvent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

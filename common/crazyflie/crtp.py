@@ -1,17 +1,20 @@
-"""CRTP packets between the gateway and a Crazyflie (real or simulated): encode and decode.
+"""CRTP packets the fleet builds and reads (cflib 0.1.34 and crazyflie-firmware conventions).
 
 One packet is a header byte then up to 30 payload bytes (cflib `crtpstack.CRTPPacket`; the UDP link
-carries exactly one packet per datagram). Header: port in bits 7-4, bits 3-2 set (cflib sets them
-for the bootloader's sake; the radio reuses them for its safelink toggles, so decoders ignore them),
-channel in bits 1-0.
+carries exactly one packet per datagram). Header: port in bits 7-4, bits 3-2 set by cflib (the
+firmware leaves them clear; decoders ignore them), channel in bits 1-0.
 
 - Flight: commander port 3, channel 0, ``<fffH`` roll, -pitch, yaw rate, thrust: byte for byte what
   cflib's `Commander.send_setpoint` sends (it negates pitch on the wire). Motors off: the generic
-  commander's stop (port 7, channel 0, type 0), as `Commander.send_stop_setpoint`.
-- Wheels and status: our wheel protocol on the app channel (port 0x0D, channel 2, as cflib's
-  `Appchannel`), fixed and versioned in docs/wheel_protocol.md.
-- 0xFF alone is the null packet (link control port 15, channel 3) cflib's drivers poll with; any
-  link-control packet decodes as `Null`.
+  commander's stop (port 7, channel 0, type 0), as `Commander.send_stop_setpoint`; the generic
+  position setpoint (type 7); notify-setpoint-stop (port 7, channel 1, type 0) hands the commander
+  back to the high-level commander, whose idle setpoints keep the firmware's watchdog fed.
+- Supervisor (port 9, channel 1, protocol version 12): arming request, crash recovery, emergency stop.
+- Localization (port 6): external position (channel 0) and pose (channel 1, type 8).
+- Wheels and status: our wheel protocol, version 2, on the app channel (port 0x0D, channel 2, as
+  cflib's `Appchannel`): firmware/wheels/PROTOCOL.md (docs/wheel_protocol.md).
+- 0xFF alone is the null packet (link control port 15, channel 3); any link-control packet decodes
+  as `Null`.
 
 Decoders raise `CrtpError` on anything malformed; callers drop and count, never crash.
 """
@@ -25,8 +28,15 @@ import msgspec
 
 from common.bus.messages import FlightSetpoint
 
+PORT_CONSOLE = 0x00
+PORT_PARAM = 0x02
 PORT_COMMANDER = 0x03
+PORT_MEM = 0x04
+PORT_LOG = 0x05
+PORT_LOCALIZATION = 0x06
 PORT_COMMANDER_GENERIC = 0x07
+PORT_HIGH_LEVEL = 0x08
+PORT_SUPERVISOR = 0x09
 PORT_PLATFORM = 0x0D
 PORT_LINK = 0x0F
 APP_CHANNEL = 2
@@ -34,28 +44,35 @@ APP_CHANNEL = 2
 MAX_PAYLOAD = 30
 NULL_PACKET = b"\xff"
 
-WHEEL_PROTOCOL_VERSION = 1
+WHEEL_PROTOCOL_VERSION = 2
 MSG_WHEELS = 0x01
 MSG_STATUS_REQUEST = 0x02
 MSG_STATUS = 0x81
 
-FLAG_MOTORS = 0x01
-"""Status flag: motors running."""
-FLAG_FLYING = 0x02
-"""Status flag: the vehicle believes it is airborne."""
-FLAG_WATCHDOG_LEVEL = 0x04
-"""Status flag: the commander watchdog levelled the attitude (no setpoint for 0.5 s) since the last status."""
-FLAG_WATCHDOG_CUT = 0x08
-"""Status flag: the commander watchdog stopped the motors (no setpoint for 2 s) since the last status."""
-FLAG_WHEEL_WATCHDOG = 0x10
-"""Status flag: the wheel watchdog stopped the wheels (no wheel command for 0.5 s) since the last status."""
+FLAG_WHEEL_WATCHDOG = 0x01
+"""Status flag (latched): the wheel watchdog stopped the wheels (no wheel command for 0.5 s)."""
+FLAG_RX_OVERFLOW = 0x02
+"""Status flag (latched): the app channel's receive queue overflowed."""
+FLAG_MOTORS = 0x04
+"""Status flag: a propeller motor is commanded."""
+FLAG_FLYING = 0x08
+"""Status flag: the supervisor believes the vehicle flies."""
+FLAG_ARMED = 0x10
+FLAG_LOCKED = 0x20
+"""Status flag: the supervisor is locked (reboot required)."""
+FLAG_LOW_BATTERY = 0x40
+FLAG_MEASURED = 0x80
+
+SUPERVISOR_ARM, SUPERVISOR_RECOVER, SUPERVISOR_EMERGENCY_STOP = 0x01, 0x02, 0x03
+GENERIC_STOP, GENERIC_POSITION = 0, 7
+META_NOTIFY_SETPOINT_STOP = 0
+LOC_EXT_POSE = 8
 
 _SETPOINT = struct.Struct("<fffH")
-_STOP_TYPE = 0
 _HEAD = struct.Struct("<BB")
 _WHEELS = struct.Struct("<BBhh")
 _STATUS_REQUEST = struct.Struct("<BBI")
-_STATUS = struct.Struct("<BBIIIHhhB")
+_STATUS = struct.Struct("<BBIIIHHhhHB")
 _U32 = 0xFFFFFFFF
 
 
@@ -78,7 +95,9 @@ def split(raw: bytes) -> tuple[int, int, bytes]:
 
 
 _H_SETPOINT = header(PORT_COMMANDER, 0)
-_H_STOP = header(PORT_COMMANDER_GENERIC, 0)
+_H_GENERIC = header(PORT_COMMANDER_GENERIC, 0)
+_H_META = header(PORT_COMMANDER_GENERIC, 1)
+_H_SUPERVISOR = header(PORT_SUPERVISOR, 1)
 _H_APP = header(PORT_PLATFORM, APP_CHANNEL)
 
 
@@ -90,22 +109,25 @@ class Wheels(msgspec.Struct, frozen=True):
 
 
 class StatusRequest(msgspec.Struct, frozen=True):
-    """`sent`: packets the gateway has sent this vehicle so far, this request included (mod 2^32)."""
+    """`seq`: app-channel packets (WHEELS, STATUS_REQUEST) the gateway has sent this vehicle so far,
+    this request included (mod 2^32)."""
 
-    sent: int
+    seq: int
 
 
 class Status(msgspec.Struct, frozen=True):
-    """Vehicle -> gateway. `echo_sent`: the `sent` of the request answered; `received`: every packet
-    from the gateway received so far (setpoints, stops, wheel commands, status requests), up to and
-    including that request; `setpoints`: how many of them were flight, stop or wheel commands."""
+    """Vehicle -> gateway: what the wheel app knows (firmware/wheels/PROTOCOL.md). `received`:
+    app-channel packets taken since boot, this request included; `setpoint_age_ms`: since the
+    firmware's commander last took a setpoint (saturates at 65535)."""
 
-    echo_sent: int
+    echo_seq: int
     received: int
-    setpoints: int
+    uptime_ms: int
+    rejected: int
     vbat_mv: int
     wheel_left_mm_s: int
     wheel_right_mm_s: int
+    setpoint_age_ms: int
     flags: int
 
 
@@ -117,7 +139,7 @@ class Null(msgspec.Struct, frozen=True):
     """The empty link-control packet."""
 
 
-Uplink = FlightSetpoint | Stop | Wheels | StatusRequest | Null
+Uplink = Wheels | StatusRequest
 Downlink = Status | Null
 
 
@@ -136,7 +158,43 @@ def encode_setpoint(sp: FlightSetpoint) -> bytes:
 
 def encode_stop() -> bytes:
     """cflib `Commander.send_stop_setpoint()` on the wire."""
-    return bytes((_H_STOP, _STOP_TYPE))
+    return bytes((_H_GENERIC, GENERIC_STOP))
+
+
+def encode_position(x: float, y: float, z: float, yaw_deg: float) -> bytes:
+    """cflib `Commander.send_position_setpoint(x, y, z, yaw)`: metres, yaw in degrees."""
+    if not _finite(x, y, z, yaw_deg):
+        raise ValueError("non-finite position setpoint")
+    return bytes((_H_GENERIC,)) + struct.pack("<Bffff", GENERIC_POSITION, x, y, z, yaw_deg)
+
+
+def encode_notify_setpoint_stop(remain_valid_ms: int = 0) -> bytes:
+    """cflib `Commander.send_notify_setpoint_stop()`: low-level setpoints end here."""
+    return bytes((_H_META,)) + struct.pack("<BI", META_NOTIFY_SETPOINT_STOP, remain_valid_ms & _U32)
+
+
+def encode_arming(arm: bool) -> bytes:
+    """cflib `Supervisor.send_arming_request(arm)` (protocol version 12)."""
+    return bytes((_H_SUPERVISOR, SUPERVISOR_ARM, int(arm)))
+
+
+def encode_crash_recovery() -> bytes:
+    """cflib `Supervisor.send_crash_recovery_request()`."""
+    return bytes((_H_SUPERVISOR, SUPERVISOR_RECOVER))
+
+
+def encode_emergency_stop() -> bytes:
+    """cflib `Supervisor.send_emergency_stop()`: the motors stop and the supervisor locks."""
+    return bytes((_H_SUPERVISOR, SUPERVISOR_EMERGENCY_STOP))
+
+
+def encode_ext_pose(x: float, y: float, z: float, yaw: float) -> bytes:
+    """cflib `Localization.send_extpose((x, y, z), quat)` of a yaw-only attitude (rad, CCW)."""
+    if not _finite(x, y, z, yaw):
+        raise ValueError("non-finite pose")
+    half = 0.5 * yaw
+    return bytes((header(PORT_LOCALIZATION, 1),)) + struct.pack("<Bfffffff", LOC_EXT_POSE, x, y, z, 0.0, 0.0,
+                                                                 math.sin(half), math.cos(half))
 
 
 def _clamp16(v: float) -> int:
@@ -151,15 +209,17 @@ def encode_wheels(left_m_s: float, right_m_s: float) -> bytes:
     return bytes((_H_APP,)) + body
 
 
-def encode_status_request(sent: int) -> bytes:
-    return bytes((_H_APP,)) + _STATUS_REQUEST.pack(WHEEL_PROTOCOL_VERSION, MSG_STATUS_REQUEST, sent & _U32)
+def encode_status_request(seq: int) -> bytes:
+    return bytes((_H_APP,)) + _STATUS_REQUEST.pack(WHEEL_PROTOCOL_VERSION, MSG_STATUS_REQUEST, seq & _U32)
 
 
 def encode_status(st: Status) -> bytes:
-    body = _STATUS.pack(WHEEL_PROTOCOL_VERSION, MSG_STATUS, st.echo_sent & _U32, st.received & _U32,
-                        st.setpoints & _U32, min(max(st.vbat_mv, 0), 0xFFFF), _clamp16(st.wheel_left_mm_s),
-                        _clamp16(st.wheel_right_mm_s), st.flags & 0xFF)
-    return bytes((_H_APP,)) + body
+    """A STATUS as the vehicle's app sends it (header 0xD2: the firmware leaves bits 3-2 clear)."""
+    body = _STATUS.pack(WHEEL_PROTOCOL_VERSION, MSG_STATUS, st.echo_seq & _U32, st.received & _U32,
+                        st.uptime_ms & _U32, st.rejected & 0xFFFF, min(max(st.vbat_mv, 0), 0xFFFF),
+                        _clamp16(st.wheel_left_mm_s), _clamp16(st.wheel_right_mm_s),
+                        min(max(st.setpoint_age_ms, 0), 0xFFFF), st.flags & 0xFF)
+    return bytes((PORT_PLATFORM << 4 | APP_CHANNEL,)) + body
 
 
 def _app(payload: bytes) -> tuple[int, bytes]:
@@ -178,33 +238,19 @@ def _exact(layout: struct.Struct, payload: bytes, what: str) -> tuple:
     return layout.unpack(payload)
 
 
-def decode_uplink(raw: bytes) -> Uplink:
-    """A packet from the gateway, as the vehicle's firmware reads it (link control reads as `Null`)."""
-    port, channel, payload = split(raw)
-    if port == PORT_LINK:
-        return Null()
-    if port == PORT_COMMANDER and channel == 0:
-        roll, neg_pitch, yawrate, thrust = _exact(_SETPOINT, payload, "setpoint")
-        if not _finite(roll, neg_pitch, yawrate):
-            raise CrtpError("non-finite setpoint")
-        return FlightSetpoint(roll=roll, pitch=-neg_pitch, yawrate=yawrate, thrust=thrust)
-    if port == PORT_COMMANDER_GENERIC and channel == 0:
-        if payload[:1] != bytes((_STOP_TYPE,)):
-            raise CrtpError("generic commander packet other than stop")
-        return Stop()
-    if port == PORT_PLATFORM and channel == APP_CHANNEL:
-        kind, payload = _app(payload)
-        if kind == MSG_WHEELS:
-            _, _, left, right = _exact(_WHEELS, payload, "WHEELS")
-            return Wheels(left, right)
-        if kind == MSG_STATUS_REQUEST:
-            return StatusRequest(_exact(_STATUS_REQUEST, payload, "STATUS_REQUEST")[2])
-        raise CrtpError(f"unknown uplink message type 0x{kind:02x}")
-    raise CrtpError(f"unexpected uplink port {port} channel {channel}")
+def decode_app_uplink(payload: bytes) -> Uplink:
+    """An app-channel payload from the gateway, as the vehicle's wheel app reads it."""
+    kind, payload = _app(payload)
+    if kind == MSG_WHEELS:
+        _, _, left, right = _exact(_WHEELS, payload, "WHEELS")
+        return Wheels(left, right)
+    if kind == MSG_STATUS_REQUEST:
+        return StatusRequest(_exact(_STATUS_REQUEST, payload, "STATUS_REQUEST")[2])
+    raise CrtpError(f"unknown uplink message type 0x{kind:02x}")
 
 
 def decode_downlink(raw: bytes) -> Downlink:
-    """A packet from the vehicle, as the gateway reads it (link control reads as `Null`)."""
+    """An app-channel packet from the vehicle, as the gateway reads it (link control reads as `Null`)."""
     port, channel, payload = split(raw)
     if port == PORT_LINK:
         return Null()

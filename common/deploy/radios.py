@@ -21,7 +21,7 @@ import os
 import socket
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 from urllib.parse import urlparse
 
 import msgspec
@@ -78,27 +78,41 @@ class LandingParams(msgspec.Struct, **_Strict):
 
 
 class GatewayParams(msgspec.Struct, **_Strict):
-    """How a gateway schedules its radio (paper 000 §VI-C) and guards its vehicles.
+    """How a gateway schedules its radio (paper 000 §VI-C) and guards its vehicles (docs/radio.md).
 
     tick_hz: scheduling ticks per second: each flying vehicle gets at most one flight setpoint per
     tick, batched; drive_hz: wheel packets per second through the driving command switch, all
     drivers together; wheel_refresh_s: an unchanged wheel command is resent this often (the wheel
-    watchdog stops after 0.5 s); status_hz: status requests per vehicle per second; probe_hz: the
-    request rate for a vehicle that missed two replies, until its link is judged; stale_s: a cmd
-    older than this is stale; link_timeout_s, lost_after_requests: no status for this long, with at
-    least this many requests unanswered, means the link is lost (docs/radio.md);
-    stop_repeats: how many times a stop (motors off, and zero wheels) is sent."""
+    watchdog stops after 0.5 s); status_hz: wheel-app status requests per vehicle per second (flying
+    cars only); log_period_s: the period of the log block the firmware streams (battery, supervisor,
+    RSSI); link_timeout_s: no log block for this long means the link is lost; reopen_s, reopen_max_s:
+    a lost link is closed and reopened after reopen_s, doubling up to reopen_max_s; stale_s: a cmd
+    older than this is stale; stop_repeats: how many times a stop (motors off, and zero wheels) and
+    a notify-setpoint-stop are sent; settle_period_s, settle_max_s: after a flight, stops go out this
+    often while the supervisor reports the vehicle flying (at most twice settle_max_s, or settle_max_s
+    while it reports nothing); estop_repeats: an emergency stop is sent this many times, one per tick;
+    boot_s: a rebooted vehicle is reopened after this long."""
 
     tick_hz: Positive = 100.0
     drive_hz: Positive = 50.0
     wheel_refresh_s: Positive = 0.1
     status_hz: Positive = 5.0
-    probe_hz: Positive = 20.0
-    stale_s: Positive = 0.2
+    log_period_s: Annotated[float, msgspec.Meta(ge=0.01, le=2.5)] = 0.1
     link_timeout_s: Positive = 1.0
-    lost_after_requests: Annotated[int, msgspec.Meta(ge=1)] = 10
+    pause_after_s: Positive = 3.0
+    connect_timeout_s: Positive = 10.0
+    reopen_s: Positive = 1.0
+    reopen_max_s: Positive = 8.0
+    stale_s: Positive = 0.2
     stop_repeats: Annotated[int, msgspec.Meta(ge=1)] = 3
+    settle_period_s: Annotated[float, msgspec.Meta(gt=0, lt=0.5)] = 0.1
+    settle_max_s: Positive = 3.0
+    estop_repeats: Annotated[int, msgspec.Meta(ge=1)] = 10
+    boot_s: Positive = 2.0
     landing: LandingParams = LandingParams()
+    params: dict[str, float] = {}
+    """Firmware parameters every vehicle gets on connect (`group.name: value`, as crazyswarm2's
+    crazyflies.yaml); a vehicle's own `params` override them."""
 
 
 class MocapModel(msgspec.Struct, **_Strict):
@@ -114,12 +128,31 @@ class MocapModel(msgspec.Struct, **_Strict):
     seed: int = 0
 
 
+Capabilities = Literal["fly+drive", "fly", "drive"]
+"""What a vehicle can do (DESIGN.md "Vehicles"): a flying car, a stock Crazyflie, a ground robot."""
+FirmwarePlatform = Literal["cf21", "cf21-brushless"]
+
+
 class VehicleLink(msgspec.Struct, **_Strict):
-    """One vehicle: its cflib link URI; for the simulator, where it starts (m) and its yaw (rad)."""
+    """One vehicle: its cflib link URI; what it can do (`capabilities`: a flying car has the wheel app,
+    docs/wheel_protocol.md; "fly" is a stock Crazyflie); parameters written on connect, over the
+    file's `gateway.params`; for the simulator, which Crazyflie it is, where it starts (m) and its yaw (rad)."""
 
     uri: str
+    capabilities: Capabilities = "fly+drive"
+    params: dict[str, float] = {}
+    firmware: FirmwarePlatform = "cf21"
     start: tuple[float, float, float] = (0.0, 0.0, 0.0)
     yaw: float = 0.0
+
+    @property
+    def wheels(self) -> bool:
+        """The vehicle has the wheel app (it drives)."""
+        return "drive" in self.capabilities
+
+    @property
+    def flies(self) -> bool:
+        return "fly" in self.capabilities
 
 
 class RadioSpec(msgspec.Struct, **_Strict):

@@ -2,16 +2,26 @@
 
 It owns the vehicles of one radio of the radios file, takes each one's latest `Cmd` from
 `vehicle/<vid>/cmd`, and every tick sends one batch within the radio's packet budget (`Scheduler`):
-flight setpoints round-robin, wheel commands serialised through the driving command switch, status
-requests. It publishes `Telemetry` per vehicle (battery, link quality, packets sent / acked /
-dropped, achieved command rate) and `VehicleEvent`s (link up / lost, stale-command landing or stop,
-landed, firmware watchdog trips).
+flight setpoints round-robin, wheel commands serialised through the driving command switch,
+supervisor requests, the wheel app's status requests. Each vehicle is a cflib `Crazyflie`
+(`link.py`) whose firmware streams a log block (battery, supervisor state, RSSI); the gateway
+publishes `Telemetry` per vehicle and `VehicleEvent`s (link up / lost / reopened, stale-command
+landing or stop, landed, supervisor locked or crashed, reboots, emergency stop).
 
 Who is obeyed: a vehicle of this radio, and only its owner, `owner_of(vid, live executors)` from the
 gateway's own liveliness watch of service "executor"; anything else is refused, counted under
 ``refused:<reason>:<vid>`` and logged once per vehicle and reason. A vehicle whose command goes
 stale lands (flying) or stops (driving) under the gateway's control (`VehicleChannel`).
-Counters (refusals, drops, radio_behind) and link figures go out on `stats/gateway/<instance>`.
+
+Links: no log block for `link_timeout_s` means the link is lost (`Telemetry.link_ok`); the vehicle
+keeps getting its setpoints, so a short blackout is flown through. A link that fails to open,
+drops, or stays silent for `pause_after_s` is closed and reopened after `reopen_s`, doubling up to
+`reopen_max_s`: a dead vehicle does not eat its neighbours' airtime (cflib's radio driver retries an
+unacknowledged packet without back-off). A
+vehicle whose supervisor locked (reboot required) is rebooted through its radio chip and
+reconnected, unless the operator's emergency stop locked it: `fleet estop` (key `estop`, operator
+role) makes every gateway send the supervisor's emergency stop to every vehicle, refuse commands,
+and, on `--release`, reboot them. Counters and link figures go out on `stats/gateway/<instance>`.
 """
 
 from __future__ import annotations
@@ -19,22 +29,36 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from dataclasses import dataclass
 
 from common.bus.keys import Keys
-from common.bus.messages import Cmd, Pose, Telemetry, VehicleEvent
-from common.bus.pubsub import Publisher, Subscription, call_in_loop, subscribe
+from common.bus.messages import Cmd, EmergencyStop, Pose, Telemetry, VehicleEvent
+from common.bus.pubsub import Subscription, call_in_loop, subscribe
 from common.bus.service import Service
 from common.bus.session import ZenohConfig
 from common.bus.stats import publish_stats
 from common.crazyflie import crtp
 from common.deploy.radios import RadiosFile
 from common.domain.ownership import owner_of
-from services.radio_gateway.link import CrtpLink, RadioSender
-from services.radio_gateway.linkstats import LINK_EVENTS, Event
+from services.radio_gateway.health import FLYING, LINK_EVENTS, LOCKED, Event
+from services.radio_gateway.link import RadioSender, VehicleLink
 from services.radio_gateway.scheduler import Scheduler
 from services.radio_gateway.vehicle import Refused, VehicleChannel
 
 log = logging.getLogger(__name__)
+
+STALL_S = 0.2
+"""A tick this late means the gateway's process stalled: the silence it saw is excused."""
+
+
+@dataclass
+class Connection:
+    """The gateway's view of one link: open, closed (and when to try again), or being rebooted."""
+
+    state: str = "closed"
+    due: float = 0.0
+    backoff: float = 0.0
+    rebooting: bool = False
 
 
 class RadioGateway(Service):
@@ -55,31 +79,33 @@ class RadioGateway(Service):
         self.params = spec.gateway
         self.subscribe_each = subscribe_each
         now = time.time()
-        self.channels = {vid: VehicleChannel(vid, self.params, now) for vid in self.spec.vehicles}
+        self.channels = {vid: VehicleChannel(vid, self.params, now, wheels=link.wheels)
+                         for vid, link in self.spec.vehicles.items()}
         self.scheduler = Scheduler(list(self.channels.values()), self.spec.link.budget_pps, self.params, now)
         self.owners: dict[str, str | None] = dict.fromkeys(self.channels)
+        self.connections = {vid: Connection() for vid in self.channels}
         self._logged: set[tuple[str, str]] = set()
-        self._links: dict[str, CrtpLink] = {}
-        self._telemetry: dict[str, Publisher[Telemetry]] = {}
-        self._events: dict[str, Publisher[VehicleEvent]] = {}
+        self._links: dict[str, VehicleLink] = {}
         self._poses: dict[str, Subscription[Pose]] = {}
 
     # ---- lifecycle ------------------------------------------------------------------------
 
     async def main(self) -> None:
         loop = asyncio.get_running_loop()
-        for vid in self.channels:
-            self._telemetry[vid] = self.publisher(self.keys.vehicle(vid, "telemetry"), Telemetry)
-            self._events[vid] = self.publisher(self.keys.vehicle(vid, "event"), VehicleEvent)
+        self._telemetry = self.publishers(lambda vid: self.keys.vehicle(vid, "telemetry"), Telemetry)
+        self._events = self.publishers(lambda vid: self.keys.vehicle(vid, "event"), VehicleEvent)
         alive = await self.watch_alive("executor", lambda _i, _a, live: self._set_executors(live))
         self._set_executors(alive.instances)
+        self.subscribe(self.keys.estop, EmergencyStop, self._on_estop)
         cmds = [self.subscribe(key, Cmd) for key in  # pulled by each tick
                 ([self.keys.vehicle(vid, "cmd") for vid in self.channels] if self.subscribe_each
                  else [self.keys.all_vehicles("cmd")])]
-        on_packet = lambda vid, raw: call_in_loop(loop, self._on_packet, vid, raw)  # noqa: E731
-        on_error = lambda vid, msg: call_in_loop(loop, self._on_link_error, vid, msg)  # noqa: E731
-        self._links = {vid: CrtpLink(vid, link.uri, on_packet, on_error) for vid, link in self.spec.vehicles.items()}
-        sender = RadioSender(self.radio, on_error, self.counters)
+        in_loop = lambda fn: lambda *a: call_in_loop(loop, fn, *a)  # noqa: E731
+        period_ms = round(self.params.log_period_s * 1000)
+        self._links = {vid: VehicleLink(vid, link.uri, {**self.params.params, **link.params}, period_ms,
+                                        in_loop(self._on_log), in_loop(self._on_packet), in_loop(self._on_link_state))
+                       for vid, link in self.spec.vehicles.items()}
+        sender = RadioSender(self.radio, in_loop(self._on_link_error), self.counters)
         self.spawn(publish_stats(self, self._figures), name="stats")
         try:
             await self._run(sender, cmds)
@@ -90,7 +116,7 @@ class RadioGateway(Service):
             await asyncio.gather(*(asyncio.to_thread(link.close) for link in self._links.values()))
 
     async def _run(self, sender: RadioSender, cmds: list[Subscription[Cmd]]) -> None:
-        """The tick loop: the commands that arrived, safety, one batch, pose subscriptions,
+        """The tick loop: the commands that arrived, links, safety, one batch, pose subscriptions,
         telemetry. Commands are taken right before the staleness check: a tick that runs late (a
         starved process) must not take its owner's waiting commands for missing ones."""
         loop = asyncio.get_running_loop()
@@ -99,12 +125,16 @@ class RadioGateway(Service):
         due = loop.time()
         ticks = 0
         while True:
+            late = loop.time() - due
             for sub in cmds:
                 for cmd, key in sub.drain():
                     self._on_cmd(cmd, key)
             now = time.time()
-            for ch in self.channels.values():
-                self._publish_events(ch.vid, ch.supervise(now))
+            for vid, ch in self.channels.items():
+                if late > STALL_S:
+                    ch.health.excuse(now)
+                self._publish_events(vid, ch.supervise(now))
+                self._manage_link(vid, now)
             batch, events = self.scheduler.tick(now)
             for vid, event in events:
                 self._publish_events(vid, [event])
@@ -120,6 +150,77 @@ class RadioGateway(Service):
                 due = loop.time()
                 delay = 0.0
             await asyncio.sleep(delay)
+
+    # ---- links ------------------------------------------------------------------------------
+
+    def _manage_link(self, vid: str, now: float) -> None:
+        """Open a closed link when due; reboot a locked vehicle (unless the operator stopped it)."""
+        conn, ch = self.connections[vid], self.channels[vid]
+        if conn.state == "closed" and now >= conn.due and not conn.rebooting:
+            conn.state, conn.due = "opening", now + self.params.connect_timeout_s
+            ch.health.reset(now, forget=False)
+            self.spawn(asyncio.to_thread(self._links[vid].open), name=f"open {vid}")
+        elif conn.state == "opening" and now >= conn.due:  # over UDP cflib waits forever for a lost reply
+            conn.state = "closing"
+            self.spawn(self._close_then(vid, f"not connected within {self.params.connect_timeout_s:.0f} s"),
+                       name=f"give up {vid}")
+        elif conn.state == "open" and ch.health.bit(LOCKED) and not ch.estopped and not conn.rebooting:
+            self._reboot(vid, "supervisor locked")
+        elif conn.state == "open" and not ch.health.link_ok:
+            if ch.health.silent_for(now) > self.params.pause_after_s:
+                self._pause(vid, f"no log block for {ch.health.silent_for(now):.1f} s")
+            elif now >= conn.due:  # probe: the log block again (the firmware drops it after 1 s of silence)
+                conn.due = now + self.params.link_timeout_s
+                self.spawn(asyncio.to_thread(self._links[vid].refresh_log), name=f"probe {vid}")
+
+    def _reopen_later(self, vid: str, now: float, why: str) -> None:
+        conn = self.connections[vid]
+        conn.backoff = min(max(conn.backoff * 2.0, self.params.reopen_s), self.params.reopen_max_s)
+        conn.state, conn.due = "closed", now + conn.backoff
+        self._publish_events(vid, [("link_closed", f"{why}: reopening in {conn.backoff:.0f} s")])
+
+    def _on_link_state(self, vid: str, state: str, detail: str) -> None:
+        conn, now = self.connections[vid], time.time()
+        if state == "connected":
+            conn.state, conn.due = "open", now
+            ch = self.channels[vid]
+            was_flying = bool(ch.health.bit(FLYING))
+            ch.health.reset(now)
+            ch.connected(was_flying)
+            self._publish_events(vid, [("link_open", detail)])
+        elif state in ("failed", "lost") and conn.state != "closing" and not conn.rebooting:
+            self.spawn(asyncio.to_thread(self._links[vid].close), name=f"close {vid}")
+            self._reopen_later(vid, now, f"link {state}: {detail}")
+        elif state == "info":
+            log.info("%s: %s: %s", self.instance, vid, detail)
+
+    def _pause(self, vid: str, why: str) -> None:
+        """A link judged lost: close it (no more airtime for it) and reopen with back-off."""
+        conn = self.connections[vid]
+        if conn.state == "open":
+            conn.state = "closing"
+            self.spawn(self._close_then(vid, why), name=f"pause {vid}")
+
+    async def _close_then(self, vid: str, why: str) -> None:
+        await asyncio.to_thread(self._links[vid].close)
+        self._reopen_later(vid, time.time(), why)
+
+    def _reboot(self, vid: str, why: str) -> None:
+        conn = self.connections[vid]
+        conn.rebooting, conn.state = True, "closing"
+        self._publish_events(vid, [("rebooting", f"{why}: rebooting through the radio")])
+        self.spawn(self._do_reboot(vid), name=f"reboot {vid}")
+
+    async def _do_reboot(self, vid: str) -> None:
+        conn = self.connections[vid]
+        try:
+            await asyncio.to_thread(self._links[vid].reboot)
+            self._publish_events(vid, [("rebooted", f"reconnecting in {self.params.boot_s:.1f} s")])
+        except Exception as exc:  # cflib's PowerSwitch raises plain Exceptions
+            self._publish_events(vid, [("reboot_failed", str(exc))])
+        finally:
+            conn.rebooting, conn.state, conn.backoff = False, "closed", 0.0
+            conn.due = time.time() + self.params.boot_s
 
     # ---- inputs ---------------------------------------------------------------------------
 
@@ -163,6 +264,11 @@ class RadioGateway(Service):
             return
         self._publish_events(vid, events)
 
+    def _on_log(self, vid: str, at: float, values: dict[str, float]) -> None:
+        if self.connections[vid].state == "open":
+            self.connections[vid].backoff = 0.0
+        self._publish_events(vid, self.channels[vid].health.on_log(values, at))
+
     def _on_packet(self, vid: str, raw: bytes) -> None:
         try:
             packet = crtp.decode_downlink(raw)
@@ -184,13 +290,24 @@ class RadioGateway(Service):
         if parsed is not None and parsed[0] in self.channels:
             self.channels[parsed[0]].on_pose(pose, time.time())
 
+    def _on_estop(self, stop: EmergencyStop, _key: str) -> None:
+        for vid, ch in self.channels.items():
+            if stop.release:
+                if ch.estopped:
+                    ch.clear_emergency_stop()
+                    self._reboot(vid, "emergency stop released")
+            elif not ch.estopped:
+                ch.emergency_stop()
+                self._publish_events(vid, [("emergency_stop", stop.reason or "operator's emergency stop")])
+
     # ---- outputs --------------------------------------------------------------------------
 
     def _figures(self) -> dict[str, float]:
         chans = self.channels.values()
-        return {"vehicles": len(self.channels), "links_ok": sum(ch.stats.link_ok for ch in chans),
+        return {"vehicles": len(self.channels), "links_ok": sum(ch.health.link_ok for ch in chans),
                 "taken_over": sum(ch.took_over for ch in chans),
-                "packets_dropped": sum(ch.stats.dropped for ch in chans)}
+                "skipped": sum(v for k, v in self.counters.items() if k.startswith("skipped:")),
+                "flight_skipped": self.scheduler.flight_skipped}
 
     def _sync_pose_subscriptions(self) -> None:
         """Poses only matter during a safety landing: subscribe while one lasts."""
@@ -205,18 +322,22 @@ class RadioGateway(Service):
         for kind, detail in events:
             log.info("%s: %s %s: %s", self.instance, vid, kind, detail)
             now = time.time()
-            self._events[vid].put(VehicleEvent(vid=vid, t=now, kind=kind, detail=detail))
+            self._events.put(vid, VehicleEvent(vid=vid, t=now, kind=kind, detail=detail))
             if kind in LINK_EVENTS:  # the owner reacts on telemetry: tell it now, not at the next sample
                 self._put_telemetry(vid, self.channels[vid], now)
 
     def _publish_telemetry(self, now: float) -> None:
         for vid, ch in self.channels.items():
-            if ch.stats.reporting(now):
+            if ch.health.reporting(now):
                 self._put_telemetry(vid, ch, now)
 
     def _put_telemetry(self, vid: str, ch: VehicleChannel, now: float) -> None:
-        st = ch.stats
-        self._telemetry[vid].put(Telemetry(
-            vid=vid, t=now, gateway=self.instance, vbat=st.vbat, link_quality=st.link_quality, sent=st.sent,
-            acked=st.acked, dropped=st.dropped, cmd_rate_hz=st.cmd_rate_hz, link_ok=st.link_ok,
-            owner=self.owners[vid] or "", stale_cmd=ch.took_over))
+        h, link = ch.health, self._links.get(vid)
+        self._telemetry.put(vid, Telemetry(
+            vid=vid, t=now, gateway=self.instance, vbat=h.vbat, link_quality=h.link_quality, sent=h.sent,
+            dropped=h.app_lost, cmd_rate_hz=ch.command_rate(now), link_ok=h.link_ok, owner=self.owners[vid] or "",
+            stale_cmd=ch.took_over, skipped=sum(v for k, v in self.counters.items() if k.startswith("skipped:")
+                                               and k.endswith(f":{vid}")),
+            supervisor=-1 if h.supervisor is None else h.supervisor, pm_state=h.pm_state, rssi=h.rssi,
+            capabilities=self.spec.vehicles[vid].capabilities, firmware=link.firmware if link else "",
+            estopped=ch.estopped))

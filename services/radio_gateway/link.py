@@ -1,38 +1,62 @@
-"""The radio side of the gateway: cflib link drivers, one per vehicle, and one sender thread per radio.
+"""The radio side of the gateway: one cflib `Crazyflie` per vehicle, and one sender thread per radio.
 
 `cflib.crtp.get_link_driver(uri)` picks the driver from the URI, so ``radio://0/80/2M/E7E7E7E7E7``
-(a Crazyradio: cflib's `RadioDriver`, several links sharing one dongle through its radio thread) and
-``udp://127.0.0.1:19850`` (a simulated Crazyflie: cflib's `UdpDriver`) go through exactly this code.
-A Crazyradio send blocks while the dongle is busy (`RadioDriver.send_packet` waits for its one-packet
-queue), so sends never run on the event loop: each tick's batch goes to the `RadioSender` thread,
-which sends it in order. Received packets are read by one thread per link and handed to
-`on_packet(vid, raw)` on that thread; the gateway moves them to its event loop.
+(a Crazyradio: cflib's `RadioDriver`, several links sharing one dongle) and ``udp://127.0.0.1:19850``
+(a simulated Crazyflie, `fleet sim`) go through exactly this code. The standard services do the
+slow work: cflib connects (protocol version, log and parameter tables; cached by CRC), the radios
+file's parameters are written, and one log block streams `pm.vbatMV`, `pm.state`,
+`supervisor.info` and `radio.rssi` (`LOG_VARIABLES`): battery, supervisor and link health come from
+the firmware as it is, with or without our wheel app. The firmware and device versions are asked
+once per connection (platform port, channel 1).
+
+The gateway's own traffic (setpoints, stops, notify-setpoint-stop, supervisor requests, wheel
+packets) goes out as raw packets through `Crazyflie.send_packet`: a Crazyradio send blocks while
+the dongle is busy, so sends never run on the event loop; each tick's batch goes to the
+`RadioSender` thread. A packet is skipped (and counted where it happens, `skipped:<why>:<vid>`)
+when the vehicle is not connected or its link still holds an unsent packet: cflib's `RadioDriver`
+keeps one packet per link and retries it until acknowledged, and its `send_packet` would block up
+to 2 s, stalling every vehicle of the radio behind one that went silent.
+
+Opening, closing and rebooting block (threads join, a power command waits for its answer): the
+gateway runs them off its loop. cflib's callbacks arrive on cflib's threads and are handed to the
+gateway's loop by the callbacks given here.
 """
 
 from __future__ import annotations
 
 import logging
 import queue
+import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 
 import cflib.crtp
+from cflib.crazyflie import Crazyflie
+from cflib.crazyflie.log import LogConfig
 from cflib.crtp.crtpstack import CRTPPacket
+from cflib.utils.power_switch import PowerSwitch
 
 from common.bus.pubsub import Counters
+from common.crazyflie import crtp
 
 log = logging.getLogger(__name__)
 
+LogCallback = Callable[[str, float, dict[str, float]], None]
+"""``on_log(vid, arrival time, {variable: value})`` on a cflib thread."""
 PacketCallback = Callable[[str, bytes], None]
-"""``on_packet(vid, raw)`` on a link thread: raw = header byte + payload."""
+"""``on_app(vid, raw)``: an app-channel packet (header byte + payload) on a cflib thread."""
+StateCallback = Callable[[str, str, str], None]
+"""``on_state(vid, state, detail)``: "connected", "failed", "lost", "closed", "info" on a cflib or worker thread."""
 ErrorCallback = Callable[[str, str], None]
-"""``on_error(vid, message)`` on a link or sender thread."""
+"""``on_error(vid, message)`` on the sender thread."""
 
-REOPEN_S = 1.0
-"""Seconds between attempts to open a link that failed to open (no dongle, bad URI)."""
-_RECEIVE_WAIT_S = 0.2
-_LINK_PORT = 0x0F
+LOG_VARIABLES: tuple[tuple[str, str], ...] = (
+    ("pm.vbatMV", "uint16_t"), ("pm.state", "int8_t"), ("supervisor.info", "uint16_t"), ("radio.rssi", "uint8_t"))
+"""The gateway's log block: battery (mV, power manager state), supervisor state bits, link RSSI."""
+TOC_CACHE = Path(tempfile.gettempdir()) / "fleet-toc-cache"
+"""Log and parameter tables by CRC, shared by every gateway of this machine (cflib's cache)."""
 _init_lock = threading.Lock()
 
 
@@ -43,88 +67,146 @@ def init_drivers() -> None:
             cflib.crtp.init_drivers()
 
 
-class CrtpLink:
-    """One vehicle's link. `send` is for the sender thread only; opening happens there too."""
+class VehicleLink:
+    """One vehicle's connection (module docstring). `params`: written once connected."""
 
-    def __init__(self, vid: str, uri: str, on_packet: PacketCallback, on_error: ErrorCallback) -> None:
+    def __init__(self, vid: str, uri: str, params: Mapping[str, float], log_period_ms: int, on_log: LogCallback,
+                 on_app: PacketCallback, on_state: StateCallback) -> None:
         self.vid = vid
         self.uri = uri
-        self._on_packet = on_packet
-        self._on_error = on_error
-        self._driver = None
-        self._next_open = 0.0
-        self._closed = threading.Event()
-        self._reader: threading.Thread | None = None
+        self.params = dict(params)
+        self.log_period_ms = log_period_ms
+        self._on_log, self._on_app, self._on_state = on_log, on_app, on_state
+        self._cf: Crazyflie | None = None
+        self._ready = threading.Event()
+        self._lock = threading.Lock()
+        self.firmware = ""
+        self.device = ""
 
-    def _open(self) -> bool:
-        now = time.monotonic()
-        if now < self._next_open or self._closed.is_set():
-            return False
-        self._next_open = now + REOPEN_S
+    @property
+    def ready(self) -> bool:
+        """Connected, tables fetched, parameters written, log block started."""
+        return self._ready.is_set()
+
+    # ---- lifecycle (blocking: run off the event loop) --------------------------------------------
+    def open(self) -> None:
+        """Start connecting; "connected" (or "failed") is reported through `on_state`."""
         init_drivers()
+        TOC_CACHE.mkdir(parents=True, exist_ok=True)
+        cf = Crazyflie(rw_cache=str(TOC_CACHE))
+        cf.fully_connected.add_callback(lambda _uri: self._connected(cf))
+        cf.connection_failed.add_callback(lambda _uri, msg: self._ended(cf, "failed", msg))
+        cf.connection_lost.add_callback(lambda _uri, msg: self._ended(cf, "lost", msg))
+        cf.appchannel.packet_received.add_callback(
+            lambda data: self._on_app(self.vid, bytes((crtp.PORT_PLATFORM << 4 | crtp.APP_CHANNEL,)) + bytes(data)))
+        cf.add_port_callback(crtp.PORT_PLATFORM, self._on_platform)
+        with self._lock:
+            self._cf = cf
         try:
-            driver = cflib.crtp.get_link_driver(self.uri, None, self._driver_error)
+            cf.open_link(self.uri)
         except Exception as exc:  # cflib raises plain Exceptions (no dongle, link already open, ...)
-            self._on_error(self.vid, f"cannot open {self.uri}: {exc}")
-            return False
-        if driver is None:
-            self._on_error(self.vid, f"no cflib driver for {self.uri}")
-            return False
-        self._driver = driver
-        self._reader = threading.Thread(target=self._read, name=f"crtp-rx {self.vid}", daemon=True)
-        self._reader.start()
-        log.info("%s: link %s open (%s)", self.vid, self.uri, driver.get_name())
-        return True
-
-    def _driver_error(self, message: str) -> None:
-        self._on_error(self.vid, message.splitlines()[0] if message else "link error")
-
-    def send(self, raw: bytes) -> bool:
-        """Send one packet (header byte + payload); False if the link is not open or still busy.
-
-        cflib's `RadioDriver` keeps one packet per link in `out_queue` and retries it until the
-        vehicle acknowledges; its `send_packet` would block up to 2 s on a full queue, stalling
-        every vehicle of the radio behind one that went silent. A busy link skips this packet."""
-        if self._driver is None and not self._open():
-            return False
-        pending = getattr(self._driver, "out_queue", None)
-        if pending is not None and pending.full():
-            return False
-        self._driver.send_packet(CRTPPacket(raw[0], raw[1:]))
-        return True
-
-    def _read(self) -> None:
-        driver = self._driver
-        while not self._closed.is_set():
-            try:
-                pk = driver.receive_packet(_RECEIVE_WAIT_S)
-            except Exception as exc:  # a driver failing mid-read: report and keep reading
-                self._on_error(self.vid, f"receive failed: {exc}")
-                self._closed.wait(_RECEIVE_WAIT_S)
-                continue
-            # the radio's empty acknowledgements come back as link-control packets: not worth a hand-over
-            if pk is not None and pk.header >> 4 != _LINK_PORT:
-                self._on_packet(self.vid, bytes((pk.header,)) + bytes(pk.data))
+            self._ended(cf, "failed", f"cannot open {self.uri}: {exc}")
 
     def close(self) -> None:
-        self._closed.set()
-        if self._reader is not None:
-            self._reader.join(timeout=2 * _RECEIVE_WAIT_S + 1.0)
-        if self._driver is not None:
+        """Close the link (cflib sends one zero setpoint first, as `close_link` always does)."""
+        with self._lock:
+            cf, self._cf = self._cf, None
+        self._ready.clear()
+        if cf is not None:
             try:
-                self._driver.close()
+                cf.close_link()
             except Exception as exc:
                 log.warning("%s: closing %s: %s", self.vid, self.uri, exc)
-            self._driver = None
+
+    def reboot(self) -> None:
+        """Close, then reboot the vehicle through its radio chip (cflib `PowerSwitch`)."""
+        self.close()
+        init_drivers()
+        switch = PowerSwitch(self.uri)
+        try:
+            switch.reboot_to_fw()
+        finally:
+            switch.close()
+
+    # ---- cflib callbacks (cflib's threads) -----------------------------------------------------------
+    def _connected(self, cf: Crazyflie) -> None:
+        if cf is not self._cf:
+            return
+        for name, value in self.params.items():
+            try:
+                cf.param.set_value(name, value)
+            except (KeyError, AttributeError, ValueError) as exc:
+                self._on_state(self.vid, "info", f"parameter {name} not set: {exc}")
+        missing = [name for name, _kind in LOG_VARIABLES if cf.log.toc.get_element_by_complete_name(name) is None]
+        self._start_log(cf)
+        for cmd in (1, 2):  # firmware version, device type
+            cf.send_packet(CRTPPacket(crtp.header(crtp.PORT_PLATFORM, 1), bytes((cmd,))))
+        self._ready.set()
+        detail = f"connected to {self.uri}" + (f"; no {', '.join(missing)} in its log table" if missing else "")
+        self._on_state(self.vid, "connected", detail)
+
+    def _start_log(self, cf: Crazyflie) -> None:
+        config = LogConfig("fleet", self.log_period_ms)
+        for name, kind in LOG_VARIABLES:
+            if cf.log.toc.get_element_by_complete_name(name) is not None:
+                config.add_variable(name, kind)
+        config.data_received_cb.add_callback(lambda _ts, data, _conf: self._on_log(self.vid, time.time(), data))
+        try:
+            cf.log.add_config(config)
+            config.start()
+        except (KeyError, AttributeError) as exc:
+            self._on_state(self.vid, "info", f"log block refused: {exc}")
+            return
+        old, self._log_config = getattr(self, "_log_config", None), config
+        if old is not None:
+            old.delete()
+
+    def refresh_log(self) -> None:
+        """Create the log block again: the firmware drops every block when its radio heard nothing for
+        a second (`log.c: logRunBlock()`, `radiolinkIsConnected()`), so after a blackout the old one
+        is gone. Also the probe of a silent link: the block streams again once the vehicle hears us."""
+        cf = self._cf
+        if cf is not None and self._ready.is_set():
+            self._start_log(cf)
+
+    def _ended(self, cf: Crazyflie, state: str, message: str) -> None:
+        if cf is self._cf:
+            self._ready.clear()
+            self._on_state(self.vid, state, message.splitlines()[0] if message else state)
+
+    def _on_platform(self, pk: CRTPPacket) -> None:
+        if pk.channel != 1 or not pk.data:
+            return
+        text = bytes(pk.data[1:]).decode(errors="replace").strip("\0")
+        if pk.data[0] == 1:
+            self.firmware = text
+        elif pk.data[0] == 2:
+            self.device = text
+        else:
+            return
+        self._on_state(self.vid, "info", f"{'firmware' if pk.data[0] == 1 else 'device'} {text}")
+
+    # ---- sending (the sender thread) ------------------------------------------------------------------
+    def send(self, raw: bytes) -> str | None:
+        """Send one packet (header byte + payload); why it was skipped, or None if it went out."""
+        cf = self._cf
+        if cf is None or not self._ready.is_set() or cf.link is None:
+            return "not_connected"
+        pending = getattr(cf.link, "out_queue", None)
+        if pending is not None and pending.full():
+            return "busy"
+        cf.send_packet(CRTPPacket(raw[0], raw[1:]))
+        return None
 
 
-Batch = Sequence[tuple[CrtpLink, bytes]]
+Batch = Sequence[tuple[VehicleLink, bytes]]
 
 
 class RadioSender:
     """Sends each tick's batch in order on its own thread. If the radio falls behind by more than
     `max_pending` batches, the oldest waiting batch is dropped (counted as ``radio_behind`` in
-    `counters`): a late setpoint is worth less than the next one."""
+    `counters`): a late setpoint is worth less than the next one. Skipped packets are counted as
+    ``skipped:<why>:<vid>``."""
 
     def __init__(self, name: str, on_error: ErrorCallback, counters: Counters, max_pending: int = 2) -> None:
         self._queue: queue.Queue[Batch | None] = queue.Queue()
@@ -147,9 +229,12 @@ class RadioSender:
         while (batch := self._queue.get()) is not None:
             for link, raw in batch:
                 try:
-                    link.send(raw)
+                    skipped = link.send(raw)
                 except Exception as exc:  # one bad link must not stop the radio
                     self._on_error(link.vid, f"send failed: {exc}")
+                    continue
+                if skipped is not None:
+                    self._counters.inc(f"skipped:{skipped}:{link.vid}")
 
     def close(self) -> None:
         self._queue.put(None)

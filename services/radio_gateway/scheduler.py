@@ -4,13 +4,14 @@ the slower driving commands had to be serialised through a "driving command swit
 Every tick (`tick_hz`) the radio earns ``budget_pps / tick_hz`` packet slots (a token bucket that
 holds at most two ticks' worth) and spends them, as one batch, in this order:
 
+0. an operator's emergency stop, to every vehicle, ahead of everything (it may overdraw the bucket);
 1. the driving command switch: one FIFO of vehicles whose wheel command is due, served at most
    `drive_hz` packets per second for all drivers together, one packet at a time;
-2. status requests, `status_hz` per vehicle, staggered; `probe_hz` for a vehicle that missed two
-   replies, until a reply comes or its link is judged lost (`LinkStats`);
-3. flight: one commander packet per flying (or landing, or stopping) vehicle, round-robin from where
-   the last tick stopped, with the slots left. When the budget is short, every flying vehicle's
-   rate drops equally instead of some starving.
+2. flight: one commander packet per flying (or landing, stopping, settling) vehicle, round-robin
+   from where the last tick stopped, with the slots left. When the budget is short, every flying
+   vehicle's rate drops equally instead of some starving;
+3. supervisor requests (arming, crash recovery) and the wheel app's status requests, `status_hz`
+   per vehicle with the app, staggered: with the slots flight left (they wait, setpoints do not).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from collections import deque
 from collections.abc import Sequence
 
 from common.deploy.radios import GatewayParams
-from services.radio_gateway.linkstats import Event
+from services.radio_gateway.health import Event
 from services.radio_gateway.vehicle import VehicleChannel
 
 Packet = tuple[str, bytes]
@@ -42,8 +43,6 @@ class Scheduler:
         self._status_period = 1.0 / params.status_hz
         n = max(len(self.channels), 1)
         self._status_due = {ch.vid: now + i * self._status_period / n for i, ch in enumerate(self.channels)}
-        self._probe_period = 1.0 / params.probe_hz
-        self._asked_at = dict.fromkeys(self._status_due, -float("inf"))
         self._rr = 0
         self._by_vid = {ch.vid: ch for ch in self.channels}
         self.flight_skipped = 0
@@ -57,10 +56,29 @@ class Scheduler:
         self._drive_credit = min(self._drive_credit + self.params.drive_hz * elapsed, 1.0)
         batch: list[Packet] = []
         events: list[tuple[str, Event]] = []
+        self._estop(batch)
         self._drive(now, batch)
-        self._status(now, batch)
         self._flight(now, batch, events)
+        self._requests(now, batch, events)
+        self._status(now, batch)
         return batch, events
+
+    def _estop(self, batch: list[Packet]) -> None:
+        for ch in self.channels:
+            raw = ch.estop_packet()
+            if raw is not None:
+                self.tokens -= 1.0
+                batch.append((ch.vid, raw))
+
+    def _requests(self, now: float, batch: list[Packet], events: list[tuple[str, Event]]) -> None:
+        for ch in self.channels:
+            if self.tokens < 1.0:
+                return
+            raw, caused = ch.request_packet(now)
+            events.extend((ch.vid, e) for e in caused)
+            if raw is not None:
+                self.tokens -= 1.0
+                batch.append((ch.vid, raw))
 
     def _take(self) -> bool:
         if self.tokens < 1.0:
@@ -83,14 +101,9 @@ class Scheduler:
     def _status(self, now: float, batch: list[Packet]) -> None:
         for ch in self.channels:
             due = self._status_due[ch.vid]
-            regular = now >= due
-            probe = (ch.stats.link_ok and ch.stats.silent_for(now) > 2 * self._status_period
-                     and now - self._asked_at[ch.vid] >= self._probe_period)
-            if (regular or probe) and self._take():
+            if ch.wheels and now >= due and self._take():
                 batch.append((ch.vid, ch.status_request(now)))
-                self._asked_at[ch.vid] = now
-                if regular:
-                    self._status_due[ch.vid] = max(due + self._status_period, now)
+                self._status_due[ch.vid] = max(due + self._status_period, now)
 
     def _flight(self, now: float, batch: list[Packet], events: list[tuple[str, Event]]) -> None:
         n = len(self.channels)

@@ -4,8 +4,9 @@ Modes:
 
 - FLIGHT: the owner's latest flight setpoint, resent every tick it gets a slot (a fresh one replaces
   it), so the firmware's commander watchdog (0.5 s level, 2 s motors off) never starves. The first
-  flight packet after the motors were off is a zero-thrust setpoint: the firmware keeps the thrust
-  locked until it sees one (crazyflie-firmware crtp_commander_rpyt.c, `thrustLocked`).
+  `stop_repeats` flight packets after the motors were off, or after a new connection, are zero-thrust
+  setpoints: the firmware keeps the thrust locked after boot until it sees one (crazyflie-firmware
+  crtp_commander_rpyt.c, `thrustLocked`), and one lost packet must not keep it locked.
 - DRIVE: the latest wheel command, through the driving command switch, when it changes and at
   least every `wheel_refresh_s` (the wheel watchdog stops after 0.5 s).
 - LANDING: the command went stale (older than `stale_s`) in flight: the gateway's own
@@ -17,11 +18,23 @@ Modes:
 - STOPPING: `stop_repeats` commander stops (motors off) and as many zero wheel commands (one lost
   packet would leave the wheels turning until the wheel watchdog), then IDLE.
   Entered on a StopSetpoint, after a landing, or when a wheel command goes stale.
-- IDLE: nothing to send but status requests.
+- IDLE: nothing to send but status requests (vehicles with the wheel app).
 
-A status reply that shows the motors running while the vehicle is driving or idle (every stop of
-its landing was lost: a congested radio drops whole batches) brings the stops back
-(`motors_restopped`), instead of leaving the motors spinning until the firmware's watchdog.
+After a flight ends (its stops went out) the vehicle is *settled*, whatever the mode: since firmware
+2023.06 the supervisor believes a vehicle flies for 2 s after its motors were last above idle, and a
+low-level setpoint followed by silence in that time trips the commander watchdog (0.5 s: level
+out) and then its timeout (2 s: motors off, Locked until a reboot; docs/firmware_model.md). So the
+gateway keeps sending stops every `settle_period_s` while the supervisor reports the vehicle flying
+(or for `settle_max_s` if it reports nothing), then notify-setpoint-stop (`stop_repeats` times):
+the high-level commander, idle, takes over and keeps the watchdog fed with its own null setpoints.
+
+A vehicle that needs arming (a Crazyflie 2.1 Brushless: `supervisor.info` says it can be armed, is
+not, and does not arm itself) gets an arming request when a flight command arrives; a crashed one a
+crash-recovery request. A STATUS of the wheel app that shows the motors running while the vehicle
+is driving or idle (every stop of its landing was lost: a congested radio drops whole batches)
+brings the stops back (`motors_restopped`). An operator's emergency stop (`emergency_stop`) sends
+the supervisor's emergency stop `estop_repeats` times before anything else and refuses every
+command until `clear_emergency_stop`.
 """
 
 from __future__ import annotations
@@ -36,8 +49,17 @@ from common.crazyflie import crtp
 from common.crazyflie.firmware import FIRMWARE_MIN_THRUST
 from common.crazyflie.thrust import thrust_command, thrust_newtons
 from common.deploy.radios import GatewayParams
+from services.radio_gateway.health import (
+    ARMED,
+    AUTO_ARM,
+    CAN_ARM,
+    CRASHED,
+    FLYING,
+    TUMBLED,
+    Event,
+    LinkHealth,
+)
 from services.radio_gateway.landing import SafeLanding
-from services.radio_gateway.linkstats import Event, LinkStats
 
 _UNLOCK = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=0)
 
@@ -67,14 +89,22 @@ class Drive(StrEnum):
     STOPPING = "stopping"
 
 
-class VehicleChannel:
-    """One vehicle's command state, safety and link statistics on the gateway."""
+UNLOCK_CHECK_S = 0.5
+"""Thrust commanded this long without the supervisor reporting flight means the thrust is locked."""
+REQUEST_EVERY_S = 0.5
+"""How often an arming or crash-recovery request is repeated while the supervisor has not obeyed."""
 
-    def __init__(self, vid: str, params: GatewayParams, now: float) -> None:
+
+class VehicleChannel:
+    """One vehicle's command state, safety and health on the gateway. `wheels`: it has the wheel
+    app (a flying car); without it wheel commands are refused and no STATUS is asked for."""
+
+    def __init__(self, vid: str, params: GatewayParams, now: float, wheels: bool = True) -> None:
         self.vid = vid
         self.params = params
+        self.wheels = wheels
         self.mode = Drive.IDLE
-        self.stats = LinkStats(now, params.link_timeout_s, params.lost_after_requests)
+        self.health = LinkHealth(now, params.link_timeout_s, params.log_period_s)
         self.landing: SafeLanding | None = None
         self.cmd_at = -float("inf")
         self.took_over = False
@@ -82,19 +112,34 @@ class VehicleChannel:
         self._flight: FlightSetpoint | None = None
         self._thrusts: deque[float] = deque(maxlen=HOVER_WINDOW)  # vertical thrust (N) of recent setpoints
         self._flight_raw = b""
-        self._unlock = False
+        self._unlocks_left = 0
+        self._lifting_since: float | None = None
         self._stops_left = 0
         self._wheels = (0.0, 0.0)
         self._wheels_sent: tuple[float, float] | None = None
         self._wheels_sent_at = -float("inf")
         self._wheel_zeros_left = 0
-        self._last_stop_sent = 0  # `stats.sent` when the last commander stop went out
+        self._last_stop_seq = 0  # `health.app_seq` when the last commander stop went out
+        self._flew = False
+        self._settle_from: float | None = None  # when the stops of the last flight ended
+        self._settle_sent = -float("inf")
+        self._notifies_left = 0
+        self._requested = -float("inf")
+        self.estop_left = 0
+        self.estopped = False
+        self.sent_setpoints = 0
+        """Flight and wheel packets handed to the link (the Telemetry's command rate)."""
+        self._rate_samples: deque[tuple[float, int]] = deque()
 
     # ---- commands -------------------------------------------------------------------------
 
     def command(self, setpoint: Setpoint, now: float) -> list[Event]:
         """Take the owner's setpoint (ValueError, nothing changed, if it cannot go on the wire;
         `Refused` during the safety landing unless it is a flight setpoint)."""
+        if self.estopped:
+            raise Refused("emergency_stop", "the operator's emergency stop: commands refused until it is released")
+        if isinstance(setpoint, WheelSetpoint) and not self.wheels:
+            raise Refused("no_wheels", f"{self.vid} has no wheels (capabilities without drive)")
         if self.mode == Drive.LANDING and not isinstance(setpoint, FlightSetpoint):
             raise Refused("while_landing", f"{type(setpoint).__name__} during the safety landing: "
                                            "landing on, motors off once landed")
@@ -104,7 +149,7 @@ class VehicleChannel:
             if self.mode == Drive.LANDING:
                 events.append(("cmd_resumed", "fresh flight command during the safety landing"))
             elif self.mode != Drive.FLIGHT:
-                self._unlock = True
+                self._unlocks_left = self.params.stop_repeats
                 self._thrusts.clear()  # a new flight
                 if self.mode == Drive.DRIVE:  # a driver taking off: zero wheels, repeated like a stop
                     self._wheels = (0.0, 0.0)
@@ -114,6 +159,8 @@ class VehicleChannel:
                 self._thrusts.append(thrust_newtons(setpoint.thrust) * math.cos(math.radians(setpoint.roll))
                                      * math.cos(math.radians(setpoint.pitch)))
             self._stops_left = 0  # flying again: pending stops are void (other modes finish them)
+            self._settle_from, self._notifies_left = None, 0
+            self._flew = True
             self._enter(Drive.FLIGHT)
         elif isinstance(setpoint, WheelSetpoint):
             crtp.encode_wheels(setpoint.left, setpoint.right)
@@ -145,15 +192,32 @@ class VehicleChannel:
         self._wheels = (0.0, 0.0)
         self._wheel_zeros_left = self.params.stop_repeats
 
+    def connected(self, was_flying: bool) -> None:
+        """A new connection (a reopened link, a rebooted vehicle): its firmware's thrust lock may be
+        on again (it is after every boot), so the next flight packets are the zero-thrust ones that
+        release it; not for a vehicle its supervisor last reported flying (a lock needs a reboot,
+        which would have brought it down)."""
+        if not was_flying:
+            self._unlocks_left = self.params.stop_repeats
+
+    def command_rate(self, now: float) -> float:
+        """Flight and wheel packets handed to the link per second, over about the last second."""
+        samples = self._rate_samples
+        samples.append((now, self.sent_setpoints))
+        while len(samples) > 2 and now - samples[1][0] >= 1.0:
+            samples.popleft()
+        (t0, c0), (t1, c1) = samples[0], samples[-1]
+        return (c1 - c0) / (t1 - t0) if t1 > t0 else 0.0
+
     def stale(self, now: float) -> bool:
         return now - self.cmd_at > self.params.stale_s
 
     def on_status(self, status: crtp.Status, now: float) -> list[Event]:
-        """Fold in a status reply; stop again motors that run while nothing here flies them."""
-        stale_before = self.stats.stale_replies
-        events = self.stats.on_status(status, now)
-        fresh = self.stats.stale_replies == stale_before
-        after_stops = status.echo_sent > self._last_stop_sent  # asked after the last stop went out
+        """Fold in a wheel-app STATUS; stop again motors that run while nothing here flies them."""
+        stale_before = self.health.stale_replies
+        events = self.health.on_status(status, now)
+        fresh = self.health.stale_replies == stale_before
+        after_stops = status.echo_seq > self._last_stop_seq  # asked after the last stop went out
         if (fresh and after_stops and status.flags & crtp.FLAG_MOTORS and self.mode in (Drive.DRIVE, Drive.IDLE)
                 and self._stops_left == 0):
             self._stops_left = self.params.stop_repeats
@@ -166,7 +230,7 @@ class VehicleChannel:
 
     def supervise(self, now: float) -> list[Event]:
         """Safety rules at `now`, before the tick's packets are chosen; the events they cause."""
-        events = self.stats.check(now)
+        events = self.health.check(now)
         age = now - self.cmd_at
         if self.mode == Drive.FLIGHT and self.stale(now):
             self.landing = SafeLanding(now, self._hover_setpoint(), self.params.landing, 1.0 / self.params.tick_hz)
@@ -181,15 +245,83 @@ class VehicleChannel:
 
     # ---- packets --------------------------------------------------------------------------
 
+    def emergency_stop(self) -> None:
+        """The operator's emergency stop: the supervisor's, `estop_repeats` times, then nothing."""
+        self.estopped = True
+        self.estop_left = self.params.estop_repeats
+        self._enter(Drive.IDLE)
+        self._stops_left = self._wheel_zeros_left = self._notifies_left = 0
+        self._settle_from = None
+
+    def clear_emergency_stop(self) -> None:
+        self.estopped = False
+        self.estop_left = 0
+
+    def estop_packet(self) -> bytes | None:
+        if self.estop_left <= 0:
+            return None
+        self.estop_left -= 1
+        return self._count(crtp.encode_emergency_stop())
+
+    def request_packet(self, now: float) -> tuple[bytes | None, list[Event]]:
+        """An arming request (flight wanted, the supervisor can arm and does not arm itself) or a
+        crash-recovery request (crashed, no longer tumbled), at most every `REQUEST_EVERY_S`."""
+        h = self.health
+        if self.estopped or now - self._requested < REQUEST_EVERY_S or h.supervisor is None:
+            return None, []
+        if self.mode in (Drive.FLIGHT, Drive.LANDING) and h.bit(CAN_ARM) and not h.bit(ARMED) and not h.bit(AUTO_ARM):
+            self._requested = now
+            return self._count(crtp.encode_arming(True)), [("arming", "supervisor can arm: arming request sent")]
+        if h.bit(CRASHED) and not h.bit(TUMBLED):
+            self._requested = now
+            return self._count(crtp.encode_crash_recovery()), [("crash_recovery", "crash-recovery request sent")]
+        return None, []
+
+    @property
+    def settling(self) -> bool:
+        return self._settle_from is not None or self._notifies_left > 0
+
     @property
     def wants_flight_slot(self) -> bool:
-        return self.mode in (Drive.FLIGHT, Drive.LANDING) or self._stops_left > 0
+        return self.mode in (Drive.FLIGHT, Drive.LANDING) or self._stops_left > 0 or self.settling
+
+    def _settle_packet(self, now: float) -> bytes | None:
+        """After a flight: stops while the supervisor still believes it flies, then notify-setpoint-stop."""
+        if self._settle_from is not None:
+            flying = self.health.bit(FLYING)
+            waited = now - self._settle_from
+            if (flying is None and waited < self.params.settle_max_s) or (flying and waited < 2 * self.params.settle_max_s):
+                if now - self._settle_sent < self.params.settle_period_s - 1e-6:
+                    return None
+                self._settle_sent = now
+                return self._count(crtp.encode_stop())
+            self._settle_from = None
+            self._notifies_left = self.params.stop_repeats
+        if self._notifies_left > 0:
+            self._notifies_left -= 1
+            return self._count(crtp.encode_notify_setpoint_stop())
+        return None
+
+    def _check_unlocked(self, now: float) -> None:
+        """Thrust commanded for `UNLOCK_CHECK_S` and the supervisor still says not flying: the
+        zero-thrust packets were all lost (a congested radio drops whole runs): send them again."""
+        lifting = self._flight is not None and self._flight.thrust >= FIRMWARE_MIN_THRUST
+        if not lifting or self._unlocks_left:
+            self._lifting_since = None
+            return
+        if self._lifting_since is None:
+            self._lifting_since = now
+        elif now - self._lifting_since > UNLOCK_CHECK_S and self.health.bit(FLYING) is False:
+            self._unlocks_left = self.params.stop_repeats
+            self._lifting_since = None
 
     def flight_packet(self, now: float) -> tuple[bytes | None, list[Event]]:
         """The commander packet for this tick's slot (None: nothing to send) and any events."""
         if self.mode == Drive.FLIGHT:
-            if self._unlock:
-                self._unlock = False
+            self.sent_setpoints += 1
+            self._check_unlocked(now)
+            if self._unlocks_left > 0:  # repeated: one lost packet must not leave the thrust locked
+                self._unlocks_left -= 1
                 return self._count(crtp.encode_setpoint(_UNLOCK)), []
             return self._count(self._flight_raw), []
         if self.mode == Drive.LANDING:
@@ -208,9 +340,12 @@ class VehicleChannel:
             if self._stops_left == 0 and self.mode == Drive.STOPPING and not self._wheel_zeros_left:
                 self.mode = Drive.IDLE
             raw = self._count(crtp.encode_stop())
-            self._last_stop_sent = self.stats.sent
+            self._last_stop_seq = self.health.app_seq
+            if self._stops_left == 0 and self._flew:
+                self._flew = False
+                self._settle_from, self._settle_sent = now, now
             return raw, events
-        return None, events
+        return self._settle_packet(now), events
 
     def wheel_due(self, now: float) -> bool:
         """Whether the driving command switch should carry a wheel packet for this vehicle."""
@@ -229,11 +364,17 @@ class VehicleChannel:
             self._wheel_zeros_left -= 1
             if not self._wheel_zeros_left and self.mode == Drive.STOPPING and self._stops_left == 0:
                 self.mode = Drive.IDLE
-        return self._count(crtp.encode_wheels(*self._wheels))
+        self.sent_setpoints += 1
+        return self._count_app(crtp.encode_wheels(*self._wheels))
 
     def status_request(self, now: float) -> bytes:
-        return crtp.encode_status_request(self.stats.request(now))
+        self.health.app_seq += 1
+        return self._count(crtp.encode_status_request(self.health.app_seq))
+
+    def _count_app(self, raw: bytes) -> bytes:
+        self.health.app_seq += 1
+        return self._count(raw)
 
     def _count(self, raw: bytes) -> bytes:
-        self.stats.sent += 1
+        self.health.sent += 1
         return raw

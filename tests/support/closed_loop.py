@@ -116,7 +116,7 @@ def run(ctrl: VehicleController, sim: SimFlyingCar, until: float, mocap: Mocap |
             ctrl.on_pose(pose)
         if telemetry_every and k % telemetry_every == 0:
             ctrl.on_telemetry(Telemetry(vid=sim.vid, t=now, gateway="sim", vbat=sim.battery.vbat,
-                                        link_quality=1.0, sent=k, acked=k, dropped=0,
+                                        link_quality=1.0, sent=k, dropped=0,
                                         cmd_rate_hz=1.0 / dt), now)
         cmd, _ = ctrl.tick(now)
         sim.apply(cmd.setpoint, now)

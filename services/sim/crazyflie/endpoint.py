@@ -1,12 +1,19 @@
-"""A simulated Crazyflie: a UDP endpoint speaking the CRTP packets of cflib's UDP driver (one packet
-per datagram), the firmware's side of our wheel protocol, and `SimFlyingCar` physics.
+"""A simulated Crazyflie at a `udp://` URI: cflib's UDP driver's datagrams (one CRTP packet each) in
+and out, the firmware model (`firmware/system.py`) behind them, `SimFlyingCar` physics under it.
 
-The gateway cannot tell it from a real vehicle: the same commander setpoints (port 3), stop
-(port 7) and wheel-protocol packets (port 0x0D channel 2) go in; status replies come out. Every
-packet crosses the radio's link model (`SimRadio`) both ways. The physics advances in fixed steps
-of `PhysicsParams.max_substep` (2 ms: 500 Hz) up to the wall clock, whenever a packet arrives and
-whenever the simulator publishes truth; a setpoint takes effect at the step it arrives in, as it
-would at the firmware's next control loop.
+Any cflib client connects to it as to a real vehicle (`Crazyflie`, `SyncCrazyflie`, `LogConfig`,
+parameters, the high-level commander, `PowerSwitch`). Replies go to the address a request came
+from; what the vehicle sends on its own (log data, console) goes to the last address that sent it a
+packet. Every packet crosses the radio's link model (`SimRadio`) both ways. Over a Crazyradio cflib
+resends a packet until the vehicle acknowledges it; over UDP it never resends, and one lost reply
+in its connect sequence or a parameter update waits forever. So the request/reply traffic (ports
+2, 4, 5 TOC and control, 8, 9, 13 channels 0-1, 15 channels 1 and 3) is delayed but never lost; the
+streams (setpoints, external positions, log data, pings, the app channel) are lost at the link's
+rate. A 1-byte 0xFF (cflib's scan) is answered with 0xFF.
+
+The physics advances in steps of `PhysicsParams.max_substep` (2 ms) up to the wall clock whenever a
+packet arrives and whenever the simulator publishes truth, running the firmware's periodic work at
+each 10 ms boundary; a setpoint takes effect at the step it arrives in.
 """
 
 from __future__ import annotations
@@ -17,74 +24,91 @@ import math
 import time
 from collections.abc import Callable
 
-from common.bus.messages import FlightSetpoint, WheelSetpoint
 from common.crazyflie import crtp
-from common.crazyflie.firmware import FIRMWARE_MIN_THRUST, WATCHDOG_CUT_S, WATCHDOG_LEVEL_S
+from services.sim.crazyflie.firmware.system import CF21, TICK_S, CrazyflieFirmware, Platform
 from services.sim.crazyflie.physics import SimFlyingCar
 from services.sim.crazyflie.radio import SimRadio
 
 log = logging.getLogger(__name__)
 
 EventCallback = Callable[[str, str, str], None]
-"""``on_event(vid, kind, detail)``: something the firmware would notice (watchdogs)."""
+"""``on_event(vid, kind, detail)``: something the firmware would notice (supervisor changes)."""
 
 Address = tuple[str, int]
 
+_RELIABLE_PORTS = {crtp.PORT_PARAM, crtp.PORT_MEM, crtp.PORT_HIGH_LEVEL, crtp.PORT_SUPERVISOR}
+
+
+def reliable(raw: bytes) -> bool:
+    """A request or reply cflib waits for (module docstring): never lost in the link model."""
+    port, ch = raw[0] >> 4, raw[0] & 0x03
+    return (port in _RELIABLE_PORTS or (port == crtp.PORT_LOG and ch in (0, 1))
+            or (port == crtp.PORT_PLATFORM and ch in (0, 1)) or (port == crtp.PORT_LINK and ch in (1, 3)))
+
 
 class SimCrazyflie(asyncio.DatagramProtocol):
-    """One simulated vehicle behind `radio`. `clock` is wall time (epoch s): the car's clock too."""
+    """One simulated vehicle behind `radio`. `clock` is wall time (epoch s): the car's clock too.
+    `wheels`: the wheel app is fitted (a flying car; False for a stock Crazyflie)."""
 
     def __init__(self, car: SimFlyingCar, radio: SimRadio, on_event: EventCallback | None = None,
-                 clock: Callable[[], float] = time.time) -> None:
+                 clock: Callable[[], float] = time.time, platform: Platform = CF21, wheels: bool = True) -> None:
         self.car = car
         self.vid = car.vid
         self.radio = radio
         self.on_event = on_event
         self.clock = clock
         self.step_s = car.params.max_substep
-        self.received = 0
-        self.setpoints = 0
-        self.flight_setpoints = 0
-        self.malformed = 0
-        self.last_flight_at: float | None = None
-        self.max_flight_gap = 0.0
-        """Longest gap (s) between two flight setpoints while the motors were armed."""
-        self.watchdog_levels = 0
-        self.watchdog_cuts = 0
-        self.wheel_watchdogs = 0
+        self.firmware = CrazyflieFirmware(car, platform, wheels, on_event=self._event)
         self.hardest_touchdown = 0.0
         """Fastest touchdown so far (m/s, `SimFlyingCar.last_impact_speed`): above ~1 m/s a crash."""
         self.blacked_out = 0
         """Packets (both ways) lost to an injected radio blackout (`blackout`)."""
+        self.flight_setpoints = 0
+        self.last_flight_at: float | None = None
+        self.max_flight_gap = 0.0
+        """Longest gap (s) between two flight setpoints while the motors ran."""
+        self.watchdog_levels = 0
+        """Times the supervisor levelled the vehicle out for want of setpoints (WarningLevelOut), all boots."""
+        self.watchdog_cuts = 0
+        """Times it cut the motors in the air (ExceptFreeFall: watchdog timeout or emergency stop), all boots."""
         self._blackout_until = -math.inf
-        self._armed = False
-        self._wheels_on = False
-        self._wheels_at = -math.inf
-        self._latched_flags = 0
-        self._watchdog_stage = 0
+        self._next_tick = car.t + TICK_S
+        self._peer: Address | None = None
         self._transport: asyncio.DatagramTransport | None = None
 
-    # ---- transport ------------------------------------------------------------------------
+    # ---- what tests and the service read ----------------------------------------------------------
+    @property
+    def wheel_watchdogs(self) -> int:
+        app = self.firmware.app
+        return app.watchdog_trips if app is not None else 0
 
+    @property
+    def received(self) -> int:
+        return self.firmware.received
+
+    # ---- transport ------------------------------------------------------------------------
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self._transport = transport  # type: ignore[assignment]  # a datagram endpoint's transport
 
     def blackout(self, until: float) -> None:
-        """Fault injection (docs/reliability.md): every packet to or from this vehicle is lost until
-        `until` (this clock), as when it flies out of the radio's range."""
+        """Fault injection (docs/reliability.md): the vehicle is out of the radio's range until `until`
+        (this clock): every stream packet to or from it is lost, and the requests and replies cflib
+        waits for arrive when the blackout ends (over a Crazyradio cflib resends them until then)."""
         self._blackout_until = until
 
-    def _blacked_out(self, now: float) -> bool:
+    def datagram_received(self, data: bytes, addr: Address) -> None:
+        if not data:
+            return
+        now = self.clock()
         if now < self._blackout_until:
             self.blacked_out += 1
-            return True
-        return False
-
-    def datagram_received(self, data: bytes, addr: Address) -> None:
-        now = self.clock()
-        if self._blacked_out(now):
+            if reliable(data):  # cflib resends it until acknowledged: it arrives once the blackout ends
+                asyncio.get_running_loop().call_later(self._blackout_until - now, self.datagram_received, data, addr)
             return
-        at = self.radio.uplink(now)
+        if data == crtp.NULL_PACKET:  # cflib's scan, or a radio's poll: the link answers
+            self._reply(crtp.NULL_PACKET, addr)
+            return
+        at = self.radio.uplink(now, reliable(data))
         if at is not None:
             asyncio.get_running_loop().call_later(max(at - now, 0.0), self._deliver, data, addr)
 
@@ -98,90 +122,53 @@ class SimCrazyflie(asyncio.DatagramProtocol):
 
     def _reply(self, raw: bytes, addr: Address) -> None:
         now = self.clock()
-        if self._blacked_out(now):
+        if now < self._blackout_until:
+            self.blacked_out += 1
+            if reliable(raw):
+                asyncio.get_running_loop().call_later(self._blackout_until - now, self._reply, raw, addr)
             return
-        at = self.radio.downlink(now)
+        at = self.radio.downlink(now, reliable(raw))
         if at is not None:
             asyncio.get_running_loop().call_later(max(at - now, 0.0), self._send, raw, addr)
 
-    # ---- firmware -------------------------------------------------------------------------
-
+    # ---- time and packets -----------------------------------------------------------------
     def advance(self, now: float) -> None:
-        """Step the physics in whole steps up to `now` and watch the commander watchdog."""
-        steps = int((now - self.car.t) / self.step_s)
+        """Step the physics in whole steps up to `now`, the firmware's periodic work at each tick."""
+        while self._next_tick <= now:
+            self._step_to(self._next_tick)
+            for raw in self.firmware.tick(self._next_tick):
+                if self._peer is not None:
+                    self._reply(raw, self._peer)
+            self._next_tick += TICK_S
+        self._step_to(now)
+
+    def _step_to(self, t: float) -> None:
+        steps = int((t - self.car.t) / self.step_s + 1e-6)
         if steps > 0:
             self.car.step(steps * self.step_s)
             self.hardest_touchdown = max(self.hardest_touchdown, self.car.last_impact_speed)
-        self._watch(self.car.t)
-
-    def _watch(self, t: float) -> None:
-        if self._armed and self.last_flight_at is not None:
-            age = t - self.last_flight_at
-            if age > WATCHDOG_CUT_S and self._watchdog_stage < 2:
-                self._watchdog_stage = 2
-                self.watchdog_cuts += 1
-                self._latched_flags |= crtp.FLAG_WATCHDOG_CUT
-                self._event("sim_watchdog_cut", f"no setpoint for {age:.2f} s: motors stopped")
-            elif age > WATCHDOG_LEVEL_S and self._watchdog_stage < 1:
-                self._watchdog_stage = 1
-                self.watchdog_levels += 1
-                self._latched_flags |= crtp.FLAG_WATCHDOG_LEVEL
-                self._event("sim_watchdog_level", f"no setpoint for {age:.2f} s: attitude levelled")
-        if self._wheels_on and t - self._wheels_at > self.car.params.wheel_watchdog_s:
-            self._wheels_on = False
-            self.wheel_watchdogs += 1
-            self._latched_flags |= crtp.FLAG_WHEEL_WATCHDOG
-
-    def _event(self, kind: str, detail: str) -> None:
-        log.warning("%s: %s (%s)", self.vid, kind, detail)
-        if self.on_event is not None:
-            self.on_event(self.vid, kind, detail)
 
     def _deliver(self, data: bytes, addr: Address) -> None:
         self.advance(self.clock())
-        t = self.car.t
-        try:
-            packet = crtp.decode_uplink(data)
-        except crtp.CrtpError as exc:
-            self.malformed += 1
-            if self.malformed == 1:
-                log.warning("%s: dropped malformed packet %s: %s (further ones only counted)", self.vid,
-                            data[:8].hex(), exc)
-            return
-        if isinstance(packet, crtp.Null):
-            self._reply(crtp.NULL_PACKET, addr)
-            return
-        self.received += 1
-        if isinstance(packet, crtp.StatusRequest):
-            self._reply(crtp.encode_status(self._status(packet.sent)), addr)
-            return
-        self.setpoints += 1
-        if isinstance(packet, FlightSetpoint):
-            self._flight(packet, t)
-        elif isinstance(packet, crtp.Stop):
-            self._flight(FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=0), t)
-        else:
-            self.car.apply(WheelSetpoint(left=packet.left_mm_s / 1000.0, right=packet.right_mm_s / 1000.0), t)
-            self._wheels_on = packet.left_mm_s != 0 or packet.right_mm_s != 0
-            self._wheels_at = t
+        port = data[0] >> 4
+        if port != crtp.PORT_LINK or data[0] & 0x03 != 3:
+            self._peer = addr
+        if port == crtp.PORT_COMMANDER:
+            self._count_flight_setpoint(self.car.t)
+        for raw in self.firmware.receive(data, self.car.t):
+            self._reply(raw, addr)
 
-    def _flight(self, sp: FlightSetpoint, t: float) -> None:
-        if self._armed and self.last_flight_at is not None:
+    def _count_flight_setpoint(self, t: float) -> None:
+        if self.last_flight_at is not None and self.car.thrust > 0.0:
             self.max_flight_gap = max(self.max_flight_gap, t - self.last_flight_at)
-        self.car.apply(sp, t)
         self.flight_setpoints += 1
         self.last_flight_at = t
-        self._armed = sp.thrust >= FIRMWARE_MIN_THRUST
-        self._watchdog_stage = 0
 
-    def _status(self, echo_sent: int) -> crtp.Status:
-        car = self.car
-        flags = self._latched_flags
-        self._latched_flags = 0
-        if car.flight_command()[3] > 0:  # what the firmware commands, not the props spinning down
-            flags |= crtp.FLAG_MOTORS
-        if car.airborne:
-            flags |= crtp.FLAG_FLYING
-        return crtp.Status(echo_sent=echo_sent, received=self.received, setpoints=self.setpoints,
-                           vbat_mv=round(car.battery.vbat * 1000.0), wheel_left_mm_s=round(car.wheel_left * 1000.0),
-                           wheel_right_mm_s=round(car.wheel_right * 1000.0), flags=flags)
+    def _event(self, kind: str, detail: str) -> None:
+        if kind == "sim_watchdog_level":
+            self.watchdog_levels += 1
+        elif kind == "sim_watchdog_cut":
+            self.watchdog_cuts += 1
+        log.warning("%s: %s (%s)", self.vid, kind, detail)
+        if self.on_event is not None:
+            self.on_event(self.vid, kind, detail)

@@ -28,6 +28,7 @@ from common.bus.stats import publish_stats
 from common.deploy.radios import MocapModel, RadiosFile, udp_address
 from common.domain.vehicle_model import VehicleModel
 from services.sim.crazyflie.endpoint import SimCrazyflie
+from services.sim.crazyflie.firmware.system import CF21, CF21_BRUSHLESS
 from services.sim.crazyflie.mocap import SimMocap
 from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
 from services.sim.crazyflie.radio import SimRadio
@@ -83,7 +84,9 @@ class SimService(Service):
                     log.info("sim: %s is a real vehicle (%s), not simulated", vid, link.uri)
                     continue
                 car = SimFlyingCar(vid, self.model, self.params, pos=link.start, yaw=link.yaw, t=now)
-                cf = self.vehicles[vid] = SimCrazyflie(car, radio, self._on_event)
+                platform = CF21_BRUSHLESS if link.firmware == "cf21-brushless" else CF21
+                cf = self.vehicles[vid] = SimCrazyflie(car, radio, self._on_event, platform=platform,
+                                                       wheels=link.wheels)
                 await loop.create_datagram_endpoint(lambda cf=cf: cf, local_addr=udp_address(link.uri))
         log.info("sim: %d vehicles on radios %s", len(self.vehicles), ", ".join(self.selected))
 

@@ -1,0 +1,36 @@
+"""The gateway's packets read as the firmware reads them, independently of the encoder under test
+(`common.crazyflie.crtp`): RPYT setpoints, stops, notify-setpoint-stop, supervisor requests, and the
+wheel protocol's app-channel messages."""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+from common.bus.messages import FlightSetpoint
+from common.crazyflie import crtp
+
+
+@dataclass(frozen=True)
+class Notify:
+    """notify-setpoint-stop (port 7, channel 1)."""
+
+
+@dataclass(frozen=True)
+class Supervisor:
+    """A supervisor request (port 9, channel 1): 1 arm, 2 crash recovery, 3 emergency stop."""
+
+    cmd: int
+
+
+def decode(raw: bytes) -> object:
+    """The gateway's packets, read as the firmware reads them (independently of the encoder)."""
+    port, ch, payload = raw[0] >> 4, raw[0] & 3, raw[1:]
+    if port == 3:
+        roll, pitch, yawrate, thrust = struct.unpack("<fffH", payload)
+        return FlightSetpoint(roll=roll, pitch=-pitch, yawrate=yawrate, thrust=thrust)
+    if port == 7:
+        return crtp.Stop() if ch == 0 and payload == b"\0" else Notify()
+    if port == 9:
+        return Supervisor(payload[0])
+    return crtp.decode_app_uplink(payload)
