@@ -9,14 +9,19 @@ import json
 import os
 import signal
 import time
+from pathlib import Path
 
 import pytest
 
 from common.deploy.radios import LinkModel
+from common.domain.planfile import Task
+from common.domain.scenario import read_scenario
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from tests.support.fleet_faults import TOWN_TASKS
 from tests.support.service_logs import service_warnings
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _pid_of(run_dir, instance: str) -> int:
@@ -81,3 +86,25 @@ def test_ten_percent_packet_loss_keeps_tracking_within_bounds(tmp_path) -> None:
         assert r.rms_error("ground") <= 0.03, r
         assert r.rms_error("air") <= 0.05, r
     assert result.vehicles["cf1"].samples["air"] > 100  # it flew
+
+
+@pytest.mark.timeout(240)
+def test_stock_crazyflies_fly_a_fly_only_mission(tmp_path) -> None:
+    """Issue 14: stock firmware, no wheel app, no STATUS replies: the mission learns each vehicle's
+    capabilities from its gateway, the planner keeps them in the air, every vehicle arrives."""
+    scenario = read_scenario(REPO / "maps" / "scenarios" / "town_fly.yaml")
+    tasks = {vid: Task(start=t.start, goal=t.goal) for vid, t in scenario.tasks.items()}  # the scenario says nothing
+    spec = MissionSpec(map="town", tasks=tasks, planner="sipp", time_limit=20)
+    with local_fleet("town", dict(scenario.tasks), tmp_path / "run", executors=1, fleet="stock") as fleet:
+        runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
+        asyncio.run(runner.run())
+    result = runner.result
+    assert result is not None
+    print(result.summary())
+    assert result.ok and result.contacts == 0, result.summary()
+    assert result.plan is not None and all(t.capabilities == "fly" for t in result.plan.tasks.values())
+    kinds = {k for _u, _v, k in result.plan.graph.edges}
+    assert "drive" in kinds  # the map has roads; the vehicles did not use them:
+    edge = {(u, v): k for u, v, k in result.plan.graph.edges}
+    for path in result.plan.paths.values():
+        assert all(edge[(a.node, b.node)] != "drive" for a, b in zip(path, path[1:], strict=False) if a.node != b.node)

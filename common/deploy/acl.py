@@ -71,7 +71,7 @@ ROLES: dict[str, Role] = {
         watch=("alive/executor/*",)),
     "planner": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan"), serve=("planner/plan", "planner/graph")),
     "gateway": Role(publish=("vehicle/*/telemetry", "vehicle/*/event"),
-                    subscribe=("vehicle/*/cmd", "vehicle/*/pose"), watch=("alive/executor/*",)),
+                    subscribe=("vehicle/*/cmd", "vehicle/*/pose", "estop"), watch=("alive/executor/*",)),
     "sim": Role(publish=("sim/truth/*", "sim/mocap", "vehicle/*/event"), subscribe=("sim/fault/*",)),
     "mocap": Role(publish=("vehicle/*/pose", "vehicle/*/event"), subscribe=("sim/mocap",)),
     "telemetry": Role(subscribe=("vehicle/*/plan", "vehicle/*/state", "vehicle/*/telemetry", "sim/truth/*"),
@@ -80,7 +80,7 @@ ROLES: dict[str, Role] = {
     "team-sim": Role(publish=("vehicle/*/action_status", "sim/truth/*"), subscribe=("vehicle/*/action",)),
     # the operator: runs missions, watches everything, injects simulator faults; never commands a vehicle
     "mission": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan", "mission/*/start", "mission/*/abort",
-                             "sim/fault/*"),
+                             "sim/fault/*", "estop"),
                     subscribe=("**",), query=("planner/plan", "planner/graph"), watch=("alive/**",)),
 }
 

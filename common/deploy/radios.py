@@ -30,6 +30,7 @@ import yaml
 from common.bus.keys import check_chunk
 from common.deploy.compose import interpolate
 from common.domain.mapfile import decode_yaml, read_text
+from common.domain.vehicle_model import Capabilities
 from common.errors import InputError
 
 _Strict = {"frozen": True, "forbid_unknown_fields": True}
@@ -128,8 +129,6 @@ class MocapModel(msgspec.Struct, **_Strict):
     seed: int = 0
 
 
-Capabilities = Literal["fly+drive", "fly", "drive"]
-"""What a vehicle can do (DESIGN.md "Vehicles"): a flying car, a stock Crazyflie, a ground robot."""
 FirmwarePlatform = Literal["cf21", "cf21-brushless"]
 
 

@@ -152,7 +152,8 @@ def load_map(name_or_path: str | Path) -> MapSpec:
 
 def spot_pose(spec: MapSpec, spot: str, source: str = "") -> tuple[float, float, float, float]:
     """Where a vehicle starting at `spot` stands: (x, y, z, yaw). A parked car faces the road node
-    its spot leads to (the graph's access edge, §V-A); on a helipad it faces +x."""
+    its spot leads to (the graph's access edge, §V-A); on a helipad or a road node (where a vehicle
+    that only flies starts) it faces +x."""
     for p in spec.parking:
         if p.id == spot:
             road = spec.roads.nodes[p.road]
@@ -160,7 +161,10 @@ def spot_pose(spec: MapSpec, spot: str, source: str = "") -> tuple[float, float,
     for h in spec.helipads:
         if h.id == spot:
             return h.x, h.y, h.z, 0.0
-    raise InputError(source or spec.name, spot, f"not a parking spot or helipad of map {spec.name!r}")
+    if spot in spec.roads.nodes:
+        node = spec.roads.nodes[spot]
+        return node.x, node.y, 0.0, 0.0
+    raise InputError(source or spec.name, spot, f"not a parking spot, helipad or road node of map {spec.name!r}")
 
 
 def _check_finite(value: object, field: str, source: str) -> None:

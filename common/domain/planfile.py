@@ -18,7 +18,7 @@ from typing import Any, Literal
 
 import msgspec
 
-from common.domain.vehicle_model import EdgeKind, NodeKind, VehicleModel
+from common.domain.vehicle_model import Capabilities, EdgeKind, NodeKind, VehicleModel
 from common.errors import InputError
 
 PLAN_FORMAT = "fleet-plan/1"
@@ -50,9 +50,13 @@ class PlanGraph(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     edges: list[tuple[str, str, EdgeKind]]
 
 
-class Task(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+class Task(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_defaults=True):
+    """A vehicle's start and goal node; `capabilities` restricts the edge kinds it may use
+    (`CAPABLE_EDGES`: a stock Crazyflie only flies, a ground robot only drives)."""
+
     start: str
     goal: str
+    capabilities: Capabilities = "fly+drive"
 
 
 class PathEntry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -17,6 +17,14 @@ EdgeKind = Literal["drive", "takeoff", "fly", "land"]
 EDGE_KINDS: tuple[EdgeKind, ...] = ("drive", "takeoff", "fly", "land")
 NodeKind = Literal["parking", "land", "waypoint", "air", "helipad"]
 NODE_KINDS: tuple[NodeKind, ...] = ("parking", "land", "waypoint", "air", "helipad")
+Capabilities = Literal["fly+drive", "fly", "drive"]
+"""What a vehicle can do (DESIGN.md "Vehicles"): a flying car, a stock Crazyflie, a ground robot."""
+CAPABLE_EDGES: dict[Capabilities, frozenset[EdgeKind]] = {
+    "fly+drive": frozenset(EDGE_KINDS),
+    "fly": frozenset(("takeoff", "fly", "land")),
+    "drive": frozenset(("drive",)),
+}
+"""The edge kinds each kind of vehicle may traverse: the planners use no other."""
 
 
 class Speeds(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -31,6 +31,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=cmd_mission_run)
     _register_team(msub)
     _register_demo(sub)
+    p = sub.add_parser("estop", help="emergency stop: every gateway cuts every vehicle's motors (operator role)")
+    p.add_argument("--reason", default="operator's emergency stop", help="said in every vehicle's event")
+    p.add_argument("--release", action="store_true", help="accept commands again; reboot the vehicles it locked")
+    add_zenoh_args(p, default_instance="operator")
+    p.set_defaults(handler=lazy_handler("services.mission.estop:cmd_estop"))
 
 
 def _register_team(msub: argparse._SubParsersAction) -> None:
@@ -56,7 +61,9 @@ def _register_team(msub: argparse._SubParsersAction) -> None:
 
 def _register_demo(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="plan and fly the 8-vehicle town mission in simulation, one command")
-    p.add_argument("--scenario", help="scenario YAML (default: maps/scenarios/town_8.yaml)")
+    p.add_argument("--scenario", help="scenario YAML (default: maps/scenarios/town_8.yaml, or town_fly.yaml)")
+    p.add_argument("--vehicles", choices=["fly+drive", "fly"], default="fly+drive",
+                   help="flying cars (the paper's), or stock Crazyflies that only fly (no wheel app)")
     p.add_argument("--planner", choices=["sipp", "ilp"], default="sipp")
     p.add_argument("--mu", type=float, default=0.5)
     p.add_argument("--time-limit", type=float, default=30.0)

@@ -6,7 +6,8 @@ ask for, how to hand the answer out, when every vehicle has it and when the miss
 The skeleton, one short-lived service (`alive/mission/<id>`):
 
 1. fail fast when no executor or no planner is alive;
-2. query `planner/plan` (the planner also publishes the plans it makes for a mission);
+2. `prepare` (a flying-car mission learns each vehicle's capabilities from its gateway), then query
+   `planner/plan` (the planner also publishes the plans it makes for a mission);
 3. hand the plans out and wait until the executors of every vehicle report them loaded;
 4. publish `MissionStart(t0)` `start_lead_s` ahead; plans and start are re-sent every `RESEND_S`
    while the mission runs (zenoh keeps no history: late joiners and take-overs need them);
@@ -84,6 +85,9 @@ class MissionClient(Service, Generic[R]):
         self.started = 0.0
 
     # ---- hooks ------------------------------------------------------------------------------------
+    async def prepare(self) -> None:
+        """Before the plan request: learn what the plan needs from the live fleet."""
+
     def plan_request(self) -> PlanRequest:
         """What to ask the planner for (with this mission's id, so that it publishes the plans)."""
         raise NotImplementedError
@@ -143,6 +147,7 @@ class MissionClient(Service, Generic[R]):
             return self.conclude(False, "no executor is alive: start executors (fleet executor / fleet up)")
         if not (await self.watch_alive("planner")).instances:
             return self.conclude(False, "no planner is alive: start one (fleet planner / fleet up)")
+        await self.prepare()
         wait = self.planner_wait_s()
         try:
             reply = await query(self.session, self.keys.planner_plan, self.plan_request(), PlanReply, timeout=wait)

@@ -15,6 +15,8 @@ from contextlib import contextmanager
 from functools import partial
 from pathlib import Path
 
+import msgspec
+
 from common.deploy.compose import Process
 from common.deploy.local import LocalFleet, bring_up
 from common.deploy.radios import LinkModel, RadiosFile, dump_radios, simulated_radios
@@ -24,6 +26,8 @@ from common.domain.scenario import read_scenario
 from services.mission.runner import MissionRunner, MissionSpec
 
 DEMO_SCENARIO = MAPS_DIR / "scenarios" / "town_8.yaml"
+FLY_SCENARIO = MAPS_DIR / "scenarios" / "town_fly.yaml"
+"""`fleet demo --vehicles fly`: stock Crazyflies (no wheel app), flying only."""
 
 
 def demo_radios(map_name: str, tasks: dict[str, Task], per_radio: int = 2, link: LinkModel | None = None,
@@ -32,8 +36,12 @@ def demo_radios(map_name: str, tasks: dict[str, Task], per_radio: int = 2, link:
     reliable), radios named radio0, radio1, ..."""
     spec = load_map(map_name)
     poses = {vid: spot_pose(spec, task.start, source) for vid, task in tasks.items()}
-    return simulated_radios({vid: p[:3] for vid, p in poses.items()}, per_radio, link,
-                            yaws={vid: p[3] for vid, p in poses.items()}, prefix="radio")
+    radios = simulated_radios({vid: p[:3] for vid, p in poses.items()}, per_radio, link,
+                              yaws={vid: p[3] for vid, p in poses.items()}, prefix="radio")
+    return msgspec.structs.replace(radios, radios={  # each vehicle is what its task says (wheels or not)
+        name: msgspec.structs.replace(radio, vehicles={
+            vid: msgspec.structs.replace(v, capabilities=tasks[vid].capabilities) for vid, v in radio.vehicles.items()})
+        for name, radio in radios.radios.items()})
 
 
 def one_gateway_per_radio(procs: list[Process], radios_path: Path, radios: RadiosFile) -> list[Process]:
@@ -83,7 +91,7 @@ def demo_processes(procs: list[Process], radios_path: Path, radios: RadiosFile,
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    path = Path(args.scenario or DEMO_SCENARIO)
+    path = Path(args.scenario or (FLY_SCENARIO if args.vehicles == "fly" else DEMO_SCENARIO))
     scenario = read_scenario(path)
     map_name = scenario.map or "town"
     tasks = dict(scenario.tasks)

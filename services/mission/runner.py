@@ -7,12 +7,15 @@ on a fault (`client.FAULT_EVENTS`), landing every vehicle.
 
 from __future__ import annotations
 
+import asyncio
+import time
 import uuid
 from dataclasses import dataclass, field
 
+import msgspec
 import zenoh
 
-from common.bus.messages import PlanReply, PlanRequest, SimTruth, VehiclePlan, VehicleState
+from common.bus.messages import PlanReply, PlanRequest, SimTruth, Telemetry, VehiclePlan, VehicleState
 from common.bus.vehicle_plans import vehicle_plans
 from common.domain.planfile import Plan, Task
 from services.mission.client import MissionClient, MissionTiming
@@ -53,6 +56,8 @@ class VehicleReport:
 
 
 ARRIVED = "every vehicle arrived"
+CAPABILITIES_WAIT_S = 1.0
+"""How long a mission waits for its vehicles' telemetry (their capabilities, 5 Hz) before planning."""
 
 AIRBORNE_MODES = frozenset({"taking_off", "flying", "landing", "emergency_landing"})
 
@@ -90,15 +95,32 @@ class MissionRunner(MissionClient[MissionResult]):
     def __init__(self, spec: MissionSpec, *args, progress: bool = True, **kwargs) -> None:
         super().__init__(spec.mission, spec.tasks, spec.timing, *args, progress=progress, **kwargs)
         self.spec = spec
+        self.tasks = dict(spec.tasks)
         self.reports = {vid: VehicleReport(vid) for vid in spec.tasks}
         self.plan: Plan | None = None
         self.voltage = 3.7
         self.sep: SeparationMonitor | None = None
         self._plans = None
 
+    async def prepare(self) -> None:
+        """Each vehicle is what its gateway says (`Telemetry.capabilities`, from the radios file): a
+        stock Crazyflie's task is planned on flight edges only, whatever the scenario assumed. Waits
+        up to `CAPABILITIES_WAIT_S` for every vehicle's telemetry; a silent one keeps its task's."""
+        seen: dict[str, str] = {}
+        self.subscribe(self.keys.all_vehicles("telemetry"), Telemetry,
+                       lambda tel, _k: seen.__setitem__(tel.vid, tel.capabilities))
+        deadline = time.monotonic() + CAPABILITIES_WAIT_S
+        while not set(self.tasks) <= set(seen) and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        for vid, task in self.tasks.items():
+            caps = seen.get(vid, task.capabilities)
+            if caps != task.capabilities:
+                self.events.append(f"{vid}: planned as {caps} (its gateway's word), not {task.capabilities}")
+                self.tasks[vid] = msgspec.structs.replace(task, capabilities=caps)
+
     def plan_request(self) -> PlanRequest:
         s = self.spec
-        return PlanRequest(map=s.map, tasks=s.tasks, planner=s.planner, mu=s.mu, time_limit=s.time_limit,
+        return PlanRequest(map=s.map, tasks=self.tasks, planner=s.planner, mu=s.mu, time_limit=s.time_limit,
                            mission=s.mission)
 
     def planner_wait_s(self) -> float:

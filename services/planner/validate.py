@@ -27,7 +27,7 @@ import numpy as np
 
 from common.domain.geometry import EPS
 from common.domain.planfile import PathEntry, Plan, PlanGraph, Task
-from common.domain.vehicle_model import CostScale, EdgeKind
+from common.domain.vehicle_model import CAPABLE_EDGES, CostScale, EdgeKind
 from services.planner.graph.fleet_graph import airborne_mask
 
 SPEED_RTOL = 1e-6  # a move may be this much (relative) faster than its edge kind's speed
@@ -261,10 +261,14 @@ def _check_path(vid: str, task: Task | None, path: list[PathEntry], graph: _Grap
     if entry_errors:
         return _PathCheck(errors + entry_errors, False, False)
     traceable = priceable = True
+    allowed = CAPABLE_EDGES[task.capabilities if task is not None else "fly+drive"]
     for i, (a, b) in enumerate(pairwise(path)):
         error, priced = _check_step(vid, i, a, b, graph, plan)
         if error:
             errors.append(error)
+        elif a.node != b.node and graph.kind[(a.node, b.node)] not in allowed:
+            errors.append(f"{vid}: entry {i + 1}: a {graph.kind[(a.node, b.node)]} edge {a.node} -> {b.node}, "
+                          f"but the vehicle's capabilities are {task.capabilities if task else 'fly+drive'}")
         traceable &= b.t >= a.t
         priceable &= priced
     return _PathCheck(errors, traceable, priceable and traceable)

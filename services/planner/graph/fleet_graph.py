@@ -39,7 +39,15 @@ from scipy.sparse.csgraph import connected_components
 from common.domain.geometry import bodies_touch, distance_to_polygon, point_in_polygon, segment_hits_body
 from common.domain.mapfile import MapSpec
 from common.domain.planfile import GraphNode, PlanGraph, PlanModel
-from common.domain.vehicle_model import EDGE_KINDS, CostScale, EdgeKind, NodeKind, VehicleModel
+from common.domain.vehicle_model import (
+    CAPABLE_EDGES,
+    EDGE_KINDS,
+    Capabilities,
+    CostScale,
+    EdgeKind,
+    NodeKind,
+    VehicleModel,
+)
 from common.errors import InputError
 from services.planner.graph.conflicts import Conflicts, compute_conflicts
 
@@ -103,11 +111,20 @@ class FleetGraph:
         """Node and edge pairs that would bring two bodies into contact (computed on first use)."""
         return compute_conflicts(self.pos, self.edges, self.model.radius, self.model.height)
 
-    def endpoints(self) -> list[str]:
+    def endpoints(self, capabilities: Capabilities = "fly+drive") -> list[str]:
         """Spots where a task may start or end: parking spots and helipads (any ground node on maps
-        with open endpoints)."""
-        allowed = ("parking", "helipad", "land") if self.open_endpoints else ("parking", "helipad")
+        with open endpoints). A vehicle that only flies takes off from and lands on helipads and
+        road nodes (it cannot drive out of a parking spot); one that only drives uses parking spots."""
+        if self.open_endpoints:
+            allowed: tuple[str, ...] = ("parking", "helipad", "land")
+        else:
+            allowed = {"fly+drive": ("parking", "helipad"), "fly": ("helipad", "land"), "drive": ("parking",)}[capabilities]
         return [n for n, k in zip(self.ids, self.kinds, strict=True) if k in allowed]
+
+    def allowed_edges(self, capabilities: Capabilities) -> np.ndarray:
+        """(E,) mask of the edges a vehicle with `capabilities` may traverse (`CAPABLE_EDGES`)."""
+        kinds = CAPABLE_EDGES[capabilities]
+        return np.array([k in kinds for k in self.edge_kinds], dtype=bool)
 
     def edge_cost(self, mu: float) -> np.ndarray:
         """Eq. 3 per edge."""

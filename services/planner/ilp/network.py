@@ -23,6 +23,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from common.domain.vehicle_model import Capabilities
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.graph.memo import per_graph
 
@@ -51,12 +52,15 @@ class Fleet:
     move_charge: np.ndarray  # (E,) eq. 4-5 per traversal
     wait_charge: np.ndarray  # (N,) eq. 4-5 per step of waiting
     usable: float  # Ah, the C_low budget of eq. 6
+    allowed: np.ndarray  # (V, E) the edges each vehicle's capabilities allow
 
     @classmethod
-    def of(cls, graph: FleetGraph, starts: list[str], goals: list[str], mu: float) -> Fleet:
+    def of(cls, graph: FleetGraph, starts: list[str], goals: list[str], mu: float,
+           capabilities: list[Capabilities] | None = None) -> Fleet:
         dt = time_step(graph)
         if dt is None:
             raise ValueError(f"graph {graph.name!r} has edges of different durations: build it with a time step dt")
+        caps = capabilities or ["fly+drive"] * len(starts)
         return cls(
             dt=dt,
             starts=np.array([graph.index[s] for s in starts], dtype=np.int64),
@@ -66,7 +70,12 @@ class Fleet:
             move_charge=graph.charge,
             wait_charge=graph.wait_charge_rate() * dt,
             usable=graph.model.usable_ah,
+            allowed=np.array([graph.allowed_edges(c) for c in caps], dtype=bool).reshape(len(starts), graph.n_edges),
         )
+
+    def per_vehicle(self, move: np.ndarray) -> np.ndarray:
+        """(V, E): an edge weight for each vehicle, infinite on the edges it may not take."""
+        return np.where(self.allowed, move[None, :], np.inf)
 
 
 @dataclass(frozen=True)
@@ -86,10 +95,11 @@ class EdgeGroups:
         return cls(order, other[order], nodes, starts)
 
     def relax(self, values: np.ndarray, weight: np.ndarray, into: np.ndarray) -> None:
-        """into[:, n] = min(into[:, n], min over the group's edges of values[:, other] + weight)."""
+        """into[:, n] = min(into[:, n], min over the group's edges of values[:, other] + weight); the
+        weight per edge (E,) or per vehicle and edge (V, E)."""
         if not len(self.order):
             return
-        best = np.minimum.reduceat(values[:, self.other] + weight[self.order], self.starts, axis=1)
+        best = np.minimum.reduceat(values[:, self.other] + weight[..., self.order], self.starts, axis=1)
         into[:, self.nodes] = np.minimum(into[:, self.nodes], best)
 
 
@@ -141,7 +151,7 @@ def battery_horizons(graph: FleetGraph, fleet: Fleet) -> tuple[np.ndarray, np.nd
     for k in range(1, graph.n_nodes):
         if (fewest >= 0).all():
             break
-        f = _step_forward(f, into_heads, fleet.move_charge, fleet.wait_charge)
+        f = _step_forward(f, into_heads, fleet.per_vehicle(fleet.move_charge), fleet.wait_charge)
         at_goal = f[vehicles, fleet.goals]
         fewest = np.where((fewest < 0) & (at_goal <= fleet.usable * (1 + TOL)), k, fewest)
         least = np.minimum(least, at_goal)
@@ -191,7 +201,7 @@ def vehicle_columns(graph: FleetGraph, fleet: Fleet, horizon: int) -> Columns:
     """The arcs of every vehicle for a horizon of `horizon` steps that fit its battery."""
     n_n, n_e, t = graph.n_nodes, graph.n_edges, horizon
     budget = fleet.usable * (1 + TOL)
-    moves, waits, at_goal = _arc_weights(graph, fleet, t, fleet.move_charge, fleet.wait_charge)
+    moves, waits, at_goal = _arc_weights(graph, fleet, t, fleet.per_vehicle(fleet.move_charge), fleet.wait_charge)
     tail, head = graph.edges[:, 0], graph.edges[:, 1]
     steps = np.arange(t)
     parts: list[tuple] = []
@@ -213,13 +223,13 @@ def vehicle_columns(graph: FleetGraph, fleet: Fleet, horizon: int) -> Columns:
 
 def least_costs(graph: FleetGraph, fleet: Fleet, horizon: int) -> np.ndarray:
     """Per vehicle the least eq. 3 cost to its goal within the horizon, ignoring the others."""
-    b = least_backward(graph, fleet.goals, fleet.move_cost, horizon)[horizon]
+    b = least_backward(graph, fleet.goals, fleet.per_vehicle(fleet.move_cost), horizon)[horizon]
     return b[np.arange(len(fleet.starts)), fleet.starts]
 
 
 def within_cost(graph: FleetGraph, fleet: Fleet, cols: Columns, horizon: int, upper: float) -> np.ndarray:
     """Mask of the columns some plan of cost <= `upper` may use (see the module docstring)."""
-    moves, waits, at_goal = _arc_weights(graph, fleet, horizon, fleet.move_cost, fleet.wait_cost)
+    moves, waits, at_goal = _arc_weights(graph, fleet, horizon, fleet.per_vehicle(fleet.move_cost), fleet.wait_cost)
     own = least_costs(graph, fleet, horizon)
     slack = upper * (1 + TOL) - (own.sum() - own)  # (V,) what vehicle i may spend
     n_e = graph.n_edges

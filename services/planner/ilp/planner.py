@@ -44,17 +44,23 @@ PRIORITY_ORDERS = 8  # prioritized first plans tried per horizon
 
 
 def cheapest_routes(graph: FleetGraph, fleet: Fleet) -> tuple[np.ndarray, np.ndarray]:
-    """Per vehicle the eq. 3 cost and the number of steps of its individually cheapest route."""
+    """Per vehicle the eq. 3 cost and the number of steps of its individually cheapest route (over
+    the edges its capabilities allow)."""
     n = graph.n_nodes
-    weights = csr_matrix((fleet.move_cost, (graph.edges[:, 0], graph.edges[:, 1])), shape=(n, n))
-    dist, pred = dijkstra(weights, indices=fleet.starts, return_predecessors=True)
-    cost = dist[np.arange(len(fleet.goals)), fleet.goals]
+    cost = np.full(len(fleet.goals), np.inf)
     steps = np.zeros(len(fleet.goals), dtype=np.int64)
-    for i, g in enumerate(fleet.goals):
-        node = g
-        while np.isfinite(cost[i]) and node != fleet.starts[i]:
-            node = pred[i, node]
-            steps[i] += 1
+    masks, group = np.unique(fleet.allowed, axis=0, return_inverse=True)
+    for m, mask in enumerate(masks):  # one Dijkstra per kind of vehicle
+        members = np.flatnonzero(group.ravel() == m)
+        edges = graph.edges[mask]
+        weights = csr_matrix((fleet.move_cost[mask], (edges[:, 0], edges[:, 1])), shape=(n, n))
+        dist, pred = dijkstra(weights, indices=fleet.starts[members], return_predecessors=True)
+        for row, i in enumerate(members):
+            cost[i] = dist[row, fleet.goals[i]]
+            node = fleet.goals[i]
+            while np.isfinite(cost[i]) and node != fleet.starts[i]:
+                node = pred[row, node]
+                steps[i] += 1
     return cost, steps
 
 
@@ -98,7 +104,8 @@ def plan_ilp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: f
     if time_step(graph) is None:
         return failure(f"the ILP plans on a graph where every edge takes one time step (§V-E); {graph.name!r} "
                        "has edges of different durations: use its uniform-time-step graph")
-    fleet = Fleet.of(graph, [tasks[v].start for v in vids], [tasks[v].goal for v in vids], mu)
+    fleet = Fleet.of(graph, [tasks[v].start for v in vids], [tasks[v].goal for v in vids], mu,
+                     [tasks[v].capabilities for v in vids])
 
     fewest, least_charge = battery_horizons(graph, fleet)
     for i in np.flatnonzero(fewest < 0):

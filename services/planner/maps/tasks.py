@@ -27,7 +27,9 @@ def check_tasks(tasks: dict[str, Task], graph: FleetGraph, source: str) -> None:
     """Raise InputError naming the task field when a scenario is not well-formed on `graph`."""
     if not tasks:
         raise InputError(source, "tasks", "no vehicles")
-    allowed = set(graph.endpoints())
+    allowed = {caps: set(graph.endpoints(caps)) for caps in ("fly+drive", "fly", "drive")}
+    spots = {"fly+drive": "a parking spot or helipad", "fly": "a helipad or road node (it only flies)",
+             "drive": "a parking spot (it only drives)"}
     starts: dict[str, str] = {}
     goals: dict[str, str] = {}
     for vid, task in tasks.items():
@@ -39,8 +41,9 @@ def check_tasks(tasks: dict[str, Task], graph: FleetGraph, source: str) -> None:
             where = f"tasks.{vid}.{field}"
             if node not in graph.index:
                 raise InputError(source, where, f"unknown node {node!r} on map {graph.name!r}")
-            if node not in allowed:
-                raise InputError(source, where, f"{node!r} is a {graph.kinds[graph.index[node]]} node, not a parking spot or helipad")
+            if node not in allowed[task.capabilities]:
+                raise InputError(source, where, f"{node!r} is a {graph.kinds[graph.index[node]]} node, "
+                                                f"not {spots[task.capabilities]}")
             if node in seen:
                 raise InputError(source, where, f"{node!r} is also the {field} of {seen[node]!r}")
             seen[node] = vid

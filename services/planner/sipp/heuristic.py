@@ -1,7 +1,7 @@
 """Exact cost-to-go and charge-to-go lower bounds for SIPP (paper 000 §V-D, h(s) of Alg. 1; §V-C).
 
 Dijkstra backwards from the goal on the eq. 3 edge costs (or the eq. 4-5 edge charges), ignoring the
-other vehicles and waits, over the graph a path may use: well-formed infrastructure lets a path
+other vehicles and waits, over the graph a path may use (the edge kinds of the vehicle's capabilities; well-formed infrastructure lets a path
 enter a parking spot or helipad only as its goal (Alg. 2 line 10). Waits cost >= 0, so the bound is
 admissible and consistent. Tables are cached per (graph, mu, goal).
 """
@@ -14,6 +14,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from common.domain.vehicle_model import Capabilities
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.graph.memo import per_graph
 
@@ -30,26 +31,27 @@ class CostToGo:
     """h[goal][n]: least eq. 3 cost from n to the goal; q[goal][n]: least charge (Ah); inf if cut off.
     Lists, not arrays: the search reads single elements."""
 
-    def __init__(self, graph: FleetGraph, mu: float) -> None:
+    def __init__(self, graph: FleetGraph, mu: float, capabilities: Capabilities = "fly+drive") -> None:
         # arrays only, no reference to the graph: the per-graph memo must not keep it alive
         self._n = graph.n_nodes
-        self._edges = graph.edges
-        self._charge = graph.charge
-        u, v = graph.edges[:, 0], graph.edges[:, 1]
+        allowed = graph.allowed_edges(capabilities)
+        self._edges = graph.edges[allowed]
+        self._charge = graph.charge[allowed]
+        u, v = self._edges[:, 0], self._edges[:, 1]
         self.spot = spot_mask(graph)
         into_spot = self.spot[v]
         # reversed graph (v -> u) without edges entering spots; a spot goal is reached by its in-edges
         keep = ~into_spot
         n = graph.n_nodes
-        self._rev_cost = csr_matrix((graph.edge_cost(mu)[keep], (v[keep], u[keep])), shape=(n, n))
-        self._rev_charge = csr_matrix((graph.charge[keep], (v[keep], u[keep])), shape=(n, n))
-        self._cost = graph.edge_cost(mu)
+        self._cost = graph.edge_cost(mu)[allowed]
+        self._rev_cost = csr_matrix((self._cost[keep], (v[keep], u[keep])), shape=(n, n))
+        self._rev_charge = csr_matrix((self._charge[keep], (v[keep], u[keep])), shape=(n, n))
         self.h: dict[int, list[float]] = {}
         self.q: dict[int, list[float]] = {}
 
     @staticmethod
-    def of(graph: FleetGraph, mu: float) -> CostToGo:
-        return per_graph(graph, ("cost_to_go", float(mu)), lambda: CostToGo(graph, mu))
+    def of(graph: FleetGraph, mu: float, capabilities: Capabilities = "fly+drive") -> CostToGo:
+        return per_graph(graph, ("cost_to_go", float(mu), capabilities), lambda: CostToGo(graph, mu, capabilities))
 
     def prepare(self, goals: Iterable[int]) -> None:
         """Compute the tables of the goals not cached yet, in one batched Dijkstra per weight."""

@@ -50,8 +50,9 @@ class _Setup:
     """What every priority order of one planning call shares."""
 
     graph: FleetGraph
-    sg: SearchGraph
-    ctg: CostToGo
+    sg: dict[str, SearchGraph]
+    """Per vehicle: the adjacency of the edges its capabilities allow."""
+    ctg: dict[str, CostToGo]
     ends: dict[str, tuple[int, int]]  # vehicle -> (start, goal) node indices
     blockers: dict[str, list[str]]
     park_starts: bool
@@ -62,13 +63,15 @@ def plan_sipp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: 
     """Plan every task on `graph` with eq. 3 weight `mu`; PlanResult names the vehicle it could not place."""
     t0 = time.perf_counter()
     ends = {vid: (graph.index[t.start], graph.index[t.goal]) for vid, t in tasks.items()}
-    ctg = CostToGo.of(graph, mu)
-    ctg.prepare(g for _, g in ends.values())
+    sg = {vid: SearchGraph.of(graph, mu, t.capabilities) for vid, t in tasks.items()}
+    ctg = {vid: CostToGo.of(graph, mu, t.capabilities) for vid, t in tasks.items()}
+    for caps in {t.capabilities for t in tasks.values()}:  # one batched Dijkstra per kind of vehicle
+        CostToGo.of(graph, mu, caps).prepare(ends[v][1] for v, t in tasks.items() if t.capabilities == caps)
     hopeless = _check_reachable(graph, tasks, ends, ctg)
     if hopeless:
         return _failed(hopeless, t0, orders=0)
     setup = _Setup(
-        graph=graph, sg=SearchGraph.of(graph, mu), ctg=ctg, ends=ends, blockers=_blockers(graph, ends),
+        graph=graph, sg=sg, ctg=ctg, ends=ends, blockers=_blockers(graph, ends),
         park_starts=not graph.open_endpoints, deadline=t0 + time_limit,
     )
     order: list[str] | None = _leavers_first(list(tasks), setup.blockers)
@@ -106,14 +109,15 @@ def _next_order(
 
 
 def _check_reachable(
-    graph: FleetGraph, tasks: dict[str, Task], ends: dict[str, tuple[int, int]], ctg: CostToGo
+    graph: FleetGraph, tasks: dict[str, Task], ends: dict[str, tuple[int, int]], ctgs: dict[str, CostToGo]
 ) -> _Failure | None:
     """Tasks no order can serve: goal unreachable, or more charge than usable even alone (§V-C)."""
     usable = graph.model.usable_ah
     for vid, (s, g) in ends.items():
-        task = tasks[vid]
+        task, ctg = tasks[vid], ctgs[vid]
         if ctg.h[g][s] == float("inf"):
-            return _Failure(vid, f"no route from {task.start!r} to {task.goal!r} (entering spots only as the goal)")
+            only = "" if task.capabilities == "fly+drive" else f", using only {task.capabilities} edges"
+            return _Failure(vid, f"no route from {task.start!r} to {task.goal!r} (entering spots only as the goal{only})")
         if ctg.q[g][s] > usable:
             return _Failure(
                 vid,
@@ -172,7 +176,8 @@ def _plan_order(setup: _Setup, order: list[str]) -> dict[str, TimedPath] | _Fail
             res.park(node, -1)
         where = f"{graph.ids[start]!r} -> {graph.ids[goal]!r}"
         try:
-            path = sipp(setup.sg, res, start, goal, setup.ctg.h[goal], setup.ctg.q[goal], graph.model.usable_ah, setup.deadline)
+            ctg = setup.ctg[vid]
+            path = sipp(setup.sg[vid], res, start, goal, ctg.h[goal], ctg.q[goal], graph.model.usable_ah, setup.deadline)
         except SearchTimeout:
             return _Failure(vid, f"time limit reached while planning {where} ({len(paths)} vehicles placed)")
         for node in lifted[1:]:

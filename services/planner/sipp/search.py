@@ -22,6 +22,7 @@ from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from common.domain.vehicle_model import Capabilities
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.graph.memo import per_graph
 from services.planner.sipp.heuristic import spot_mask
@@ -53,16 +54,20 @@ class SearchGraph:
     passable: list[bool]
 
     @staticmethod
-    def of(graph: FleetGraph, mu: float) -> SearchGraph:
-        return per_graph(graph, ("search_graph", float(mu)), lambda: _build_search_graph(graph, mu))
+    def of(graph: FleetGraph, mu: float, capabilities: Capabilities = "fly+drive") -> SearchGraph:
+        """The adjacency of the edges a vehicle with `capabilities` may take."""
+        return per_graph(graph, ("search_graph", float(mu), capabilities),
+                         lambda: _build_search_graph(graph, mu, capabilities))
 
 
-def _build_search_graph(graph: FleetGraph, mu: float) -> SearchGraph:
+def _build_search_graph(graph: FleetGraph, mu: float, capabilities: Capabilities) -> SearchGraph:
     cost = graph.edge_cost(mu).tolist()
     charge = graph.charge.tolist()
     dur = graph.duration.tolist()
     heads = graph.edges[:, 1].tolist()
-    out = [[(e, heads[e], dur[e], cost[e], charge[e]) for e in graph.out_edges[u].tolist()] for u in range(graph.n_nodes)]
+    ok = graph.allowed_edges(capabilities).tolist()
+    out = [[(e, heads[e], dur[e], cost[e], charge[e]) for e in graph.out_edges[u].tolist() if ok[e]]
+           for u in range(graph.n_nodes)]
     return SearchGraph(
         out=out,
         wait_cost=graph.wait_cost_rate(mu).tolist(),

@@ -231,6 +231,11 @@ class CrazyflieFirmware:
             self._est = self.estimator.update(0.0, (c.x, c.y, c.z), (c.vx, c.vy, c.vz), c.yaw, c.yaw_rate)
         return self._est
 
+    @property
+    def motor_command(self) -> int:
+        """The thrust command the stabilizer gives the motors now (0: motors off)."""
+        return self._motor_cmd
+
     def uptime_ms(self, now: float) -> float:
         return (now - self.booted_at) * 1000.0
 
@@ -409,10 +414,10 @@ class CrazyflieFirmware:
         return []
 
     def _estop(self, now: float) -> None:
+        """Latched until a reboot; the supervisor acts on it at its next run (at most 40 ms later)."""
         if not self.estop_latched:
             self.estop_latched = True
             self.on_event("sim_emergency_stop", "emergency stop requested")
-            self._run_supervisor(now)  # the next 40 ms run acts on it; do not wait for the tick
 
     def _localization(self, header: int, ch: int, payload: bytes, now: float) -> list[Packet]:
         c = self.car
