@@ -57,6 +57,7 @@ def test_low_battery_mid_flight_lands_at_the_nearest_safe_node_and_aborts_the_mi
     assert result.contacts == 0
     for vid in TOWN_TASKS:
         assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
+        assert not watch.locked(vid), f"{vid}: the supervisor locked and was not rebooted"
     print(f"low battery reported {t_told - drained:.2f} s after the drain; landed at {event.node}, "
           f"{100 * math.dist((final.x, final.y), (gx, gy)):.1f} cm from it, "
           f"touchdown {watch.hardest_touchdown('cf1'):.2f} m/s")

@@ -58,6 +58,7 @@ def test_a_short_dropout_is_flown_through_and_a_long_one_lands_the_vehicle(tmp_p
     assert result.contacts == 0
     for vid in TOWN_TASKS:
         assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
+        assert not watch.locked(vid), f"{vid}: the supervisor locked and was not rebooted"
     print(f"cf1 through {SHORT} s: worst tracking error {max(s.tracking_error for s in cf1):.3f} m; "
           f"cf2 emergency landing {landed_at - long:.2f} s into {LONG} s, touchdown {watch.hardest_touchdown('cf2'):.2f} m/s")
 

@@ -101,6 +101,7 @@ def test_a_link_lost_mid_flight_lands_the_vehicle_and_aborts_the_mission(tmp_pat
     assert result.contacts == 0
     for vid in TOWN_TASKS:
         assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
+        assert not watch.locked(vid), f"{vid}: the supervisor locked and was not rebooted"
         assert watch.hardest_touchdown(vid) < 0.7, (vid, watch.hardest_touchdown(vid))
 
 

@@ -67,6 +67,7 @@ def test_router_restart_mid_flight_aborts_the_mission_cleanly(tmp_path) -> None:
     assert watch.stats["sim"].figures["watchdog_cuts"] == 0  # no motors cut in the air
     for vid in TOWN_TASKS:
         assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
+        assert not watch.locked(vid), f"{vid}: the supervisor locked and was not rebooted"
         assert watch.hardest_touchdown(vid) < BLIND_TOUCHDOWN, (vid, watch.hardest_touchdown(vid))
         after = [s.mode for s in watch.states[vid] if s.t > up]
         assert after and not {"driving", "taking_off", "flying"} & set(after), (vid, after)  # no plan resumed

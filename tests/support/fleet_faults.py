@@ -95,6 +95,12 @@ class Watch:
         """The simulator's fastest touchdown of `vid` (m/s; above about 1 m/s it fell)."""
         return self.stats["sim"].figures[f"touchdown_mps:{vid}"]
 
+    def locked(self, vid: str) -> bool:
+        """Whether the simulated firmware of `vid` reported its supervisor Locked (reboot required)
+        and no reboot followed."""
+        kinds = [k for k in self.kinds(vid) if k in ("sim_locked", "sim_reboot")]
+        return bool(kinds) and kinds[-1] == "sim_locked"
+
     def at_rest_on_ground(self, vid: str) -> bool:
         s = self.truth[vid][-1]
         return not s.airborne and not s.motors and s.z < 0.01
@@ -105,6 +111,10 @@ Scenario = Callable[[Watch, MissionRunner], Awaitable[None]]
 SETTLE_S = 3.0
 """s after a mission's end for its vehicles to come to rest: a landing's last stop can be lost on
 the radio, and the gateway repeats it when the next status reply still shows the motors running."""
+
+SUPERVISOR_WATCH_S = 3.0
+"""s watched after a safety landing came to rest: the firmware's supervisor locks a vehicle whose
+setpoints stop while it still counts as flying (2 s commander watchdog), so a lock would show here."""
 
 
 async def settle(watch: Watch, vids: Iterable[str], timeout: float) -> None:
@@ -128,6 +138,8 @@ def fly(fleet: LocalFleet, spec: MissionSpec, scenario: Scenario) -> tuple[Missi
             assert await mission == 0
             ended = time.time()  # the simulator's figures from after the end
             await settle(watch, runner.spec.tasks, SETTLE_S)
+            if any(watch.first(v, "emergency_landing") for v in runner.spec.tasks):
+                await asyncio.sleep(SUPERVISOR_WATCH_S)
             await until(lambda: "sim" in watch.stats and watch.stats["sim"].t > ended, 5.0, "the sim's stats")
         finally:
             watch.close()
