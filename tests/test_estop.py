@@ -56,7 +56,8 @@ def test_fleet_estop_stops_eight_vehicles_on_four_radios_and_release_reboots_the
                             off_at[cf.vid] = now
                     await asyncio.sleep(0.002)
                     assert now - (stops[0].t if stops else now) < 3.0, f"not stopped: {sorted(set(VIDS) - set(off_at))}"
-                assert (await done).returncode == 0
+                stopped = await done
+                assert stopped.returncode == 0 and "stopped: " + ", ".join(sorted(VIDS)) in stopped.stdout, stopped.stdout
                 await asyncio.sleep(0.5)
                 assert all(cf.car.z == 0.0 for cf in cars())  # an emergency stop: they dropped
                 assert all(gw.counters.total("refused:emergency_stop") > 0 for gw in gateways)  # hover refused
@@ -72,3 +73,9 @@ def test_fleet_estop_stops_eight_vehicles_on_four_radios_and_release_reboots_the
     print(f"fleet estop: motors off {sorted(round(t - stops[0].t, 3) for t in off_at.values())} s after the stop "
           f"was published; the last {last:.3f} s")
     assert last < 0.5
+
+
+def test_fleet_estop_fails_when_no_gateway_listens() -> None:
+    with InProcessRouter() as router:
+        out = _fleet_estop(router.endpoint)
+    assert out.returncode == 1 and "no gateway is listening" in out.stderr, (out.stdout, out.stderr)

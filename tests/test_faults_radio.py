@@ -2,9 +2,10 @@
 lost for a while):
 
 - at the gateway, with a stand-in executor hovering two vehicles: the simulated firmware levels the
-  attitude 0.5 s into the silence and cuts the motors at 2 s (the vehicle falls: that is what a
-  Crazyflie does); the gateway reports `link_lost` after its 1 s timeout (event and telemetry),
-  `link_up` and the latched `firmware_watchdog` when the link is back; the other vehicle flies on;
+  attitude 0.5 s into the silence and cuts the motors at 2 s (the vehicle falls and its supervisor
+  locks: that is what a Crazyflie does); the gateway reports `link_lost` 1 s after the last log
+  block (event and telemetry), `link_up` and `vehicle_locked` when the link is back, and reboots
+  it (`rebooted`); the other vehicle flies on;
 - in a mission, a 1.5 s loss while cruising: levelled, no cut; the link is reported lost, the
   executor lands the vehicle at its nearest safe node once the link is back and the mission aborts
   cleanly;

@@ -197,6 +197,18 @@ def test_a_stalled_gateway_does_not_take_its_stall_for_a_lost_link() -> None:
     assert [e[1][0] for e in events + after] == ["link_up"] and ch.health.link_ok
 
 
+def test_a_flying_car_whose_wheel_app_never_answers_is_reported_once_and_again_when_it_answers() -> None:
+    chans, sched = _radio(1, 0)
+    (ch,) = chans
+    _, events = _run(chans, sched, 3.0, info=lambda now: 0x020E)  # log blocks, no STATUS replies
+    assert [e[1][0] for e in events] == ["link_up", "wheel_app_silent"] and ch.health.app_ok is False
+    _, events = _run(chans, sched, 1.0, info=lambda now: 0x020E, answered=lambda now: True, t0=3.0)
+    assert [e[1][0] for e in events] == ["wheel_app_up"] and ch.health.app_ok
+    drone = VehicleChannel("drone", GatewayParams(), 0.0, wheels=False)
+    _, events = _run([drone], Scheduler([drone], 500.0, GatewayParams(), 0.0), 3.0, info=lambda now: 0x020E)
+    assert [e[1][0] for e in events] == ["link_up"]  # no wheels, no app to miss
+
+
 def test_flight_setpoints_go_before_status_requests_and_only_flying_cars_are_asked_for_status() -> None:
     params = GatewayParams()
     chans = [VehicleChannel("car", params, 0.0), VehicleChannel("drone", params, 0.0, wheels=False)]
@@ -227,14 +239,33 @@ def test_an_emergency_stop_goes_first_repeatedly_and_refuses_commands() -> None:
     _run(chans, sched, 0.3, lambda c, now: HOVER)
     for ch in chans:
         ch.emergency_stop()
-    sent, _ = _run(chans, sched, 0.3)
+    locked = 0x0240  # supervisor.info: Locked
+    sent, _ = _run(chans, sched, 1.0, info=lambda now: locked if now > 0.35 else FLYING_INFO, t0=0.3)
     for ch in chans:
         packets = [p for _t, p in sent[ch.vid]]
         assert packets[0] == Supervisor(3) and packets.count(Supervisor(3)) == GatewayParams().estop_repeats
         assert not any(isinstance(p, FlightSetpoint) for p in packets)
         with pytest.raises(ValueError, match="emergency stop"):
-            ch.command(HOVER, 0.7)
+            ch.command(HOVER, 1.3)
 
+
+def test_an_emergency_stop_is_sent_again_until_the_supervisor_locks_and_after_a_reconnect() -> None:
+    chans, sched = _radio(1, 0)
+    (ch,) = chans
+    ch.emergency_stop()
+    sent, _ = _run(chans, sched, 1.0, info=lambda now: FLYING_INFO)  # the stops were lost: still flying
+    stops = [t for t, p in sent[ch.vid] if p == Supervisor(3)]
+    assert len(stops) == GatewayParams().estop_repeats + 4  # then one every 0.2 s
+    ch.connected(was_flying=True)  # the link came back
+    sent, _ = _run(chans, sched, 0.5, info=lambda now: 0x0240, t0=1.0)
+    assert [p for _t, p in sent[ch.vid]].count(Supervisor(3)) == GatewayParams().estop_repeats
+
+
+def test_a_drive_only_car_refuses_flight_setpoints() -> None:
+    ch = VehicleChannel("car", GatewayParams(), 0.0, flies=False)
+    with pytest.raises(ValueError, match="does not fly"):
+        ch.command(HOVER, 0.0)
+    ch.command(WheelSetpoint(left=0.1, right=0.1), 0.0)
 
 
 def test_a_stop_followed_at_once_by_driving_still_stops_the_motors() -> None:

@@ -120,7 +120,8 @@ class Telemetry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     (-dBm). From the gateway: `link_quality` (fraction of the log blocks that arrived), `sent`
     (packets handed to the link), `skipped` (packets not sent: not connected or link busy),
     `dropped` (the wheel app's lost app-channel packets), `cmd_rate_hz` (flight and wheel packets
-    sent per second). `capabilities`, `firmware`: what the vehicle is and runs."""
+    sent per second), `wheel_app_ok` (a flying car's wheel app answers its STATUS requests; always
+    true without wheels). `capabilities`, `firmware`: what the vehicle is and runs."""
 
     vid: str
     t: float
@@ -140,6 +141,7 @@ class Telemetry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     capabilities: str = "fly+drive"
     firmware: str = ""
     estopped: bool = False
+    wheel_app_ok: bool = True
 
 
 class EmergencyStop(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -200,7 +202,7 @@ class SimTruth(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     charge_used_ah: float = 0.0
 
 
-SimFaultKind = Literal["mocap_dropout", "radio_blackout", "battery"]
+SimFaultKind = Literal["mocap_dropout", "radio_blackout", "battery", "power_off", "power_on"]
 
 
 class SimFault(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -208,7 +210,9 @@ class SimFault(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     simulated motion capture and the simulated Crazyflies listen: real systems never see it.
     `mocap_dropout`: the body is not seen for `duration_s`; `radio_blackout`: the simulated radio
     loses every packet to and from the vehicle for `duration_s`; `battery`: the simulated battery
-    has used `charge_used_ah` from now on."""
+    has used `charge_used_ah` from now on; `power_off`: the vehicle is switched off (nothing answers
+    on the radio, motors off) for `duration_s`, or until a `power_on` if 0, then boots as from a
+    fresh power-on; `power_on`: switched on now (`fleet sim fault`)."""
 
     vid: str
     kind: SimFaultKind

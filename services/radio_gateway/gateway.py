@@ -79,7 +79,7 @@ class RadioGateway(Service):
         self.params = spec.gateway
         self.subscribe_each = subscribe_each
         now = time.time()
-        self.channels = {vid: VehicleChannel(vid, self.params, now, wheels=link.wheels)
+        self.channels = {vid: VehicleChannel(vid, self.params, now, wheels=link.wheels, flies=link.flies)
                          for vid, link in self.spec.vehicles.items()}
         self.scheduler = Scheduler(list(self.channels.values()), self.spec.link.budget_pps, self.params, now)
         self.owners: dict[str, str | None] = dict.fromkeys(self.channels)
@@ -340,4 +340,4 @@ class RadioGateway(Service):
                                                and k.endswith(f":{vid}")),
             supervisor=-1 if h.supervisor is None else h.supervisor, pm_state=h.pm_state, rssi=h.rssi,
             capabilities=self.spec.vehicles[vid].capabilities, firmware=link.firmware if link else "",
-            estopped=ch.estopped))
+            estopped=ch.estopped, wheel_app_ok=h.app_ok is not False))

@@ -4,8 +4,8 @@ supervisor's state bits (`supervisor.info`) and the link's RSSI. With the wheel 
 its STATUS replies add the app channel's own accounting (firmware/wheels/PROTOCOL.md).
 
 The link is up from the first log block and lost when none came for `timeout_s`: 10 blocks at
-the default 10 Hz, all lost or all late (at 30 % loss each way that happens once in about 10^5
-s). Arrival times are stamped by cflib's receiving thread, not when the gateway's loop gets to
+the default 10 Hz, all lost or all late (at 30 % of the blocks lost, 0.3^10 per block period:
+about once in 5 vehicle-hours; `bench.link_judgement`). Arrival times are stamped by cflib's receiving thread, not when the gateway's loop gets to
 them, so a gateway whose loop stalled does not take its own stall for the vehicle's silence; a
 stall of the whole process (the receiving thread too) is excused explicitly (`excuse`).
 `link_quality` is the fraction of the blocks expected over the last `window_s` that arrived.
@@ -18,6 +18,8 @@ from collections import deque
 from common.crazyflie import crtp
 
 Event = tuple[str, str]
+APP_TIMEOUTS = 2.0
+"""A flying car's wheel app is judged silent after this many link timeouts without a STATUS."""
 """(kind, detail) of a `VehicleEvent` to publish."""
 LINK_EVENTS = frozenset({"link_lost", "link_up"})
 """The events that change `Telemetry.link_ok`."""
@@ -50,7 +52,10 @@ class LinkHealth:
         """App-channel packets lost, from the wheel app's replies (`echo_seq - received`)."""
         self.setpoint_age_ms: int | None = None
         self.stale_replies = 0
-        self._started = self._since = started
+        self.app_ok: bool | None = None
+        """The wheel app answers its STATUS requests (None: not judged yet; `check_app`)."""
+        self._app_at: float | None = None
+        self._started = self._since = self._app_from = started
         self._blocks: deque[float] = deque()
         self._echo = -1
 
@@ -91,11 +96,15 @@ class LinkHealth:
             self.stale_replies += 1
             return []
         self._echo = st.echo_seq
+        self._app_at = now
         self.app_lost = lost
         self.setpoint_age_ms = st.setpoint_age_ms
         if not self.heard:
             self.vbat = st.vbat_mv / 1000.0
         events: list[Event] = []
+        if self.app_ok is False:
+            events.append(("wheel_app_up", "the wheel app answers again"))
+        self.app_ok = True
         if st.flags & crtp.FLAG_WHEEL_WATCHDOG:
             events.append(("wheel_watchdog", "wheel watchdog stopped the wheels (no wheel command for 0.5 s)"))
         return events
@@ -103,6 +112,9 @@ class LinkHealth:
     def excuse(self, now: float) -> None:
         """The gateway's process was stalled: silence before `now` is not the vehicle's."""
         self._since = max(self._since, now - self.period_s)
+        if self._app_at is not None:
+            self._app_at = max(self._app_at, now - self.period_s)
+        self._app_from = max(self._app_from, now - self.period_s)
 
     def check(self, now: float) -> list[Event]:
         """The link-lost event, once: no log block for `timeout_s`."""
@@ -111,12 +123,24 @@ class LinkHealth:
         self.link_ok = False
         return [("link_lost", f"no log block for {now - self._since:.2f} s")]
 
+    def check_app(self, now: float) -> list[Event]:
+        """A flying car's wheel-app event, once: the link is up (log blocks) but no STATUS came for
+        `APP_TIMEOUTS` link timeouts (the app is missing, or speaks another protocol version)."""
+        since = self._app_at if self._app_at is not None else self._app_from
+        if not self.link_ok or self.app_ok is False or now - since <= APP_TIMEOUTS * self.timeout_s:
+            return []
+        self.app_ok = False
+        return [("wheel_app_silent", f"no wheel-app STATUS for {now - since:.1f} s while the link is up: "
+                                     "no wheel app, or not protocol v2 (firmware/wheels/PROTOCOL.md)")]
+
     def reset(self, now: float, forget: bool = True) -> None:
         """A new connection (after a reopen or a reboot): judge it afresh; what the old one said of the
         supervisor is stale (`forget`; kept while the connection is still being made)."""
         self._since = now
         self._blocks.clear()
         self._echo = -1
+        self._app_at = None
+        self._app_from = now
         if forget:
             self.supervisor = None
 

@@ -56,16 +56,16 @@ class Scheduler:
         self._drive_credit = min(self._drive_credit + self.params.drive_hz * elapsed, 1.0)
         batch: list[Packet] = []
         events: list[tuple[str, Event]] = []
-        self._estop(batch)
+        self._estop(now, batch)
         self._drive(now, batch)
         self._flight(now, batch, events)
         self._requests(now, batch, events)
         self._status(now, batch)
         return batch, events
 
-    def _estop(self, batch: list[Packet]) -> None:
+    def _estop(self, now: float, batch: list[Packet]) -> None:
         for ch in self.channels:
-            raw = ch.estop_packet()
+            raw = ch.estop_packet(now)
             if raw is not None:
                 self.tokens -= 1.0
                 batch.append((ch.vid, raw))

@@ -55,6 +55,7 @@ from services.radio_gateway.health import (
     CAN_ARM,
     CRASHED,
     FLYING,
+    LOCKED,
     TUMBLED,
     Event,
     LinkHealth,
@@ -93,16 +94,20 @@ UNLOCK_CHECK_S = 0.5
 """Thrust commanded this long without the supervisor reporting flight means the thrust is locked."""
 REQUEST_EVERY_S = 0.5
 """How often an arming or crash-recovery request is repeated while the supervisor has not obeyed."""
+ESTOP_AGAIN_S = 0.2
+"""How often an emergency stop is sent again while the supervisor does not report Locked."""
 
 
 class VehicleChannel:
     """One vehicle's command state, safety and health on the gateway. `wheels`: it has the wheel
-    app (a flying car); without it wheel commands are refused and no STATUS is asked for."""
+    app (a flying car); without it wheel commands are refused and no STATUS is asked for. `flies`:
+    its capabilities include flight; without it flight setpoints are refused (a drive-only car)."""
 
-    def __init__(self, vid: str, params: GatewayParams, now: float, wheels: bool = True) -> None:
+    def __init__(self, vid: str, params: GatewayParams, now: float, wheels: bool = True, flies: bool = True) -> None:
         self.vid = vid
         self.params = params
         self.wheels = wheels
+        self.flies = flies
         self.mode = Drive.IDLE
         self.health = LinkHealth(now, params.link_timeout_s, params.log_period_s)
         self.landing: SafeLanding | None = None
@@ -127,6 +132,7 @@ class VehicleChannel:
         self._requested = -float("inf")
         self.estop_left = 0
         self.estopped = False
+        self._estop_sent = -float("inf")
         self.sent_setpoints = 0
         """Flight and wheel packets handed to the link (the Telemetry's command rate)."""
         self._rate_samples: deque[tuple[float, int]] = deque()
@@ -140,6 +146,8 @@ class VehicleChannel:
             raise Refused("emergency_stop", "the operator's emergency stop: commands refused until it is released")
         if isinstance(setpoint, WheelSetpoint) and not self.wheels:
             raise Refused("no_wheels", f"{self.vid} has no wheels (capabilities without drive)")
+        if isinstance(setpoint, FlightSetpoint) and not self.flies:
+            raise Refused("no_flight", f"{self.vid} does not fly (capabilities without fly)")
         if self.mode == Drive.LANDING and not isinstance(setpoint, FlightSetpoint):
             raise Refused("while_landing", f"{type(setpoint).__name__} during the safety landing: "
                                            "landing on, motors off once landed")
@@ -199,6 +207,8 @@ class VehicleChannel:
         which would have brought it down)."""
         if not was_flying:
             self._unlocks_left = self.params.stop_repeats
+        if self.estopped:  # the stop may not have reached it before the link went
+            self.estop_left = self.params.estop_repeats
 
     def command_rate(self, now: float) -> float:
         """Flight and wheel packets handed to the link per second, over about the last second."""
@@ -231,6 +241,8 @@ class VehicleChannel:
     def supervise(self, now: float) -> list[Event]:
         """Safety rules at `now`, before the tick's packets are chosen; the events they cause."""
         events = self.health.check(now)
+        if self.wheels:
+            events += self.health.check_app(now)
         age = now - self.cmd_at
         if self.mode == Drive.FLIGHT and self.stale(now):
             self.landing = SafeLanding(now, self._hover_setpoint(), self.params.landing, 1.0 / self.params.tick_hz)
@@ -257,10 +269,15 @@ class VehicleChannel:
         self.estopped = False
         self.estop_left = 0
 
-    def estop_packet(self) -> bytes | None:
+    def estop_packet(self, now: float) -> bytes | None:
+        """The emergency stop's packets: `estop_repeats` at once, then one every `ESTOP_AGAIN_S`
+        until the supervisor reports Locked (a stop lost on the radio is sent again)."""
         if self.estop_left <= 0:
-            return None
+            if not self.estopped or self.health.bit(LOCKED) or now - self._estop_sent < ESTOP_AGAIN_S:
+                return None
+            self.estop_left = 1
         self.estop_left -= 1
+        self._estop_sent = now
         return self._count(crtp.encode_emergency_stop())
 
     def request_packet(self, now: float) -> tuple[bytes | None, list[Event]]:
