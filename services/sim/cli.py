@@ -1,17 +1,21 @@
 """`fleet sim`: everything simulated. Bare `fleet sim --config RADIOS` runs the simulated Crazyflies
 of a radios file (each at its `udp://` URI, docs/radio.md); `fleet sim team` the simulated ground-air
-team of paper 002; `fleet sim replay PLAN` executes a team plan file in that world, offline."""
+team of paper 002; `fleet sim replay PLAN` executes a team plan file in that world, offline;
+`fleet sim fault VID KIND` injects a fault into a running simulated fleet (`services/sim/fault.py`)."""
 
 from __future__ import annotations
 
 import argparse
+from typing import get_args
 
-from common.bus.args import add_zenoh_args, keys_from_args, run_service, zconfig_from_args
+from common.bus.args import add_zenoh_args, keys_from_args, lazy_handler, run_service, zconfig_from_args
+from common.bus.messages import SimFaultKind
 from common.domain.team_plan import parse_vec3
 from common.errors import InputError
 
 # The demo room of paper 002's team (maps/collab/demo-room.yaml), as `fleet collab plan` knows it.
 ROOM_MAP, ROOM_START, ROOM_UGV = "demo-room", "1.25,1.25,1", "0.75,1.25,0"
+FAULT_KINDS: tuple[str, ...] = get_args(SimFaultKind)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -34,10 +38,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_zenoh_args(p, default_instance="team-sim")
     p.set_defaults(handler=_team)
 
+    _register_fault(ssub)
+
     p = ssub.add_parser("replay", help="execute a team plan file in the simulated world, honouring its sync points")
     p.add_argument("plan", help="team plan JSON (`fleet collab plan --out`)")
     p.add_argument("--map", help="default: the plan's map")
     p.set_defaults(handler=_replay)
+
+
+def _register_fault(ssub: argparse._SubParsersAction) -> None:
+    p = ssub.add_parser("fault", help="inject a fault into a running simulated fleet (operator role; "
+                                      "docs/reliability.md)")
+    p.add_argument("vid", metavar="VID", help="the simulated vehicle")
+    p.add_argument("kind", metavar="KIND", choices=FAULT_KINDS,
+                   help="mocap_dropout, radio_blackout (--duration S), battery (--charge-used AH), "
+                        "power_off (--duration S, 0 or none: until power_on), power_on")
+    amount = p.add_mutually_exclusive_group()
+    amount.add_argument("--duration", type=float, metavar="S", help="how long the fault lasts (s)")
+    amount.add_argument("--charge-used", type=float, metavar="AH", help="battery: the charge used from now on (Ah)")
+    p.add_argument("--wait", type=float, default=2.0, help="how long to wait for the simulator (s)")
+    add_zenoh_args(p, default_instance="operator")
+    p.set_defaults(handler=lazy_handler("services.sim.fault:cmd_fault"))
 
 
 def _crazyflies(args: argparse.Namespace) -> int:

@@ -9,7 +9,8 @@ resends a packet until the vehicle acknowledges it; over UDP it never resends, a
 in its connect sequence or a parameter update waits forever. So the request/reply traffic (ports
 2, 4, 5 TOC and control, 8, 9, 13 channels 0-1, 15 channels 1 and 3) is delayed but never lost; the
 streams (setpoints, external positions, log data, pings, the app channel) are lost at the link's
-rate. A 1-byte 0xFF (cflib's scan) is answered with 0xFF.
+rate. A 1-byte 0xFF (cflib's scan) is answered with 0xFF. A vehicle switched off (`switch_off`,
+fault injection) answers nothing at all until it is switched on again.
 
 The physics advances in steps of `PhysicsParams.max_substep` (2 ms) up to the wall clock whenever a
 packet arrives and whenever the simulator publishes truth, running the firmware's periodic work at
@@ -72,6 +73,7 @@ class SimCrazyflie(asyncio.DatagramProtocol):
         self.watchdog_cuts = 0
         """Times it cut the motors in the air (ExceptFreeFall: watchdog timeout or emergency stop), all boots."""
         self._blackout_until = -math.inf
+        self._switch_on_at: float | None = None
         self._next_tick = car.t + TICK_S
         self._peer: Address | None = None
         self._transport: asyncio.DatagramTransport | None = None
@@ -96,8 +98,29 @@ class SimCrazyflie(asyncio.DatagramProtocol):
         waits for arrive when the blackout ends (over a Crazyradio cflib resends them until then)."""
         self._blackout_until = until
 
+    def switch_off(self, until: float | None = None) -> None:
+        """Fault injection (docs/reliability.md): the vehicle's power switch off now (this clock), on
+        again at `until` (None: until `switch_on`). Off, nothing answers on the radio and the motors
+        stop; switched on, it boots as from a fresh power-on (`Platform.boot_s`)."""
+        now = self.clock()
+        self.advance(now)
+        if self.firmware.powered:
+            self.firmware.switch_off(self.car.t)
+        self._switch_on_at = until
+
+    def switch_on(self) -> None:
+        """The power switch on now (nothing happens if it is on)."""
+        self.advance(self.clock())
+        self._switch_on_at = None
+        if not self.firmware.powered:
+            self.firmware.switch_on(self.car.t)
+
+    @property
+    def powered(self) -> bool:
+        return self.firmware.powered
+
     def datagram_received(self, data: bytes, addr: Address) -> None:
-        if not data:
+        if not data or not self.firmware.powered:  # switched off: not even the radio chip answers
             return
         now = self.clock()
         if now < self._blackout_until:
@@ -136,6 +159,9 @@ class SimCrazyflie(asyncio.DatagramProtocol):
         """Step the physics in whole steps up to `now`, the firmware's periodic work at each tick."""
         while self._next_tick <= now:
             self._step_to(self._next_tick)
+            if self._switch_on_at is not None and self._next_tick >= self._switch_on_at:
+                self._switch_on_at = None
+                self.firmware.switch_on(self._next_tick)
             for raw in self.firmware.tick(self._next_tick):
                 if self._peer is not None:
                     self._reply(raw, self._peer)

@@ -9,8 +9,9 @@ these exactly as to real vehicles (paper 000 §VI-C).
 
 Fault injection (docs/reliability.md): a `SimFault` on `sim/fault/<vid>` blacks out the vehicle's
 radio link for a while (`radio_blackout`), hides its body from the motion capture
-(`mocap_dropout`) or sets its battery's used charge (`battery`); nothing happens unless one is
-published. Counters and figures go out on `stats/sim/<instance>`.
+(`mocap_dropout`), sets its battery's used charge (`battery`), switches the vehicle off for a while
+or until further notice (`power_off`) or on again (`power_on`); nothing happens unless one is
+published (`fleet sim fault`). Counters and figures go out on `stats/sim/<instance>`.
 """
 
 from __future__ import annotations
@@ -121,6 +122,10 @@ class SimService(Service):
             self.mocap.blind(fault.vid, time.time() + fault.duration_s)
         elif fault.kind == "radio_blackout":
             cf.blackout(time.time() + fault.duration_s)
+        elif fault.kind == "power_off":
+            cf.switch_off(time.time() + fault.duration_s if fault.duration_s > 0 else None)
+        elif fault.kind == "power_on":
+            cf.switch_on()
         else:
             cf.car.charge_used_ah = fault.charge_used_ah
 

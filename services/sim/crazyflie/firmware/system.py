@@ -13,7 +13,8 @@ notify-setpoint-stop, 8 high-level commander, 9 supervisor, 13 platform (protoco
 firmware version, device type, legacy arming; channel 2 the app: the wheel app when fitted), 15 link
 (echo, source, sink). The radio chip's power commands (null packets starting 0xFE, cflib
 `PowerSwitch`) reboot or power the firmware off and on; while it boots (`boot_s`) or is off, only the
-radio chip answers.
+radio chip answers. The power switch (`switch_off`, `switch_on`: fault injection) cuts the radio
+chip too: nothing answers until it is switched on and has booted.
 """
 
 from __future__ import annotations
@@ -308,6 +309,21 @@ class CrazyflieFirmware:
         self._motor_cmd = 0
 
     def reboot(self, now: float) -> None:
+        self._boot(now)
+
+    def switch_off(self, now: float) -> None:
+        """The power switch off (fault injection `power_off`): the radio chip too, so nothing answers
+        on the radio, not even the power commands; motors off."""
+        self.power_off(now)
+        self.powered = False
+        self._power_due = None
+        self.on_event("sim_power_off", "switched off")
+
+    def switch_on(self, now: float) -> None:
+        """The power switch on: a fresh power-on (`_boot`), CRTP answers `boot_s` later."""
+        self.powered = True
+        self._power_due = None
+        self.on_event("sim_power_on", "switched on: booting")
         self._boot(now)
 
     def _power(self, payload: bytes, now: float) -> list[Packet]:
