@@ -41,7 +41,7 @@ from common.crazyflie import crtp
 from common.deploy.radios import RadiosFile
 from common.domain.ownership import owner_of
 from services.radio_gateway.health import FLYING, LINK_EVENTS, LOCKED, Event
-from services.radio_gateway.link import RadioSender, VehicleLink
+from services.radio_gateway.link import RadioSender, VehicleLink, schedulable_pps
 from services.radio_gateway.scheduler import Scheduler
 from services.radio_gateway.vehicle import Refused, VehicleChannel
 
@@ -81,7 +81,8 @@ class RadioGateway(Service):
         now = time.time()
         self.channels = {vid: VehicleChannel(vid, self.params, now, wheels=link.wheels, flies=link.flies)
                          for vid, link in self.spec.vehicles.items()}
-        self.scheduler = Scheduler(list(self.channels.values()), self.spec.link.budget_pps, self.params, now)
+        self.scheduler = Scheduler(list(self.channels.values()),
+                                   schedulable_pps(self.spec.link.budget_pps, len(self.channels)), self.params, now)
         self.owners: dict[str, str | None] = dict.fromkeys(self.channels)
         self.connections = {vid: Connection() for vid in self.channels}
         self._logged: set[tuple[str, str]] = set()
@@ -181,8 +182,8 @@ class RadioGateway(Service):
 
     def _on_link_state(self, vid: str, state: str, detail: str) -> None:
         conn, now = self.connections[vid], time.time()
-        if state == "connected":
-            conn.state, conn.due = "open", now
+        if state == "connected":  # the first probe only if no log block came for a link timeout
+            conn.state, conn.due = "open", now + self.params.link_timeout_s
             ch = self.channels[vid]
             was_flying = bool(ch.health.bit(FLYING))
             ch.health.reset(now)

@@ -43,6 +43,15 @@ from common.crazyflie import crtp
 
 log = logging.getLogger(__name__)
 
+CFLIB_PINGS_HZ = 10.0
+"""Link-control pings cflib sends on every open link (`cflib/crazyflie/link_statistics.py`,
+`_ping_thread(interval=0.1)`): airtime the gateway's schedule does not control."""
+
+
+def schedulable_pps(budget_pps: float, vehicles: int) -> float:
+    """A radio's packets per second left to the gateway's schedule once cflib's pings are paid."""
+    return max(budget_pps - vehicles * CFLIB_PINGS_HZ, 0.0)
+
 LogCallback = Callable[[str, float, dict[str, float]], None]
 """``on_log(vid, arrival time, {variable: value})`` on a cflib thread."""
 PacketCallback = Callable[[str, bytes], None]
@@ -61,10 +70,13 @@ _init_lock = threading.Lock()
 
 
 def init_drivers() -> None:
-    """`cflib.crtp.init_drivers()` once per process (each call would register the drivers again)."""
+    """`cflib.crtp.init_drivers()` once per process (each call would register the drivers again).
+    cflib's own warning on a link error (with the driver's traceback) is silenced: the gateway
+    reports every link that fails or is lost as an event with the reason."""
     with _init_lock:
         if not cflib.crtp.CLASSES:
             cflib.crtp.init_drivers()
+            logging.getLogger("cflib.crazyflie").setLevel(logging.ERROR)
 
 
 class VehicleLink:
@@ -78,6 +90,7 @@ class VehicleLink:
         self.log_period_ms = log_period_ms
         self._on_log, self._on_app, self._on_state = on_log, on_app, on_state
         self._cf: Crazyflie | None = None
+        self._log_config: LogConfig | None = None
         self._ready = threading.Event()
         self._lock = threading.Lock()
         self.firmware = ""
@@ -138,6 +151,7 @@ class VehicleLink:
             except (KeyError, AttributeError, ValueError) as exc:
                 self._on_state(self.vid, "info", f"parameter {name} not set: {exc}")
         missing = [name for name, _kind in LOG_VARIABLES if cf.log.toc.get_element_by_complete_name(name) is None]
+        self._log_config = None  # a new connection: the firmware has no block of ours
         self._start_log(cf)
         for cmd in (1, 2):  # firmware version, device type
             cf.send_packet(CRTPPacket(crtp.header(crtp.PORT_PLATFORM, 1), bytes((cmd,))))
@@ -151,15 +165,16 @@ class VehicleLink:
             if cf.log.toc.get_element_by_complete_name(name) is not None:
                 config.add_variable(name, kind)
         config.data_received_cb.add_callback(lambda _ts, data, _conf: self._on_log(self.vid, time.time(), data))
+        old, self._log_config = self._log_config, None
+        if old is not None:  # first: its id is free again, and no start of it can come after the delete
+            old.delete()
         try:
             cf.log.add_config(config)
             config.start()
         except (KeyError, AttributeError) as exc:
             self._on_state(self.vid, "info", f"log block refused: {exc}")
             return
-        old, self._log_config = getattr(self, "_log_config", None), config
-        if old is not None:
-            old.delete()
+        self._log_config = config
 
     def refresh_log(self) -> None:
         """Create the log block again: the firmware drops every block when its radio heard nothing for
