@@ -21,6 +21,7 @@ _COMMAND_MODULES = (
     "services.planner.cli",
     "services.planner.collab.cli",
     "services.mission.cli",
+    "services.mission.doctor",
     "services.executor.cli",
     "services.radio_gateway.cli",
     "services.sim.cli",
