@@ -93,6 +93,12 @@ def test_an_overloaded_radio_shares_its_budget_equally() -> None:
     assert sched.flight_skipped > 0
 
 
+def test_a_wheel_app_that_gets_no_requests_on_a_full_radio_is_not_called_silent() -> None:
+    chans, sched = _radio(12, 0)  # flight takes every slot: no STATUS request goes out
+    _, events = _run(chans, sched, 3.0, lambda ch, now: HOVER, info=lambda now: FLYING_INFO)
+    assert "wheel_app_silent" not in [e[1][0] for e in events]
+
+
 def test_the_driving_switch_serialises_wheel_commands_at_its_rate() -> None:
     chans, sched = _radio(0, 10)
     sent, _ = _run(chans, sched, 2.0, lambda ch, now: WheelSetpoint(left=now, right=-now))  # always changing

@@ -19,7 +19,9 @@ from common.crazyflie import crtp
 
 Event = tuple[str, str]
 APP_TIMEOUTS = 2.0
-"""A flying car's wheel app is judged silent after this many link timeouts without a STATUS."""
+"""A flying car's wheel app is judged silent after this many link timeouts without a STATUS..."""
+APP_UNANSWERED = 10
+"""... and at least this many STATUS requests sent since the last one."""
 """(kind, detail) of a `VehicleEvent` to publish."""
 LINK_EVENTS = frozenset({"link_lost", "link_up"})
 """The events that change `Telemetry.link_ok`."""
@@ -52,6 +54,8 @@ class LinkHealth:
         """App-channel packets lost, from the wheel app's replies (`echo_seq - received`)."""
         self.setpoint_age_ms: int | None = None
         self.stale_replies = 0
+        self.app_asked = 0
+        """STATUS requests sent since the last STATUS came."""
         self.app_ok: bool | None = None
         """The wheel app answers its STATUS requests (None: not judged yet; `check_app`)."""
         self._app_at: float | None = None
@@ -97,6 +101,7 @@ class LinkHealth:
             return []
         self._echo = st.echo_seq
         self._app_at = now
+        self.app_asked = 0
         self.app_lost = lost
         self.setpoint_age_ms = st.setpoint_age_ms
         if not self.heard:
@@ -125,9 +130,11 @@ class LinkHealth:
 
     def check_app(self, now: float) -> list[Event]:
         """A flying car's wheel-app event, once: the link is up (log blocks) but no STATUS came for
-        `APP_TIMEOUTS` link timeouts (the app is missing, or speaks another protocol version)."""
+        `APP_TIMEOUTS` link timeouts and `APP_UNANSWERED` requests (the app is missing, or speaks
+        another protocol version; a radio whose budget flight takes sends no requests to miss)."""
         since = self._app_at if self._app_at is not None else self._app_from
-        if not self.link_ok or self.app_ok is False or now - since <= APP_TIMEOUTS * self.timeout_s:
+        if (not self.link_ok or self.app_ok is False or now - since <= APP_TIMEOUTS * self.timeout_s
+                or self.app_asked < APP_UNANSWERED):
             return []
         self.app_ok = False
         return [("wheel_app_silent", f"no wheel-app STATUS for {now - since:.1f} s while the link is up: "
@@ -141,6 +148,7 @@ class LinkHealth:
         self._echo = -1
         self._app_at = None
         self._app_from = now
+        self.app_asked = 0
         if forget:
             self.supervisor = None
 

@@ -386,6 +386,7 @@ class VehicleChannel:
 
     def status_request(self, now: float) -> bytes:
         self.health.app_seq += 1
+        self.health.app_asked += 1
         return self._count(crtp.encode_status_request(self.health.app_seq))
 
     def _count_app(self, raw: bytes) -> bytes:
