@@ -1,29 +1,36 @@
-"""Pose-to-command latency and achieved control rate of the executor service over zenoh, with 8, 32
-and 80 vehicles (issue 6).
+"""The executor's whole-process cost per vehicle and its pose-to-command latency over zenoh, for
+8, 32, 80 and 200 vehicles (issue 15).
 
-An in-process router; executor processes (`fleet executor`) as in the deployment; this process plays
-motion capture: it publishes every vehicle's pose at 100 Hz (moving along its plan, a long drive at
-0.1 m/s) and listens to the commands. Latency of a command = its arrival here - the capture time of
-the newest pose of that vehicle published before the executor's tick (so it includes the wait for
-the next 100 Hz tick, as on a real vehicle). Run: `python -m bench.fleet_latency`.
+An in-process router; executor processes (`fleet executor`) as in the deployment; this process
+plays the motion capture and the gateways: it publishes one `PoseFrame` of every vehicle at 100 Hz
+(each driving its plan, a 100 m road at 0.1 m/s, or hovering at 0.5 m with `--fly`), each
+vehicle's telemetry at 5 Hz naming one of `--gateways` gateways, and receives the executors'
+command batches (`gateway/<g>/cmd`). Measured after a warm-up:
+
+- latency: a batch's arrival here - the capture time of the frame it fused (`CmdBatch.pose_t`):
+  everything between the motion capture and the gateway's radio but the radio itself;
+- commands per vehicle per second (the control rate achieved);
+- the executors' CPU time from /proc (user + system, every thread: decoding, the event loop,
+  publishing, the controllers), as % of one core, per vehicle-cycle in us, and as vehicles one
+  core runs at 100 Hz.
+
+    python -m bench.fleet_latency [--vehicles 8,32,80,200] [--executors 1] [--seconds 10] [--fly]
 """
 
 from __future__ import annotations
 
 import asyncio
-import bisect
 import os
 import subprocess
 import sys
 import time
-from collections import defaultdict
 
 import numpy as np
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
 from common.bus.keys import Keys
 from common.bus.liveliness import watch_alive
-from common.bus.messages import Cmd, PlanStep, Pose, VehiclePlan
+from common.bus.messages import CmdBatch, FramePose, PlanStep, PoseFrame, Telemetry, VehiclePlan
 from common.bus.pubsub import Publisher, subscribe
 from common.bus.session import InProcessRouter, ZenohConfig, open_session
 from common.domain.planfile import PlanModel
@@ -31,18 +38,42 @@ from common.domain.vehicle_model import VehicleModel
 
 KEYS = Keys("bench")
 SPEED = 0.1
+RATE_HZ = 100.0
+GATEWAYS = 4
+_TICKS = os.sysconf("SC_CLK_TCK")
 
 
-def drive_plan(vid: str, y: float, t0: float) -> VehiclePlan:
-    """A 100 m straight drive at 0.1 m/s: the executor drives for the whole run."""
+def bench_plan(vid: str, y: float, t0: float, fly: bool) -> VehiclePlan:
+    """A 100 m straight drive at 0.1 m/s, or a take-off to 0.5 m and a long hover: the executor
+    controls the vehicle for the whole run."""
     m = VehicleModel()
     model = PlanModel(**{f: getattr(m, f) for f in m.__struct_fields__})
-    steps = [PlanStep(node="a", t=0.0, pos=(0.0, y, 0.0), kind="land"),
-             PlanStep(node="b", t=100.0 / SPEED, pos=(100.0, y, 0.0), kind="land", edge="drive")]
+    if fly:
+        steps = [PlanStep(node="a", t=0.0, pos=(0.0, y, 0.0), kind="helipad"),
+                 PlanStep(node="h", t=1.0, pos=(0.0, y, 0.5), kind="air", edge="takeoff"),
+                 PlanStep(node="h", t=1000.0, pos=(0.0, y, 0.5), kind="air")]
+    else:
+        steps = [PlanStep(node="a", t=0.0, pos=(0.0, y, 0.0), kind="land"),
+                 PlanStep(node="b", t=100.0 / SPEED, pos=(100.0, y, 0.0), kind="land", edge="drive")]
     return VehiclePlan(vid=vid, mission="bench", map="bench", steps=steps, model=model, t0=t0)
 
 
-async def measure(endpoint: str, n: int, executors: int, seconds: float) -> dict[str, float]:
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process `pid` (every thread), s."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / _TICKS
+
+
+def where(t: float, t0: float, y: float, fly: bool) -> tuple[float, float, float]:
+    """Where the vehicle is at `t` if it follows its plan exactly."""
+    rel = max(0.0, t - t0)
+    if fly:
+        return 0.0, y, min(rel, 1.0) * 0.5
+    return rel * SPEED, y, 0.0
+
+
+async def measure(endpoint: str, n: int, executors: int, seconds: float, fly: bool) -> dict[str, float]:
     session = open_session(ZenohConfig.client(endpoint))
     env = {**os.environ, "FLEET_ZENOH_CONNECT": endpoint, "FLEET_NAME": KEYS.fleet}
     procs = [subprocess.Popen([sys.executable, "-m", "services.cli", "executor"], env={**env, "FLEET_INSTANCE": f"ex{i}"},
@@ -52,69 +83,84 @@ async def measure(endpoint: str, n: int, executors: int, seconds: float) -> dict
         await alive.wait_until(lambda s: len(s) >= executors, timeout=30)
         alive.close()
         vids = [f"v{i:03d}" for i in range(n)]
-        pose_times: dict[str, list[float]] = defaultdict(list)
-        arrivals: list[tuple[str, float, float]] = []  # vid, cmd tick time, arrival
-        sub = subscribe(session, KEYS.all_vehicles("cmd"), Cmd,
-                        lambda c, _k: arrivals.append((c.vid, c.t, time.time())), maxlen=100_000)
-        pubs = {v: Publisher(session, KEYS.vehicle(v, "pose"), Pose) for v in vids}
+        gateway = {v: f"g{i % GATEWAYS}" for i, v in enumerate(vids)}
+        arrivals: list[tuple[float, float, int]] = []  # arrival, frame capture, commands
+        subs = [subscribe(session, KEYS.gateway_cmd(g), CmdBatch,
+                          lambda b, _k: arrivals.append((time.time(), b.pose_t, len(b.cmds))), maxlen=100_000)
+                for g in sorted(set(gateway.values()))]
+        frames = Publisher(session, KEYS.mocap_frame, PoseFrame)
+        telemetry = {v: Publisher(session, KEYS.vehicle(v, "telemetry"), Telemetry) for v in vids}
         t0 = time.time() + 1.0
         for i, v in enumerate(vids):
-            Publisher(session, KEYS.vehicle(v, "plan"), VehiclePlan).put(drive_plan(v, 0.5 * i, t0))
+            Publisher(session, KEYS.vehicle(v, "plan"), VehiclePlan).put(bench_plan(v, 0.5 * i, t0, fly))
         start = time.time()
         next_tick = time.monotonic()
         seq = 0
-        while time.time() - start < seconds + 1.0:
+        cpu0: list[float] | None = None
+        measured_from = start + 2.0  # after the warm-up
+        while time.time() - start < seconds + 2.0:
             now = time.time()
-            x = max(0.0, now - t0) * SPEED
-            for i, v in enumerate(vids):
-                pubs[v].put(Pose(vid=v, t=now, x=x, y=0.5 * i, z=0.0, yaw=0.0, seq=seq))
-                pose_times[v].append(now)
             seq += 1
-            next_tick += 0.01
+            frames.put(PoseFrame(t=now, seq=seq, poses=[FramePose(v, *where(now, t0, 0.5 * i, fly), 0.0)
+                                                           for i, v in enumerate(vids)]))
+            if seq % 20 == 0:
+                for v in vids:
+                    telemetry[v].put(Telemetry(vid=v, t=now, gateway=gateway[v], vbat=4.0, link_quality=1.0,
+                                               sent=0, dropped=0, cmd_rate_hz=100.0, owner=""))
+            if cpu0 is None and now >= measured_from:
+                cpu0 = [cpu_seconds(p.pid) for p in procs]
+            next_tick += 1.0 / RATE_HZ
             await asyncio.sleep(max(0.0, next_tick - time.monotonic()))
-        sub.close()
+        end = time.time()
+        cpu1 = [cpu_seconds(p.pid) for p in procs]
+        for sub in subs:
+            sub.close()
     finally:
         for p in procs:
             p.terminate()
         for p in procs:
             p.wait(timeout=10)
         session.close()
-    window = [(v, t, r) for v, t, r in arrivals if r - start > 1.0]  # after the warm-up second
-    lat = []
-    for v, t, r in window:
-        times = pose_times[v]
-        k = bisect.bisect_right(times, t) - 1
-        if k >= 0:
-            lat.append(r - times[k])
-    per_vehicle = len(window) / max(1, n) / seconds
-    lat_ms = 1e3 * np.array(lat)
-    return {"n": n, "executors": executors, "rate_hz": per_vehicle, "p50_ms": float(np.percentile(lat_ms, 50)),
-            "p99_ms": float(np.percentile(lat_ms, 99)), "max_ms": float(lat_ms.max())}
+    assert cpu0 is not None
+    window = [(a, t, c) for a, t, c in arrivals if a >= measured_from]
+    span = end - measured_from
+    lat_ms = 1e3 * np.array([a - t for a, t, _c in window if t > 0.0])
+    cpu = sum(cpu1) - sum(cpu0)
+    per_cycle_us = 1e6 * cpu / (n * RATE_HZ * span)
+    return {"n": n, "executors": executors, "rate_hz": sum(c for _a, _t, c in window) / n / span,
+            "p50_ms": float(np.percentile(lat_ms, 50)), "p99_ms": float(np.percentile(lat_ms, 99)),
+            "max_ms": float(lat_ms.max()), "cpu_pct": 100.0 * cpu / span, "us_per_cycle": per_cycle_us,
+            "per_core": 1e6 / (RATE_HZ * per_cycle_us)}
 
 
 def main() -> None:
     parser = bench_parser(__doc__.splitlines()[0])
-    parser.add_argument("--vehicles", default="8,32,80")
-    parser.add_argument("--executors", type=int, default=2)
+    parser.add_argument("--vehicles", default="8,32,80,200")
+    parser.add_argument("--executors", type=int, default=1)
     parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--fly", action="store_true", help="hover instead of driving")
     args = parser.parse_args()
     rows = []
     with InProcessRouter() as router:
         for n in (int(v) for v in args.vehicles.split(",")):
-            r = asyncio.run(measure(router.endpoint, n, args.executors, args.seconds))
+            r = asyncio.run(measure(router.endpoint, n, args.executors, args.seconds, args.fly))
             rows.append(r)
             print(f"{n} vehicles: {r}", flush=True)
-    print(format_table(["vehicles", "executors", "cmd rate Hz/vehicle", "latency p50 ms", "p99 ms", "max ms"],
+    print(format_table(["vehicles", "executors", "cmd Hz/vehicle", "latency p50 ms", "p99 ms", "max ms",
+                        "executor CPU %", "us/vehicle-cycle", "vehicles/core @100 Hz"],
                        [[r["n"], r["executors"], f"{r['rate_hz']:.1f}", f"{r['p50_ms']:.1f}", f"{r['p99_ms']:.1f}",
-                         f"{r['max_ms']:.1f}"] for r in rows]))
+                         f"{r['max_ms']:.1f}", f"{r['cpu_pct']:.0f}", f"{r['us_per_cycle']:.0f}",
+                         f"{r['per_core']:.0f}"] for r in rows]))
+    print("latency: frame capture -> the executor's command batch received by a gateway's subscriber "
+          "(this process), the radio excluded; CPU: the executor processes' user + system time")
     fig, (ax1, ax2) = new_figure(2)
     ns = [r["n"] for r in rows]
-    ax1.plot(ns, [r["rate_hz"] for r in rows], "o-")
-    ax1.axhline(100, ls="--", c="0.5")
-    ax1.set(xlabel="vehicles", ylabel="commands per vehicle per s", title="achieved control rate (target 100 Hz)")
+    ax1.plot(ns, [r["per_core"] for r in rows], "o-")
+    ax1.axhline(200, ls="--", c="0.5")
+    ax1.set(xlabel="vehicles", ylabel="vehicles per core at 100 Hz", title="executor whole-process cost")
     ax2.plot(ns, [r["p50_ms"] for r in rows], "o-", label="p50")
     ax2.plot(ns, [r["p99_ms"] for r in rows], "s-", label="p99")
-    ax2.set(xlabel="vehicles", ylabel="ms", title="pose-to-command latency")
+    ax2.set(xlabel="vehicles", ylabel="ms", title="frame capture -> command batch")
     ax2.legend()
     print(f"saved {save_figure(fig, args.out, 'fleet_latency')}")
 

@@ -3,14 +3,17 @@ prediction through dropouts and a covariance-based stale signal (000 §VI-B)."""
 
 from __future__ import annotations
 
+import gc
 import math
 import random
 
 import numpy as np
 import pytest
+from filterpy.common import Q_discrete_white_noise
+from filterpy.kalman import KalmanFilter
 
 from common.bus.messages import Pose
-from common.flight.estimator import PoseEstimator
+from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
 
 
 def track(est: PoseEstimator, t0: float, t1: float, vel: tuple[float, float, float] = (0.2, -0.1, 0.05),
@@ -122,15 +125,83 @@ def test_out_of_order_and_duplicate_poses_are_dropped() -> None:
     assert not est.update(Pose(vid="cf1", t=est.t or 0.0, x=0.0, y=0.0, z=0.0, yaw=0.0))
 
 
-def test_measured_quantities_stay_uncoupled_so_the_innovation_covariance_is_diagonal() -> None:
-    """The estimator inverts S = H P H' + R as a diagonal matrix; that holds only while P never
-    couples x, y, z and yaw. Run it through motion, inputs, an outlier and a dropout and check."""
-    est = PoseEstimator()
-    track(est, 0.0, 1.0, yaw_rate=0.5)
-    est.set_input((0.3, -0.2, 0.1), 1.0)
-    track(est, 1.0, 1.5, yaw_rate=0.5)
-    est.update(Pose(vid="cf1", t=1.5, x=5.0, y=0.0, z=0.0, yaw=0.0))
-    track(est, 1.8, 2.0, yaw_rate=0.5)
-    kf = est.kf
-    s = kf.H @ kf.P @ kf.H.T + kf.R
-    assert np.count_nonzero(s - np.diag(np.diagonal(s))) == 0
+class FilterpyReference:
+    """The 8-state filter as filterpy runs it (the estimator's definition before it was split per
+    axis and vectorised): predict with the commanded acceleration, update, gate, back to the
+    prediction on an outlier."""
+
+    def __init__(self, first: Pose) -> None:
+        self.params = params = EstimatorParams()
+        kf = self.kf = KalmanFilter(dim_x=8, dim_z=4, dim_u=3)
+        kf.H = np.zeros((4, 8))
+        kf.H[0, 0] = kf.H[1, 1] = kf.H[2, 2] = kf.H[3, 6] = 1.0
+        kf.R = np.diag([params.pos_std**2] * 3 + [params.yaw_std**2])
+        kf.x = np.array([[first.x], [first.y], [first.z], [0.0], [0.0], [0.0], [first.yaw], [0.0]])
+        kf.P = np.diag([params.pos_std**2] * 3 + [0.1**2] * 3 + [params.yaw_std**2, 0.5**2])
+        self.t = first.t
+        self.u = np.zeros((3, 1))
+
+    def update(self, pose: Pose) -> bool:
+        dt = pose.t - self.t
+        f = np.eye(8)
+        f[0, 3] = f[1, 4] = f[2, 5] = f[6, 7] = dt
+        b = np.zeros((8, 3))
+        q = np.zeros((8, 8))
+        for axis in range(3):
+            b[axis, axis], b[axis + 3, axis] = 0.5 * dt * dt, dt
+            q[np.ix_([axis, axis + 3], [axis, axis + 3])] = Q_discrete_white_noise(2, dt=dt, var=self.params.accel_std**2)
+        q[np.ix_([6, 7], [6, 7])] = Q_discrete_white_noise(2, dt=dt, var=self.params.yaw_accel_std**2)
+        kf = self.kf
+        kf.predict(u=self.u, B=b, F=f, Q=q)
+        self.t = pose.t
+        yaw = float(kf.x[6, 0])
+        kf.update(np.array([[pose.x], [pose.y], [pose.z], [yaw + math.remainder(pose.yaw - yaw, 2 * math.pi)]]))
+        if kf.mahalanobis**2 <= self.params.gate:
+            kf.x[6, 0] = math.remainder(float(kf.x[6, 0]), 2 * math.pi)
+            return True
+        kf.x, kf.P = kf.x_prior.copy(), kf.P_prior.copy()
+        return False
+
+
+def test_the_per_axis_vectorised_filter_is_filterpys_8_state_filter() -> None:
+    """Three vehicles in one bank fused a frame at a time, through motion, commanded accelerations,
+    an outlier and a yaw crossing pi: state and covariance equal filterpy's, vehicle by vehicle."""
+    rng = random.Random(3)
+    bank = KalmanBank(EstimatorParams())
+    ests = [PoseEstimator(bank=bank) for _ in range(3)]
+    truth = [(0.1 * i, -0.2, 0.3 * i, math.pi - 0.2) for i in range(3)]
+    refs: list[FilterpyReference] = []
+    for k in range(150):
+        t = 0.01 * k + rng.uniform(0.0, 0.002)
+        poses = [Pose(vid=f"v{i}", t=t, x=x + 0.2 * t + rng.gauss(0, 0.002), y=y - 0.1 * t, z=z + 0.05 * t,
+                      yaw=math.remainder(yaw + 0.8 * t + rng.gauss(0, 0.01), 2 * math.pi))
+                 for i, (x, y, z, yaw) in enumerate(truth)]
+        if k == 80:
+            poses[1] = Pose(vid="v1", t=t, x=5.0, y=0.0, z=0.0, yaw=0.0)  # an outlier
+        if k == 0:
+            fuse_poses(ests, poses)
+            refs = [FilterpyReference(p) for p in poses]
+            continue
+        if k == 50:
+            for i, (est, ref) in enumerate(zip(ests, refs, strict=True)):
+                est.set_input((0.3 * i, -0.2, 0.1), t - 0.005)
+                ref.u = np.array([[0.3 * i], [-0.2], [0.1]])
+        accepted = fuse_poses(ests, poses)
+        assert accepted == [ref.update(p) for ref, p in zip(refs, poses, strict=True)]
+        for est, ref in zip(ests, refs, strict=True):
+            x = bank.x[est.slot]
+            mine = [x[0, 0], x[1, 0], x[2, 0], x[0, 1], x[1, 1], x[2, 1], x[3, 0], x[3, 1]]
+            assert mine == pytest.approx(ref.kf.x[:, 0].tolist(), abs=1e-9)
+            p = bank.p[est.slot]
+            for axis, (v, r) in enumerate(((0, 3), (1, 4), (2, 5), (6, 7))):
+                assert p[axis].tolist() == pytest.approx([ref.kf.P[v, v], ref.kf.P[v, r], ref.kf.P[r, r]], abs=1e-12)
+    assert [e.rejected for e in ests] == [0, 1, 0]
+
+
+def test_a_bank_grows_and_reuses_the_slots_of_estimators_gone() -> None:
+    bank = KalmanBank(EstimatorParams(), capacity=2)
+    ests = [PoseEstimator(bank=bank) for _ in range(5)]
+    assert len({e.slot for e in ests}) == 5 and len(bank.x) >= 5
+    slot = ests.pop().slot
+    gc.collect()
+    assert PoseEstimator(bank=bank).slot == slot

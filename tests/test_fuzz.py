@@ -192,7 +192,7 @@ def test_plan_decoder_raises_only_plan_file_errors(plan_doc: Any, data: st.DataO
 # ---- a running service under a flood of garbage ----------------------------------------------------
 
 KEYS = Keys("fuzz")
-FLOODED = {KEYS.vehicle("v1", "plan"): VehiclePlan, KEYS.vehicle("v1", "pose"): messages.Pose,
+FLOODED = {KEYS.vehicle("v1", "plan"): VehiclePlan, KEYS.mocap_frame: messages.PoseFrame,
            KEYS.vehicle("v1", "telemetry"): messages.Telemetry, KEYS.vehicle("v1", "state"): VehicleState,
            KEYS.mission("m1", "start"): messages.MissionStart, KEYS.mission("m1", "abort"): messages.MissionAbort}
 """Every key the executor listens to, and the type it expects there."""
@@ -223,7 +223,7 @@ def test_executor_flooded_with_garbage_drops_counts_and_keeps_working(zenoh_rout
                 for key in FLOODED:
                     for payload in garbage:
                         attacker.put(key, payload, congestion_control=block)
-            attacker.put(KEYS.vehicle("v1", "pose"), oversized, congestion_control=block)
+            attacker.put(KEYS.mocap_frame, oversized, congestion_control=block)
             await asyncio.sleep(0.5)
             assert not run.done(), "the executor stopped under the flood"
             attacker.put(KEYS.vehicle("v1", "plan"), msgspec.msgpack.encode(_plan()))
@@ -240,5 +240,5 @@ def test_executor_flooded_with_garbage_drops_counts_and_keeps_working(zenoh_rout
     counters = asyncio.run(scenario()).counters
     for key, typ in FLOODED.items():
         assert counters[drop_name("malformed", typ, key)] == 50 * len(garbage)
-    assert counters[drop_name("oversized", messages.Pose, KEYS.vehicle("v1", "pose"))] == 1
+    assert counters[drop_name("oversized", messages.PoseFrame, KEYS.mocap_frame)] == 1
     assert not any(name.startswith("drop:handler") for name in counters)

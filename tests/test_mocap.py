@@ -20,7 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from common.bus.keys import Keys
-from common.bus.messages import Pose, SimTruth, VehicleEvent
+from common.bus.messages import Pose, PoseFrame, SimTruth, VehicleEvent
 from common.bus.pubsub import subscribe
 from common.bus.session import ZenohConfig
 from common.deploy.radios import MocapModel, simulated_radios
@@ -37,13 +37,22 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 class Poses:
-    """Every pose and mocap event, with its arrival time."""
+    """Every pose of the bridge's frames (`poses`) and of its per-vehicle keys (`vehicle_poses`), and
+    every mocap event, with its arrival time."""
 
     def __init__(self, session: zenoh.Session) -> None:
         self.poses: dict[str, list[tuple[float, Pose]]] = defaultdict(list)
+        self.vehicle_poses: dict[str, list[tuple[float, Pose]]] = defaultdict(list)
         self.events: list[VehicleEvent] = []
-        subscribe(session, KEYS.all_vehicles("pose"), Pose, lambda p, _k: self.poses[p.vid].append((time.time(), p)))
+        subscribe(session, KEYS.mocap_frame, PoseFrame, self._on_frame)
+        subscribe(session, KEYS.all_vehicles("pose"), Pose,
+                  lambda p, _k: self.vehicle_poses[p.vid].append((time.time(), p)))
         subscribe(session, KEYS.all_vehicles("event"), VehicleEvent, lambda e, _k: self.events.append(e))
+
+    def _on_frame(self, frame: PoseFrame, _key: str) -> None:
+        now = time.time()
+        for p in frame.poses:
+            self.poses[p.vid].append((now, frame.pose(p)))
 
     def since(self, vid: str, t: float) -> list[Pose]:
         return [p for at, p in self.poses[vid] if at >= t]
@@ -68,6 +77,9 @@ def test_mock_backend_feeds_mapped_poses_at_the_configured_rate(
         print(f"mock backend: {rate:.1f} poses/s per body")
         assert 85.0 <= rate <= 102.0 and abs(len(v1) - len(v2)) <= 2
         assert set(seen.poses) == {"v1", "v2"}  # the unmapped wand is ignored
+        one = [p for at, p in seen.vehicle_poses["v1"] if t0 <= at <= t1]  # per vehicle: 20 Hz
+        assert 17.0 <= len(one) / (t1 - t0) <= 21.0, len(one)
+        assert set(seen.vehicle_poses) == {"v1", "v2"}
         p = v1[-1]
         assert (p.x, p.y, p.z) == pytest.approx((1.0, 2.0, 0.5)) and p.yaw == pytest.approx(0.0, abs=1e-6)
         assert p.source == "mock" and v2[-1].yaw == pytest.approx(math.pi / 2, abs=1e-5)

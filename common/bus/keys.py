@@ -63,6 +63,16 @@ class Keys:
         return parts[0], parts[1]
 
     @property
+    def mocap_frame(self) -> str:
+        """Every vehicle's pose of one motion-capture frame (`PoseFrame`)."""
+        return f"{self.root}/mocap/frame"
+
+    def gateway_cmd(self, instance: str) -> str:
+        """Command batches (`CmdBatch`) for the vehicles of gateway `instance`."""
+        check_chunk(instance, "gateway instance")
+        return f"{self.root}/gateway/{instance}/cmd"
+
+    @property
     def planner_plan(self) -> str:
         return f"{self.root}/planner/plan"
 

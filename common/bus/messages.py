@@ -32,6 +32,31 @@ class Pose(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     source: str = "mocap"
 
 
+class FramePose(msgspec.Struct, frozen=True, forbid_unknown_fields=True, array_like=True):
+    """One vehicle's pose in a `PoseFrame`: position (m) and yaw (rad), map frame."""
+
+    vid: str
+    x: float
+    y: float
+    z: float
+    yaw: float
+
+
+class PoseFrame(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Every tracked vehicle's pose of one motion-capture frame (`mocap/frame`), stamped with the
+    frame's capture time `t`: the hot path (DESIGN.md) carries one message per frame instead of one
+    per vehicle. `seq` counts the bridge's frames; `source` is its backend."""
+
+    t: float
+    seq: int
+    poses: list[FramePose]
+    source: str = "mocap"
+
+    def pose(self, p: FramePose) -> Pose:
+        """`p` as a `Pose` of this frame."""
+        return Pose(vid=p.vid, t=self.t, x=p.x, y=p.y, z=p.z, yaw=p.yaw, seq=self.seq, source=self.source)
+
+
 class FlightSetpoint(msgspec.Struct, frozen=True, tag="flight", forbid_unknown_fields=True):
     """cflib `commander.send_setpoint` units: roll/pitch in degrees, yaw rate in deg/s, thrust 10001-60000."""
 
@@ -64,6 +89,17 @@ class Cmd(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     t: float
     setpoint: Setpoint
     mode: str = ""
+
+
+class CmdBatch(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One control cycle's commands of one executor for the vehicles of one gateway
+    (`gateway/<instance>/cmd`): the hot path's batch (DESIGN.md). `t` is when it was sent; `pose_t`
+    the capture time of the motion-capture frame the cycle fused (0: none), for latency figures."""
+
+    owner: str
+    t: float
+    cmds: list[Cmd]
+    pose_t: float = 0.0
 
 
 class PlanStep(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
+
+import numpy as np
 
 from common.bus.messages import ServiceStats
 from common.bus.service import Service
@@ -20,6 +22,14 @@ STATS_PERIOD_S = 2.0
 
 Figures = Callable[[], dict[str, float]]
 """Service-specific measurements, sampled at each publication."""
+
+
+def percentile_figures(name: str, seconds: Collection[float]) -> dict[str, float]:
+    """`<name>_p50_ms` and `<name>_p99_ms` of `seconds` (nothing if empty)."""
+    if not seconds:
+        return {}
+    p50, p99 = np.percentile(np.fromiter(seconds, float, len(seconds)), [50, 99])
+    return {f"{name}_p50_ms": 1e3 * float(p50), f"{name}_p99_ms": 1e3 * float(p99)}
 
 
 def snapshot(service: Service, figures: Figures | None = None) -> ServiceStats:

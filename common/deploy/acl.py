@@ -65,15 +65,16 @@ class Role:
 
 ROLES: dict[str, Role] = {
     "executor": Role(
-        publish=("vehicle/*/cmd", "vehicle/*/state", "vehicle/*/event", "vehicle/*/action"),
-        subscribe=("vehicle/*/plan", "vehicle/*/team_plan", "vehicle/*/pose", "vehicle/*/telemetry",
+        publish=("vehicle/*/cmd", "gateway/*/cmd", "vehicle/*/state", "vehicle/*/event", "vehicle/*/action"),
+        subscribe=("vehicle/*/plan", "vehicle/*/team_plan", "mocap/frame", "vehicle/*/pose", "vehicle/*/telemetry",
                    "vehicle/*/state", "vehicle/*/action_status", "mission/*/start", "mission/*/abort"),
         watch=("alive/executor/*",)),
     "planner": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan"), serve=("planner/plan", "planner/graph")),
     "gateway": Role(publish=("vehicle/*/telemetry", "vehicle/*/event"),
-                    subscribe=("vehicle/*/cmd", "vehicle/*/pose", "estop"), watch=("alive/executor/*",)),
+                    subscribe=("vehicle/*/cmd", "gateway/*/cmd", "mocap/frame", "estop"),
+                    watch=("alive/executor/*",)),
     "sim": Role(publish=("sim/truth/*", "sim/mocap", "vehicle/*/event"), subscribe=("sim/fault/*",)),
-    "mocap": Role(publish=("vehicle/*/pose", "vehicle/*/event"), subscribe=("sim/mocap",)),
+    "mocap": Role(publish=("mocap/frame", "vehicle/*/pose", "vehicle/*/event"), subscribe=("sim/mocap",)),
     "telemetry": Role(subscribe=("vehicle/*/plan", "vehicle/*/state", "vehicle/*/telemetry", "sim/truth/*"),
                       query=("planner/graph",)),
     # the simulated ground-air team of paper 002 (`fleet sim team`): runs the executors' actions

@@ -2,24 +2,30 @@
 filter with position and yaw estimates from a Vicon motion capture system is used to estimate the
 state of the robots").
 
-State [x, y, z, vx, vy, vz, yaw, yaw_rate], constant-velocity model (filterpy's `KalmanFilter`)
-driven by the acceleration the controller commands (`set_input`, the B u of the prediction) plus
-white acceleration noise. A pose whose innovation has a squared Mahalanobis distance above the
-chi-square gate is rejected as an outlier. Between poses the state is dead-reckoned with the
-commanded accelerations, so short dropouts are bridged and a controller acting on the prediction
-sees the response to its own commands (no runaway on a stale velocity); when the predicted position
-standard deviation exceeds `stale_std` the pose is "stale" and the state machine must stop
-trusting it.
+State [x, y, z, vx, vy, vz, yaw, yaw_rate], constant-velocity model driven by the acceleration the
+controller commands (`set_input`, the B u of the prediction) plus white acceleration noise. A pose
+whose innovation has a squared Mahalanobis distance above the chi-square gate is rejected as an
+outlier. Between poses the state is dead-reckoned with the commanded accelerations, so short
+dropouts are bridged and a controller acting on the prediction sees the response to its own
+commands (no runaway on a stale velocity); when the predicted position standard deviation exceeds
+`stale_std` the pose is "stale" and the state machine must stop trusting it.
+
+F, Q, R and the initial P never couple x, y, z and yaw, so the 8-state filter is exactly four
+independent 2-state filters (value, rate). `KalmanBank` runs them for many vehicles at once in
+numpy arrays (the executor fuses a whole motion-capture frame in one call: issue 15's hot path);
+`PoseEstimator` is one vehicle's slot in a bank (its own bank when alone). The filter equations are
+filterpy's `KalmanFilter.predict`/`update` (Joseph form) written per axis; a test runs filterpy's
+8-state filter beside it and finds the same states.
 """
 
 from __future__ import annotations
 
 import math
+import weakref
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from filterpy.common import Q_discrete_white_noise
-from filterpy.kalman import KalmanFilter
 
 from common.bus.messages import Pose
 from common.flight.reference import wrap_angle
@@ -63,70 +69,110 @@ class Estimate:
     stale: bool
 
 
-def _inverse_of_diagonal(s: np.ndarray) -> np.ndarray:
-    """Inverse of the innovation covariance S = H P H' + R, which is diagonal here: the four
-    measured quantities (x, y, z, yaw) belong to independent blocks of F, Q, R and the initial P,
-    so P never couples them (a test checks it). 5x cheaper than numpy.linalg.inv on a 4x4."""
-    return np.diag(1.0 / np.diagonal(s))
+class KalmanBank:
+    """The four per-axis filters (x, y, z, yaw: value and rate, covariance Ppp, Ppv, Pvv) of up to
+    `capacity` vehicles (it grows), one slot each."""
+
+    def __init__(self, params: EstimatorParams, capacity: int = 8) -> None:
+        self.params = params
+        self.x = np.zeros((capacity, 4, 2))
+        self.p = np.zeros((capacity, 4, 3))
+        self._free = list(range(capacity - 1, -1, -1))
+        self._r = np.array([params.pos_std**2] * 3 + [params.yaw_std**2])
+        self._q = np.array([params.accel_std**2] * 3 + [params.yaw_accel_std**2])
+
+    def allocate(self) -> int:
+        if not self._free:
+            n = len(self.x)
+            self.x = np.concatenate([self.x, np.zeros_like(self.x)])
+            self.p = np.concatenate([self.p, np.zeros_like(self.p)])
+            self._free = list(range(2 * n - 1, n - 1, -1))
+        return self._free.pop()
+
+    def release(self, slot: int) -> None:
+        self._free.append(slot)
+
+    def reset(self, slot: int, value: Sequence[float], rate: Sequence[float]) -> None:
+        """Slot `slot` starts at `value` (x, y, z, yaw) moving at `rate` (vx, vy, vz, yaw rate)."""
+        p = self.params
+        self.x[slot, :, 0] = value
+        self.x[slot, :, 1] = rate
+        self.p[slot] = 0.0
+        self.p[slot, :3, 0], self.p[slot, :3, 2] = p.pos_std**2, 0.1**2
+        self.p[slot, 3, 0], self.p[slot, 3, 2] = p.yaw_std**2, 0.5**2
+
+    def update(self, slots: np.ndarray, dt: np.ndarray, z: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Predict slots `slots` by `dt` (s, each) with the accelerations `u` (M x 3, world frame),
+        then fuse the measurements `z` (M x 4: x, y, z, yaw). A measurement outside the gate leaves
+        its slot at the prediction. Whether each was accepted."""
+        x, p = self.x[slots], self.p[slots]
+        dt1 = dt[:, None]
+        dt2 = dt1 * dt1
+        accel = np.zeros((len(slots), 4))
+        accel[:, :3] = u
+        value = x[:, :, 0] + x[:, :, 1] * dt1 + 0.5 * accel * dt2
+        rate = x[:, :, 1] + accel * dt1
+        q = self._q
+        ppp = p[:, :, 0] + 2.0 * dt1 * p[:, :, 1] + dt2 * p[:, :, 2] + q * dt2 * dt2 / 4.0
+        ppv = p[:, :, 1] + dt1 * p[:, :, 2] + q * dt2 * dt1 / 2.0
+        pvv = p[:, :, 2] + q * dt2
+        innovation = z - value
+        innovation[:, 3] = np.remainder(innovation[:, 3] + math.pi, 2.0 * math.pi) - math.pi
+        s = ppp + self._r
+        accepted = np.sum(innovation * innovation / s, axis=1) <= self.params.gate
+        kp, kv = ppp / s, ppv / s
+        a = 1.0 - kp  # Joseph form, as filterpy: P = (I - KH) P (I - KH)' + K R K'
+        kr = self._r
+        new = np.empty_like(x)
+        new[:, :, 0] = value + kp * innovation
+        new[:, :, 1] = rate + kv * innovation
+        new[:, 3, 0] = np.remainder(new[:, 3, 0] + math.pi, 2.0 * math.pi) - math.pi
+        new_p = np.empty_like(p)
+        new_p[:, :, 0] = a * a * ppp + kp * kp * kr
+        new_p[:, :, 1] = a * (ppv - kv * ppp) + kp * kv * kr
+        new_p[:, :, 2] = pvv - 2.0 * kv * ppv + kv * kv * (ppp + kr)
+        keep = accepted[:, None]
+        self.x[slots, :, 0] = np.where(keep, new[:, :, 0], value)
+        self.x[slots, :, 1] = np.where(keep, new[:, :, 1], rate)
+        self.p[slots] = np.where(keep[:, :, None], new_p, np.stack([ppp, ppv, pvv], axis=2))
+        return accepted
 
 
 class PoseEstimator:
-    """Kalman filter over mocap poses of one vehicle, with the commanded acceleration as input."""
+    """The Kalman filter of one vehicle's mocap poses, with the commanded acceleration as input: a
+    slot of `bank` (shared with the other vehicles of an executor, for `fuse_frame`), or of its own."""
 
-    def __init__(self, params: EstimatorParams = EstimatorParams()) -> None:
+    def __init__(self, params: EstimatorParams = EstimatorParams(), bank: KalmanBank | None = None) -> None:
+        if bank is not None and bank.params != params:
+            raise ValueError("an estimator's parameters must be its bank's")
         self.params = params
-        kf = KalmanFilter(dim_x=8, dim_z=4, dim_u=3)
-        kf.H = np.zeros((4, 8))
-        kf.H[0, 0] = kf.H[1, 1] = kf.H[2, 2] = kf.H[3, 6] = 1.0
-        kf.R = np.diag([params.pos_std**2] * 3 + [params.yaw_std**2])
-        kf.inv = _inverse_of_diagonal
-        self.kf = kf
+        self.bank = bank if bank is not None else KalmanBank(params, capacity=1)
+        self.slot = self.bank.allocate()
+        weakref.finalize(self, self.bank.release, self.slot)
         self.t: float | None = None
         self.accepted = 0
         self.rejected = 0
         self._rejected_run = 0
         self._rejected_first: Pose | None = None  # the first pose of the current rejected run
-        self._models: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._accel = (0.0, 0.0, 0.0)
-        self._u: np.ndarray | None = None  # the same as filterpy's control input (None: zero)
         self._dr_t = 0.0  # dead reckoning since the last pose: time, position, velocity
         self._dr = [0.0] * 6
+        self._yaw = (0.0, 0.0)  # yaw and its rate at the last pose
         self._pos_cov: list[tuple[float, float, float]] = []  # per axis: P_pp, P_pv, P_vv at the last pose
-
-    def _model(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """F, Q and B for a step of `dt` s, cached per 0.1 ms (poses come at a near-constant rate)."""
-        key = round(dt, 4)
-        cached = self._models.get(key)
-        if cached is None:
-            f = np.eye(8)
-            f[0, 3] = f[1, 4] = f[2, 5] = f[6, 7] = key
-            b = np.zeros((8, 3))
-            q = np.zeros((8, 8))
-            qa = Q_discrete_white_noise(2, dt=key, var=self.params.accel_std**2)
-            for axis in range(3):
-                b[axis, axis], b[axis + 3, axis] = 0.5 * key * key, key
-                q[np.ix_([axis, axis + 3], [axis, axis + 3])] = qa
-            q[np.ix_([6, 7], [6, 7])] = Q_discrete_white_noise(2, dt=key, var=self.params.yaw_accel_std**2)
-            if len(self._models) > 64:
-                self._models.clear()
-            cached = self._models[key] = (f, q, b)
-        return cached
 
     def reset(self, pose: Pose, velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
         """Start over at `pose`, at rest or at `velocity` (m/s)."""
-        p = self.params
-        vx, vy, vz = velocity
-        self.kf.x = np.array([[pose.x], [pose.y], [pose.z], [vx], [vy], [vz], [pose.yaw], [0.0]])
-        self.kf.P = np.diag([p.pos_std**2] * 3 + [0.1**2] * 3 + [p.yaw_std**2, 0.5**2])
+        self.bank.reset(self.slot, (pose.x, pose.y, pose.z, pose.yaw), (*velocity, 0.0))
         self.t = pose.t
-        self._restart_dead_reckoning()
+        self._restart_dead_reckoning(self.bank.x[self.slot].tolist(), self.bank.p[self.slot].tolist())
 
-    def _restart_dead_reckoning(self) -> None:
+    def _restart_dead_reckoning(self, x: list[list[float]], p: list[list[float]]) -> None:
+        """From the slot's state `x` (per axis: value, rate) and covariance `p` (Ppp, Ppv, Pvv)."""
         assert self.t is not None
         self._dr_t = self.t
-        self._dr = self.kf.x[:6, 0].tolist()
-        p = self.kf.P
-        self._pos_cov = [(float(p[i, i]), float(p[i, i + 3]), float(p[i + 3, i + 3])) for i in range(3)]
+        self._dr = [x[0][0], x[1][0], x[2][0], x[0][1], x[1][1], x[2][1]]
+        self._yaw = (x[3][0], x[3][1])
+        self._pos_cov = [(p[i][0], p[i][1], p[i][2]) for i in range(3)]
 
     def _reckon(self, now: float) -> list[float]:
         """Position and velocity dead-reckoned from the last pose to `now` (no change of state)."""
@@ -142,44 +188,31 @@ class PoseEstimator:
         if self.t is not None and now > self._dr_t:
             self._dr, self._dr_t = self._reckon(now), now
         self._accel = accel
-        self._u = np.array([accel]).T if any(accel) else None
 
     def update(self, pose: Pose) -> bool:
         """Fuse one pose; False if it was dropped (out of order) or rejected by the gate."""
-        if self.t is None:
-            self.reset(pose)
-            self.accepted += 1
-            return True
-        dt = pose.t - self.t
-        if dt <= 0.0:
-            return False
-        kf = self.kf
-        f, q, b = self._model(dt)
-        kf.predict(u=self._u, B=b, F=f, Q=q)
+        return fuse_poses([self], [pose])[0]
+
+    def _fused(self, pose: Pose, accepted: bool, x: list[list[float]], p: list[list[float]]) -> None:
+        """After the bank fused `pose` into this slot (state `x`, covariance `p` now): counts, and
+        the restart after `reacquire_after` rejected poses in a row."""
         self.t = pose.t
-        yaw_est = float(kf.x[6, 0])
-        z = np.array([[pose.x], [pose.y], [pose.z], [yaw_est + wrap_angle(pose.yaw - yaw_est)]])
-        kf.update(z, H=kf.H)  # z is already a column: passing H skips filterpy's reshaping
-        accepted = kf.mahalanobis**2 <= self.params.gate
         if accepted:
             self._rejected_run = 0
             self._rejected_first = None
             self.accepted += 1
-            kf.x[6, 0] = wrap_angle(float(kf.x[6, 0]))
         else:
-            # outlier: back to the prediction (filterpy keeps it in x_prior / P_prior)
-            kf.x, kf.P = kf.x_prior.copy(), kf.P_prior.copy()
             self.rejected += 1
             self._rejected_run += 1
             first = self._rejected_first = self._rejected_first or pose
             if self._rejected_run >= self.params.reacquire_after:
                 span = pose.t - first.t
-                self.reset(pose, ((pose.x - first.x) / span, (pose.y - first.y) / span, (pose.z - first.z) / span)
-                           if span > 0.0 else (0.0, 0.0, 0.0))
                 self._rejected_run = 0
                 self._rejected_first = None
-        self._restart_dead_reckoning()
-        return accepted
+                self.reset(pose, ((pose.x - first.x) / span, (pose.y - first.y) / span, (pose.z - first.z) / span)
+                           if span > 0.0 else (0.0, 0.0, 0.0))
+                return
+        self._restart_dead_reckoning(x, p)
 
     def pos_std(self, now: float) -> float:
         """Largest per-axis position std (m) predicted at `now`; inf before the first pose."""
@@ -194,7 +227,35 @@ class PoseEstimator:
         if self.t is None:
             return Estimate(now, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, math.inf, True)
         px, py, pz, vx, vy, vz = self._reckon(now)
-        yaw, yaw_rate = float(self.kf.x[6, 0]), float(self.kf.x[7, 0])
+        yaw, yaw_rate = self._yaw
         std = self.pos_std(now)
         return Estimate(now, px, py, pz, vx, vy, vz, wrap_angle(yaw + yaw_rate * max(now - self.t, 0.0)),
                         yaw_rate, std, std > self.params.stale_std)
+
+
+def fuse_poses(estimators: Sequence[PoseEstimator], poses: Sequence[Pose]) -> list[bool]:
+    """Fuse `poses[i]` into `estimators[i]`, those that share a bank in one vectorised step; False
+    for a pose dropped (not newer than its estimator's last) or rejected by the gate."""
+    out = [False] * len(estimators)
+    groups: dict[int, list[int]] = {}
+    for i, (est, pose) in enumerate(zip(estimators, poses, strict=True)):
+        if est.t is None:
+            est.reset(pose)
+            est.accepted += 1
+            out[i] = True
+        elif pose.t > est.t:
+            groups.setdefault(id(est.bank), []).append(i)
+    for members in groups.values():
+        bank = estimators[members[0]].bank
+        ests = [estimators[i] for i in members]
+        ps = [poses[i] for i in members]
+        slots = np.fromiter((e.slot for e in ests), np.intp, len(ests))
+        dt = np.fromiter((p.t - (e.t or 0.0) for e, p in zip(ests, ps, strict=True)), float, len(ests))
+        z = np.array([(p.x, p.y, p.z, p.yaw) for p in ps])
+        u = np.array([e._accel for e in ests])
+        accepted = bank.update(slots, dt, z, u).tolist()
+        xs, covs = bank.x[slots].tolist(), bank.p[slots].tolist()
+        for k, i in enumerate(members):
+            estimators[i]._fused(poses[i], accepted[k], xs[k], covs[k])
+            out[i] = accepted[k]
+    return out

@@ -6,11 +6,18 @@ Ownership is rendezvous hashing over the live executors, seen through liveliness
 to the others as soon as its token disappears (under 1 s), and the gateways obey the new owner. A
 vehicle taken over mid-mission resumes from the last state its previous owner published.
 
-Inputs: `vehicle/*/plan`, `vehicle/*/pose`, `vehicle/*/telemetry`, `vehicle/*/state` (for
-take-over), `mission/*/start`, `mission/*/abort`. Outputs for owned vehicles: `vehicle/<vid>/cmd`
-at the control rate, `vehicle/<vid>/state` at the state rate, `vehicle/<vid>/event` on faults
-(team plans of ground-air teams, paper 002: `services/executor/team_robots.py`);
-`stats/executor/<instance>`: counters, missed control deadlines, pose-to-command latency.
+Inputs: `vehicle/*/plan`, `mocap/frame` (every vehicle's pose of one motion-capture frame),
+`vehicle/*/telemetry`, `vehicle/*/state` (for take-over), `mission/*/start`, `mission/*/abort`.
+
+The control cycle is triggered by a frame's arrival (DESIGN.md, "Hot path"): it fuses the frame's
+poses of the owned vehicles, ticks every controller and sends the commands as one `CmdBatch` per
+gateway (`gateway/<instance>/cmd`; a vehicle's gateway is the one its telemetry comes from,
+`vehicle/<vid>/cmd` until that is known). Without frames (motion capture lost) a cycle runs every
+`FRAME_WAIT` periods anyway, so that stale poses are noticed and fault landings are flown. Outputs
+for owned vehicles besides the commands: `vehicle/<vid>/state` at the state rate,
+`vehicle/<vid>/event` on faults (team plans of ground-air teams, paper 002:
+`services/executor/team_robots.py`); `stats/executor/<instance>`: counters, late cycles (a command
+sent more than a period after its frame's capture), pose-to-command latency, cycle cost.
 
 Losing the router (docs/bus.md) makes every remote token vanish at once: that is not the death of
 the other executors, so ownership stands still until the router is back and the others have had
@@ -27,15 +34,16 @@ import logging
 import time
 from collections import deque
 
-import numpy as np
-
 from common.bus.args import keys_from_args, run_service, zconfig_from_args
 from common.bus.liveliness import AliveSet
 from common.bus.messages import (
     Cmd,
+    CmdBatch,
+    FramePose,
     MissionAbort,
     MissionStart,
     Pose,
+    PoseFrame,
     Telemetry,
     VehicleEvent,
     VehiclePlan,
@@ -43,7 +51,8 @@ from common.bus.messages import (
 )
 from common.bus.pubsub import Subscription
 from common.bus.service import Service
-from common.bus.stats import publish_stats
+from common.bus.stats import percentile_figures, publish_stats
+from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
 from common.flight.modes import Mode
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
@@ -62,12 +71,15 @@ clients one by one, so a peer's token may vanish a few ms before this process lo
 too. Well inside the gateways' 0.2 s before a silent vehicle's command is stale."""
 ROUTER_CHECK_TICKS = 10
 """Control ticks between two looks at the router link (a look costs about a microsecond)."""
+FRAME_WAIT = 1.5
+"""Control periods a cycle waits for a motion-capture frame before it runs without one."""
 
 
 class LoopStats:
-    """Tick lateness (how far after its due time a tick started), tick cost and pose-to-command
-    latency (a command's publication - the capture time of the newest pose fused since the
-    vehicle's previous command), last N of each; counts and the worst latency since the start."""
+    """Cycle lateness (how long after the capture of its frame, or after its due time without one,
+    a cycle started), cycle cost and pose-to-command latency (the commands' publication - the capture
+    time of the newest frame fused), last N of each; counts and the worst latency since the start.
+    A cycle is missed (late) when its commands went out more than a period after its frame."""
 
     def __init__(self, n: int = 2000) -> None:
         self.late: deque[float] = deque(maxlen=n)
@@ -81,7 +93,7 @@ class LoopStats:
         self.ticks += 1
         self.late.append(late)
         self.cost.append(cost)
-        if late > period:
+        if late + cost > period:
             self.missed += 1
 
     def add_latency(self, seconds: float) -> None:
@@ -89,12 +101,8 @@ class LoopStats:
         self.worst_latency = max(self.worst_latency, seconds)
 
     def percentiles(self) -> dict[str, float]:
-        out: dict[str, float] = {}
-        for name, values in (("late", self.late), ("cost", self.cost), ("pose_to_cmd", self.latency)):
-            if values:
-                p50, p99 = np.percentile(np.array(values), [50, 99])
-                out |= {f"{name}_p50_ms": 1e3 * float(p50), f"{name}_p99_ms": 1e3 * float(p99)}
-        return out
+        return {**percentile_figures("late", self.late), **percentile_figures("cost", self.cost),
+                **percentile_figures("pose_to_cmd", self.latency)}
 
     def figures(self) -> dict[str, float]:
         """Counts, percentiles and the worst latency, for `stats/executor/<instance>`."""
@@ -113,12 +121,15 @@ class ExecutorService(Service):
         self.aborts: dict[str, str] = {}
         self.ownership = VehicleOwnership(self.instance, lambda vid: vid in self.controllers, self._take,
                                           lambda vid: self.controllers.pop(vid, None))
-        self.last_pose: dict[str, Pose] = {}
-        """The latest pose of every vehicle, owned or not: a take-over starts from it."""
+        self.last_seen: dict[str, tuple[PoseFrame, FramePose]] = {}
+        """The latest pose of every vehicle, owned or not (with its frame): a take-over starts from it."""
+        self.gateway_of: dict[str, str] = {}
+        """Each vehicle's gateway, from its telemetry: where its commands go."""
         self.controllers: dict[str, VehicleController] = {}
+        self.bank = KalmanBank(EstimatorParams())
+        """Every owned vehicle's pose filter, for fusing a frame in one step."""
         self.stats = LoopStats()
         self._last_mode: dict[str, str] = {}
-        self._fresh_pose: dict[str, float] = {}  # vid -> capture time of a pose fused since its last cmd
         self._executors: AliveSet | None = None
         self._router_lost_at: float | None = None
         self._router_back_at: float | None = None
@@ -128,12 +139,13 @@ class ExecutorService(Service):
     async def main(self) -> None:
         k = self.keys
         self.subscribe(k.all_vehicles("plan"), VehiclePlan, self._on_plan)
-        poses = self.subscribe(k.all_vehicles("pose"), Pose, maxlen=4096)  # pulled by each tick
+        frames = self.subscribe(k.mocap_frame, PoseFrame, maxlen=64)  # pulled by the control loop
         self.subscribe(k.all_vehicles("telemetry"), Telemetry, self._on_telemetry, maxlen=1024)
         self.subscribe(k.all_vehicles("state"), VehicleState, self._on_state, maxlen=4096)
         self.subscribe(k.all_missions("start"), MissionStart, self._on_start)
         self.subscribe(k.all_missions("abort"), MissionAbort, self._on_abort)
         self._cmd = self.publishers(lambda vid: k.vehicle(vid, "cmd"), Cmd)
+        self._batch = self.publishers(k.gateway_cmd, CmdBatch)
         self._state = self.publishers(lambda vid: k.vehicle(vid, "state"), VehicleState)
         self._event = self.publishers(lambda vid: k.vehicle(vid, "event"), VehicleEvent)
         self.team.open()
@@ -142,7 +154,7 @@ class ExecutorService(Service):
             "executor", lambda _i, _a, _live: loop.call_later(TAKEOVER_GRACE_S, self._on_executors))
         self._reassign(self._executors.instances)
         self.spawn(publish_stats(self, self._figures), name="stats")
-        await self._control_loop(poses)
+        await self._control_loop(frames)
 
     def _figures(self) -> dict[str, float]:
         return {"vehicles": len(self.controllers), **self.stats.figures()}
@@ -188,14 +200,15 @@ class ExecutorService(Service):
         plan = self.plans[vid]
         if (vid, plan.mission) in self._failed:
             return
-        ctl = VehicleController(vid, plan.model, owner=self.instance)
+        ctl = VehicleController(vid, plan.model, owner=self.instance, bank=self.bank)
         ctl.load(plan)
         t0 = plan.t0 or self.starts.get(plan.mission)
         if t0:
             ctl.start(t0)
         prev = self.ownership.resume_from(vid, plan.mission)
         if prev is not None:
-            ctl.take_over(prev, time.time(), self.last_pose.get(vid))
+            seen = self.last_seen.get(vid)
+            ctl.take_over(prev, time.time(), seen[0].pose(seen[1]) if seen else None)
             log.warning("%s: took over %s from %s in mode %s", self.instance, vid, prev.owner, prev.mode)
         if plan.mission in self.aborts:
             ctl.abort(self.aborts[plan.mission])
@@ -238,13 +251,22 @@ class ExecutorService(Service):
             if self.plans[vid].mission == abort.mission:
                 ctl.abort(abort.reason)
 
-    def _on_pose(self, pose: Pose, _key: str) -> None:
-        self.last_pose[pose.vid] = pose
-        ctl = self.controllers.get(pose.vid)
-        if ctl is not None and ctl.on_pose(pose):
-            self._fresh_pose[pose.vid] = pose.t
+    def _fuse(self, frame: PoseFrame) -> None:
+        """Remember every vehicle's pose of `frame`; fuse those of the owned vehicles, at once."""
+        controllers, seen = self.controllers, self.last_seen
+        estimators: list[PoseEstimator] = []
+        poses: list[Pose] = []
+        for p in frame.poses:
+            seen[p.vid] = (frame, p)
+            ctl = controllers.get(p.vid)
+            if ctl is not None:
+                estimators.append(ctl.estimator)
+                poses.append(frame.pose(p))
+        fuse_poses(estimators, poses)
 
     def _on_telemetry(self, tel: Telemetry, _key: str) -> None:
+        if tel.gateway:
+            self.gateway_of[tel.vid] = tel.gateway
         ctl = self.controllers.get(tel.vid)
         if ctl is not None:
             ctl.on_telemetry(tel, time.time())
@@ -254,39 +276,57 @@ class ExecutorService(Service):
         self.ownership.on_state(state)
 
     # ---- the loop -------------------------------------------------------------------------------
-    async def _control_loop(self, poses: Subscription[Pose]) -> None:
-        """Every tick fuses the poses that arrived since the last one, then commands every vehicle:
-        a tick that runs late (a starved process) judges staleness on every pose that reached the
-        process, not only on those a handler happened to run for first."""
-        due = time.monotonic()
+    async def _control_loop(self, frames: Subscription[PoseFrame]) -> None:
+        """One cycle per motion-capture frame (module docstring): fuse every frame that arrived,
+        tick every controller, send one batch per gateway. A cycle that runs late (a starved
+        process) still fuses every frame that reached the process before it judges staleness."""
+        wait = FRAME_WAIT * self.period
+        due = time.monotonic() + wait
         n = 0
         while True:
+            try:
+                first: PoseFrame | None = (await asyncio.wait_for(frames.recv(), max(due - time.monotonic(), 0.0)))[0]
+            except TimeoutError:
+                first = None
             start = time.monotonic()
-            for pose, key in poses.drain():
-                self._on_pose(pose, key)
             now = time.time()
+            newest = first
+            if first is not None:
+                self._fuse(first)
+                for frame, _key in frames.drain():
+                    self._fuse(frame)
+                    newest = frame
             if n % ROUTER_CHECK_TICKS == 0:
                 self._check_router(now)
-            for vid, ctl in list(self.controllers.items()):
-                try:
-                    cmd, state = ctl.tick(now)
-                except Exception as exc:  # one vehicle's bug must not take the others down
-                    self._give_up(vid, exc, now)
-                    continue
-                self._cmd.put(vid, cmd)
-                captured = self._fresh_pose.pop(vid, None)
-                if captured is not None:
-                    self.stats.add_latency(time.time() - captured)
-                if n % self.state_every == 0:
-                    self._state.put(vid, state)
-                self._report_mode(vid, ctl, state, now)
+            self._cycle(now, n, newest.t if newest is not None else 0.0)
             n += 1
             end = time.monotonic()
-            self.stats.add(start - due, end - start, self.period)
-            due += self.period
-            if end - due > 10 * self.period:  # hopelessly behind (suspended?): skip, don't burst
-                due = end
-            await asyncio.sleep(max(0.0, due - time.monotonic()))
+            late = now - newest.t if newest is not None else start - due
+            self.stats.add(max(late, 0.0), end - start, self.period)
+            if newest is not None:
+                self.stats.add_latency(time.time() - newest.t)
+            due = end + wait
+
+    def _cycle(self, now: float, n: int, pose_t: float) -> None:
+        """Tick every owned controller; commands out as one batch per gateway."""
+        batches: dict[str, list[Cmd]] = {}
+        for vid, ctl in list(self.controllers.items()):
+            try:
+                cmd, state = ctl.tick(now)
+            except Exception as exc:  # one vehicle's bug must not take the others down
+                self._give_up(vid, exc, now)
+                continue
+            gateway = self.gateway_of.get(vid)
+            if gateway is None:
+                self._cmd.put(vid, cmd)
+            else:
+                batches.setdefault(gateway, []).append(cmd)
+            if n % self.state_every == 0:
+                self._state.put(vid, state)
+            self._report_mode(vid, ctl, state, now)
+        sent = time.time()
+        for gateway, cmds in batches.items():
+            self._batch.put(gateway, CmdBatch(owner=self.instance, t=sent, cmds=cmds, pose_t=pose_t))
 
     def _give_up(self, vid: str, exc: Exception, now: float) -> None:
         """Stop commanding `vid` for the rest of its mission (its gateway lands or stops it when

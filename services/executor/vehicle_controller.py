@@ -25,7 +25,7 @@ from common.bus.messages import (
 )
 from common.crazyflie.thrust import WheelBase, thrust_command, to_flight_setpoint
 from common.domain.vehicle_model import G, VehicleModel
-from common.flight.estimator import Estimate, EstimatorParams, PoseEstimator
+from common.flight.estimator import Estimate, EstimatorParams, KalmanBank, PoseEstimator
 from common.flight.lqr import FlightLqr, LqrWeights
 from common.flight.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
 from services.executor.faults import FaultMonitor, FaultParams, safe_landing_steps
@@ -64,12 +64,13 @@ class VehicleController:
     `tick(now)` at `params.dt` for the setpoint and state."""
 
     def __init__(self, vid: str, model: VehicleModel | None = None, owner: str = "",
-                 params: ControlParams | None = None) -> None:
+                 params: ControlParams | None = None, bank: KalmanBank | None = None) -> None:
+        """`bank`: the executor's, shared by its vehicles' estimators (`fuse_poses` a frame at once)."""
         self.vid = vid
         self.owner = owner
         self.params = params or ControlParams()
         self.model = model or VehicleModel()
-        self.estimator = PoseEstimator(self.params.estimator)
+        self.estimator = PoseEstimator(self.params.estimator, bank)
         self.pursuit = PurePursuit(self.params.wheels, self.params.pursuit)
         self.machine = ModeMachine(vid)
         self.plan: VehiclePlan | None = None

@@ -11,7 +11,8 @@ check, PASS or FAIL with what was seen, and exits 1 if any failed:
 - vehicle <vid>: telemetry from its gateway with the link up, the firmware version read, the
   supervisor neither locked, crashed nor tumbled, no emergency stop held, the battery and the link
   quality above `--min-battery` and `--min-link`, a flying car's wheel app answering;
-- mocap <vid>: poses arriving (`vehicle/<vid>/pose`, at least `--min-pose-rate`) and the body
+- mocap <vid>: poses arriving in the motion-capture frames (`mocap/frame`, the executors' input,
+  at least `--min-pose-rate`) and the body
   within `--position-tolerance` of where it should be parked: its task's start spot in `--scenario`
   (on the scenario's map or `--map`), else its `start` in the radios file for a simulated vehicle,
   else the map's nearest parking spot or helipad (`--map`), else not checked;
@@ -38,7 +39,7 @@ import zenoh
 
 from common.bus.args import add_zenoh_args, keys_from_args, zconfig_from_args
 from common.bus.keys import Keys
-from common.bus.messages import Pose, ServiceStats, Telemetry
+from common.bus.messages import Pose, PoseFrame, ServiceStats, Telemetry
 from common.bus.pubsub import subscribe
 from common.bus.session import ZenohConfig, open_session
 from common.deploy.acl import ROLES
@@ -107,8 +108,10 @@ class Heard:
         self.telemetry[msg.vid] = msg
         self.stamp(f"gateway/{msg.gateway}", msg.t)
 
-    def on_pose(self, msg: Pose, _key: str) -> None:
-        self.poses[msg.vid].append((time.time(), msg))
+    def on_frame(self, frame: PoseFrame, _key: str) -> None:
+        now = time.time()
+        for p in frame.poses:
+            self.poses[p.vid].append((now, frame.pose(p)))
 
     def on_stats(self, msg: ServiceStats, _key: str) -> None:
         self.stamp(f"{msg.service}/{msg.instance}", msg.t)
@@ -135,7 +138,7 @@ async def listen(zconfig: ZenohConfig, keys: Keys, listen_s: float) -> tuple[Hea
 
         tokens = session.liveliness().declare_subscriber(keys.all_alive("*"), on_token, history=True)
         subs = [subscribe(session, keys.all_vehicles("telemetry"), Telemetry, heard.on_telemetry),
-                subscribe(session, keys.all_vehicles("pose"), Pose, heard.on_pose, maxlen=65536),
+                subscribe(session, keys.mocap_frame, PoseFrame, heard.on_frame, maxlen=65536),
                 # one per service: the router passes a subscription only as narrow as a publisher's grant
                 *(subscribe(session, keys.all_stats(role), ServiceStats, heard.on_stats) for role in ROLES)]
         await asyncio.sleep(listen_s)
@@ -230,7 +233,7 @@ def check_mocap(vid: str, parking: Parking, heard: Heard, limits: Limits) -> Che
     poses = heard.poses.get(vid, [])
     window = max(heard.ended - heard.started, 1e-6)
     if not poses:
-        return Check(False, what, f"body not seen in {window:.1f} s (no vehicle/{vid}/pose: hidden, or its rigid "
+        return Check(False, what, f"body not seen in {window:.1f} s (not in mocap/frame: hidden, or its rigid "
                                   "body not named in the mocap file?)")
     rate = len(poses) / window
     quiet = heard.ended - poses[-1][0]

@@ -1,5 +1,8 @@
-"""`fleet mocap`: motion capture -> `vehicle/<vid>/pose` (paper 000 §VI-B: "position and yaw estimates
-from a Vicon motion capture system"), 100 Hz by default, stamped with the capture time.
+"""`fleet mocap`: motion capture -> poses (paper 000 §VI-B: "position and yaw estimates from a Vicon
+motion capture system"), stamped with the capture time: every frame as one `PoseFrame` on
+`mocap/frame` (100 Hz by default; the executors and gateways fuse these: the hot path) and each
+vehicle's pose on `vehicle/<vid>/pose` at `vehicle_pose_hz` (20 Hz by default; for tools, the
+recorder and anyone who reads one vehicle).
 
 A `motioncapture` system (vicon, optitrack, qualisys, vrpn, or the library's mock) or the simulated
 one of `fleet sim` (`sim`: its frames on `sim/mocap`) feeds the `BodyTracker`, which maps rigid
@@ -21,7 +24,7 @@ import time
 from collections.abc import Mapping
 
 from common.bus.keys import Keys
-from common.bus.messages import MocapFrame, Pose, VehicleEvent
+from common.bus.messages import FramePose, MocapFrame, Pose, PoseFrame, VehicleEvent
 from common.bus.service import Service
 from common.bus.session import ZenohConfig
 from common.bus.stats import publish_stats
@@ -48,6 +51,9 @@ class MocapBridge(Service):
     async def main(self) -> None:
         cfg = self.config
         self._poses = self.publishers(lambda vid: self.keys.vehicle(vid, "pose"), Pose)
+        self._frames = self.publisher(self.keys.mocap_frame, PoseFrame)
+        self._frame_seq = 0
+        self._pose_due: dict[str, float] = {}
         self._events = self.publishers(lambda vid: self.keys.vehicle(vid, "event"), VehicleEvent)
         tracker = self.tracker = BodyTracker(cfg.bodies, cfg.rate_hz, cfg.lost_after_s, source=cfg.backend)
         backend: LibBackend | None = None
@@ -84,9 +90,17 @@ class MocapBridge(Service):
             return
         poses, events = self.tracker.frame(t, seen, now)
         self._publish_events(events)
+        if not poses:
+            return
+        self._frame_seq += 1
+        self._frames.put(PoseFrame(t=t, seq=self._frame_seq, source=self.config.backend,
+                                   poses=[FramePose(p.vid, p.x, p.y, p.z, p.yaw) for p in poses]))
+        every = 1.0 / self.config.vehicle_pose_hz
         for pose in poses:
-            self._poses.put(pose.vid, pose)
             self.published[pose.vid] = self.published.get(pose.vid, 0) + 1
+            if t >= self._pose_due.get(pose.vid, 0.0):
+                self._poses.put(pose.vid, pose)
+                self._pose_due[pose.vid] = max(self._pose_due.get(pose.vid, 0.0), t - every / 2) + every
 
     async def _startup_check(self, tracker: BodyTracker) -> None:
         """Wait up to `startup_wait_s` for every mapped body; log which are missing (module docstring)."""

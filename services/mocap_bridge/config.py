@@ -5,7 +5,8 @@ radios file's `mocap` model).
 ```yaml
 backend: vicon                  # sim (fleet sim's frames) | mock | vicon | optitrack | qualisys | vrpn
 options: {hostname: 10.0.0.5}   # passed to motioncapture.connect (strings)
-rate_hz: 100                    # most poses per second per body
+rate_hz: 100                    # most poses per second per body (in the frames on mocap/frame)
+vehicle_pose_hz: 20             # poses per second per body on vehicle/<vid>/pose (tools, recorder)
 bodies: {cf_01: cf1, cf_02: cf2}   # rigid-body name -> vehicle id (empty: the body's name is the vid)
 lost_after_s: 0.1               # a body unseen this long is reported lost
 latency_s: 0.0                  # real systems: subtracted from the arrival time for the capture stamp
@@ -54,6 +55,7 @@ class MocapConfig(msgspec.Struct, **_Strict):
     backend: Backend = "sim"
     options: dict[str, str] = {}
     rate_hz: Positive = 100.0
+    vehicle_pose_hz: Positive = 20.0
     bodies: dict[str, str] = {}
     lost_after_s: Positive = 0.1
     latency_s: NonNegative = 0.0

@@ -29,14 +29,15 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass
 
 from common.bus.keys import Keys
-from common.bus.messages import Cmd, EmergencyStop, Pose, Telemetry, VehicleEvent
+from common.bus.messages import Cmd, CmdBatch, EmergencyStop, PoseFrame, Telemetry, VehicleEvent
 from common.bus.pubsub import Subscription, call_in_loop, subscribe
 from common.bus.service import Service
 from common.bus.session import ZenohConfig
-from common.bus.stats import publish_stats
+from common.bus.stats import percentile_figures, publish_stats
 from common.crazyflie import crtp
 from common.deploy.radios import RadiosFile
 from common.domain.ownership import owner_of
@@ -87,7 +88,10 @@ class RadioGateway(Service):
         self.connections = {vid: Connection() for vid in self.channels}
         self._logged: set[tuple[str, str]] = set()
         self._links: dict[str, VehicleLink] = {}
-        self._poses: dict[str, Subscription[Pose]] = {}
+        self._poses: Subscription[PoseFrame] | None = None
+        self._pose_t = 0.0  # capture time of the newest frame behind the commands taken this tick
+        self.latency: deque[float] = deque(maxlen=20000)
+        """Capture time of the frame an executor's batch fused -> its setpoints handed to the radio (s)."""
 
     # ---- lifecycle ------------------------------------------------------------------------
 
@@ -101,6 +105,7 @@ class RadioGateway(Service):
         cmds = [self.subscribe(key, Cmd) for key in  # pulled by each tick
                 ([self.keys.vehicle(vid, "cmd") for vid in self.channels] if self.subscribe_each
                  else [self.keys.all_vehicles("cmd")])]
+        batches = self.subscribe(self.keys.gateway_cmd(self.instance), CmdBatch)
         in_loop = lambda fn: lambda *a: call_in_loop(loop, fn, *a)  # noqa: E731
         period_ms = round(self.params.log_period_s * 1000)
         self._links = {vid: VehicleLink(vid, link.uri, {**self.params.params, **link.params}, period_ms,
@@ -109,24 +114,31 @@ class RadioGateway(Service):
         sender = RadioSender(self.radio, in_loop(self._on_link_error), self.counters)
         self.spawn(publish_stats(self, self._figures), name="stats")
         try:
-            await self._run(sender, cmds)
+            await self._run(sender, cmds, batches)
         finally:
             sender.close()
-            for sub in self._poses.values():
-                sub.close()
+            if self._poses is not None:
+                self._poses.close()
             await asyncio.gather(*(asyncio.to_thread(link.close) for link in self._links.values()))
 
-    async def _run(self, sender: RadioSender, cmds: list[Subscription[Cmd]]) -> None:
+    async def _run(self, sender: RadioSender, cmds: list[Subscription[Cmd]], batches: Subscription[CmdBatch]) -> None:
         """The tick loop: the commands that arrived, links, safety, one batch, pose subscriptions,
         telemetry. Commands are taken right before the staleness check: a tick that runs late (a
-        starved process) must not take its owner's waiting commands for missing ones."""
+        starved process) must not take its owner's waiting commands for missing ones. A tick runs
+        every period, and at once when an executor's command batch arrives (its setpoints go out
+        without waiting for the next tick; `VehicleChannel.flight_due` keeps the pace)."""
         loop = asyncio.get_running_loop()
         period = 1.0 / self.params.tick_hz
         telemetry_every = max(1, round(self.params.tick_hz / self.params.status_hz))
         due = loop.time()
         ticks = 0
+        arrived: CmdBatch | None = None
         while True:
             late = loop.time() - due
+            if arrived is not None:
+                self._on_batch(arrived)
+            for got, _key in batches.drain():
+                self._on_batch(got)
             for sub in cmds:
                 for cmd, key in sub.drain():
                     self._on_cmd(cmd, key)
@@ -141,6 +153,9 @@ class RadioGateway(Service):
                 self._publish_events(vid, [event])
             if batch:
                 sender.submit([(self._links[vid], raw) for vid, raw in batch])
+            if self._pose_t:
+                self.latency.append(time.time() - self._pose_t)
+                self._pose_t = 0.0
             self._sync_pose_subscriptions()
             if ticks % telemetry_every == 0:
                 self._publish_telemetry(now)
@@ -150,7 +165,11 @@ class RadioGateway(Service):
             if delay < -period:  # fell behind: the token bucket already caps the catch-up
                 due = loop.time()
                 delay = 0.0
-            await asyncio.sleep(delay)
+            try:
+                arrived = (await asyncio.wait_for(batches.recv(), max(delay, 0.0)))[0]
+                due = loop.time()  # ticking now: the next regular tick a period later
+            except TimeoutError:
+                arrived = None
 
     # ---- links ------------------------------------------------------------------------------
 
@@ -241,9 +260,16 @@ class RadioGateway(Service):
             log.log(logging.INFO if reason == "unassigned" else logging.WARNING,
                     "%s: refused cmd for %s: %s (further ones only counted)", self.instance, vid, detail)
 
+    def _on_batch(self, batch: CmdBatch) -> None:
+        self._pose_t = max(self._pose_t, batch.pose_t)
+        for cmd in batch.cmds:
+            self._command(cmd.vid, cmd)
+
     def _on_cmd(self, cmd: Cmd, key: str) -> None:
         parsed = self.keys.parse_vehicle(key)
-        vid = parsed[0] if parsed else cmd.vid
+        self._command(parsed[0] if parsed else cmd.vid, cmd)
+
+    def _command(self, vid: str, cmd: Cmd) -> None:
         ch = self.channels.get(vid)
         if ch is None:
             self._refuse("unassigned", vid, f"{vid} is not on radio {self.radio}")
@@ -286,10 +312,12 @@ class RadioGateway(Service):
             log.warning("%s: link of %s: %s (further errors only counted)", self.instance, vid, message)
             self._publish_events(vid, [("link_error", message)])
 
-    def _on_pose(self, pose: Pose, key: str) -> None:
-        parsed = self.keys.parse_vehicle(key)
-        if parsed is not None and parsed[0] in self.channels:
-            self.channels[parsed[0]].on_pose(pose, time.time())
+    def _on_frame(self, frame: PoseFrame, _key: str) -> None:
+        now = time.time()
+        for p in frame.poses:
+            ch = self.channels.get(p.vid)
+            if ch is not None and ch.landing is not None:
+                ch.on_pose(frame.pose(p), now)
 
     def _on_estop(self, stop: EmergencyStop, _key: str) -> None:
         for vid, ch in self.channels.items():
@@ -308,16 +336,17 @@ class RadioGateway(Service):
         return {"vehicles": len(self.channels), "links_ok": sum(ch.health.link_ok for ch in chans),
                 "taken_over": sum(ch.took_over for ch in chans),
                 "skipped": sum(v for k, v in self.counters.items() if k.startswith("skipped:")),
-                "flight_skipped": self.scheduler.flight_skipped}
+                "flight_skipped": self.scheduler.flight_skipped, **percentile_figures("pose_to_radio", self.latency)}
 
     def _sync_pose_subscriptions(self) -> None:
-        """Poses only matter during a safety landing: subscribe while one lasts."""
-        for vid, ch in self.channels.items():
-            if ch.landing is not None and vid not in self._poses:
-                self._poses[vid] = subscribe(self.session, self.keys.vehicle(vid, "pose"), Pose, self._on_pose,
-                                             counters=self.counters)
-            elif ch.landing is None and vid in self._poses:
-                self._poses.pop(vid).close()
+        """Poses only matter during a safety landing: motion-capture frames while one lasts."""
+        landing = any(ch.landing is not None for ch in self.channels.values())
+        if landing and self._poses is None:
+            self._poses = subscribe(self.session, self.keys.mocap_frame, PoseFrame, self._on_frame,
+                                    counters=self.counters)
+        elif not landing and self._poses is not None:
+            self._poses.close()
+            self._poses = None
 
     def _publish_events(self, vid: str, events: list[Event]) -> None:
         for kind, detail in events:

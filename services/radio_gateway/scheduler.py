@@ -109,10 +109,10 @@ class Scheduler:
         n = len(self.channels)
         order = [self.channels[(self._rr + k) % n] for k in range(n)]
         for k, ch in enumerate(order):
-            if not ch.wants_flight_slot:
+            if not ch.flight_due(now):
                 continue
             if not self._take():
-                self.flight_skipped += sum(c.wants_flight_slot for c in order[k:])
+                self.flight_skipped += sum(c.flight_due(now) for c in order[k:])
                 self._rr = (self._rr + k) % n
                 return
             raw, caused = ch.flight_packet(now)

@@ -94,6 +94,8 @@ UNLOCK_CHECK_S = 0.5
 """Thrust commanded this long without the supervisor reporting flight means the thrust is locked."""
 REQUEST_EVERY_S = 0.5
 """How often an arming or crash-recovery request is repeated while the supervisor has not obeyed."""
+PACE = 0.9
+"""A vehicle's flight slots are at least this many ticks apart unless a new setpoint came."""
 ESTOP_AGAIN_S = 0.2
 """How often an emergency stop is sent again while the supervisor does not report Locked."""
 
@@ -130,6 +132,9 @@ class VehicleChannel:
         self._settle_sent = -float("inf")
         self._notifies_left = 0
         self._requested = -float("inf")
+        self._flight_new = False  # a flight setpoint came that has not gone out yet
+        self._slot_at = -float("inf")  # when this vehicle last took a flight slot
+        self._min_gap = PACE / params.tick_hz
         self.estop_left = 0
         self.estopped = False
         self._estop_sent = -float("inf")
@@ -163,6 +168,7 @@ class VehicleChannel:
                     self._wheels = (0.0, 0.0)
                     self._wheel_zeros_left = self.params.stop_repeats
             self._flight, self._flight_raw = setpoint, raw
+            self._flight_new = True
             if setpoint.thrust >= FIRMWARE_MIN_THRUST:
                 self._thrusts.append(thrust_newtons(setpoint.thrust) * math.cos(math.radians(setpoint.roll))
                                      * math.cos(math.radians(setpoint.pitch)))
@@ -302,6 +308,15 @@ class VehicleChannel:
     def wants_flight_slot(self) -> bool:
         return self.mode in (Drive.FLIGHT, Drive.LANDING) or self._stops_left > 0 or self.settling
 
+    def flight_due(self, now: float) -> bool:
+        """A flight slot is wanted now: a new flight setpoint came, or the last slot is a tick old
+        (the last setpoint repeated, the landing's and the stops' own pace). The gateway ticks
+        at `tick_hz` and also as soon as a command batch arrives, so a setpoint goes out when it
+        comes and nothing goes out twice as often as the ticks."""
+        if not self.wants_flight_slot:
+            return False
+        return (self._flight_new and self.mode == Drive.FLIGHT) or now - self._slot_at >= self._min_gap
+
     def _settle_packet(self, now: float) -> bytes | None:
         """After a flight: stops while the supervisor still believes it flies, then notify-setpoint-stop."""
         if self._settle_from is not None:
@@ -334,6 +349,7 @@ class VehicleChannel:
 
     def flight_packet(self, now: float) -> tuple[bytes | None, list[Event]]:
         """The commander packet for this tick's slot (None: nothing to send) and any events."""
+        self._slot_at, self._flight_new = now, False
         if self.mode == Drive.FLIGHT:
             self.sent_setpoints += 1
             self._check_unlocked(now)
