@@ -29,23 +29,28 @@ class Mode(StrEnum):
     LANDING = "landing"
     """Following a land edge, or a fault's descent to the nearest safe point, until touchdown."""
     HOLDING = "holding"
-    """On the ground, stopped by a fault (stale pose, lost link) that may clear."""
+    """On the ground, stopped by a fault (stale pose, lost link) that may clear, or by the tracking
+    guard (for good)."""
+    HOVERING = "hovering"
+    """Airborne, held where it was by the tracking guard (off its plan) until the mission aborts."""
     EMERGENCY_LANDING = "emergency_landing"
     """Airborne without a trustworthy pose: a blind, level descent, then motors off."""
     DONE = "done"
     """On the ground, motors and wheels off for good: at the goal, or after an abort or low battery."""
 
 
-AIRBORNE: frozenset[Mode] = frozenset({Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING, Mode.EMERGENCY_LANDING})
+AIRBORNE: frozenset[Mode] = frozenset({Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING, Mode.HOVERING,
+                                       Mode.EMERGENCY_LANDING})
 GROUNDED: frozenset[Mode] = frozenset(Mode) - AIRBORNE
 
 TRANSITIONS: dict[Mode, frozenset[Mode]] = {
     Mode.PARKED: frozenset({Mode.DRIVING, Mode.TAKING_OFF, Mode.HOLDING, Mode.DONE}),
     Mode.DRIVING: frozenset({Mode.PARKED, Mode.TAKING_OFF, Mode.HOLDING, Mode.DONE}),
-    Mode.TAKING_OFF: frozenset({Mode.FLYING, Mode.LANDING, Mode.EMERGENCY_LANDING}),
-    Mode.FLYING: frozenset({Mode.LANDING, Mode.EMERGENCY_LANDING}),
-    Mode.LANDING: frozenset({Mode.PARKED, Mode.DRIVING, Mode.TAKING_OFF, Mode.HOLDING, Mode.DONE,
+    Mode.TAKING_OFF: frozenset({Mode.FLYING, Mode.LANDING, Mode.HOVERING, Mode.EMERGENCY_LANDING}),
+    Mode.FLYING: frozenset({Mode.LANDING, Mode.HOVERING, Mode.EMERGENCY_LANDING}),
+    Mode.LANDING: frozenset({Mode.PARKED, Mode.DRIVING, Mode.TAKING_OFF, Mode.HOLDING, Mode.HOVERING, Mode.DONE,
                              Mode.EMERGENCY_LANDING}),
+    Mode.HOVERING: frozenset({Mode.LANDING, Mode.EMERGENCY_LANDING}),
     Mode.HOLDING: frozenset({Mode.PARKED, Mode.DRIVING, Mode.TAKING_OFF, Mode.DONE}),
     Mode.EMERGENCY_LANDING: frozenset({Mode.DONE}),
     Mode.DONE: frozenset({Mode.PARKED}),

@@ -34,7 +34,11 @@ class FaultParams:
     giving up the plan; emergency descent: speed (m/s), gain on its error (1/s), acceleration
     limit (m/s^2), and the wait past the predicted touchdown before the motors stop, as a
     fraction of the predicted descent time plus a margin (s); rest_speed: with poses back, a
-    vertical speed (m/s) below which the vehicle rests (motors may stop)."""
+    vertical speed (m/s) below which the vehicle rests (motors may stop). Tracking guard
+    (issue 15): a plan is collision-free only while every vehicle stays within the margin it was
+    planned with (`VehicleModel.margin`), so a vehicle whose estimated distance from its reference
+    exceeds `guard_factor` x margin for `guard_s`, or `guard_burst` x margin at once, is held
+    (hovering or stopped where it is) and reported (`tracking_hold`); `guard` False disables it."""
 
     vbat_low: float = 3.3
     vbat_low_s: float = 1.0
@@ -46,6 +50,10 @@ class FaultParams:
     descent_slack: float = 1.0
     descent_margin_s: float = 0.3
     rest_speed: float = 0.05
+    guard: bool = True
+    guard_factor: float = 1.0
+    guard_burst: float = 2.0
+    guard_s: float = 0.2
 
     def descent_accel_cmd(self, vz: float) -> float:
         """Vertical acceleration (m/s^2) steering the dead-reckoned vertical speed to -descent_speed."""

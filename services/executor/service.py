@@ -348,6 +348,8 @@ class ExecutorService(Service):
         if prev == state.mode:
             return
         kind, detail, node = FAULT_MODES.get(state.mode), f"from {prev}", ""
+        if ctl.held and state.mode in (Mode.HOVERING, Mode.HOLDING):
+            kind, detail = "tracking_hold", ctl.held
         leaves_plan = state.mode == Mode.LANDING or (state.mode == Mode.DONE and prev != Mode.LANDING)
         if kind is None and leaves_plan:
             if ctl.faults.low_battery(ctl.charge_used_ah, now):

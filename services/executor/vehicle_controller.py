@@ -91,6 +91,10 @@ class VehicleController:
         self._descent: tuple[float, float | None] | None = None  # emergency: start, motors-off time
         self._abort: str | None = None
         self._last_tick: float | None = None
+        self._guard_since: float | None = None  # since when the tracking error is past the margin
+        self.held: str | None = None
+        """Why the tracking guard holds the vehicle (None: it does not)."""
+        self._hover_ref: RefSample | None = None  # where a held vehicle hovers
 
     # ---- inputs ---------------------------------------------------------------------------
 
@@ -171,10 +175,12 @@ class VehicleController:
         return self._active.steps[-1].node
 
     def reference(self, now: float) -> RefSample | None:
-        """The reference being followed at `now` (the plan's, or a fault landing's); None before
-        the mission starts."""
+        """The reference being followed at `now` (the plan's, or a fault landing's, or where the
+        tracking guard holds it); None before the mission starts."""
         if self._active is None or self.t0 is None:
             return None
+        if self._hover_ref is not None:
+            return self._hover_ref
         return self._active.sample(now - self.t0)
 
     # ---- the control tick -----------------------------------------------------------------
@@ -187,8 +193,10 @@ class VehicleController:
         ref: RefSample | None = None
         before = self.machine.mode
         if self._active is not None and self.t0 is not None:
-            self._supervise(now, now - self.t0, est)
-            ref = self.reference(now)
+            active, ref = self._active, self.reference(now)
+            self._supervise(now, now - self.t0, est, ref)
+            if self._active is not active or self._hover_ref is not None:
+                ref = self.reference(now)
         setpoint = self._control(now, est, ref, before)
         self.charge_used_ah += self.model.charge_ah(self._power(ref), dt)
         self.seq += 1
@@ -196,7 +204,7 @@ class VehicleController:
                   mode=str(self.machine.mode))
         return cmd, self._state(now, est, ref)
 
-    def _supervise(self, now: float, rel: float, est: Estimate) -> None:
+    def _supervise(self, now: float, rel: float, est: Estimate, ref: RefSample | None) -> None:
         m = self.machine
         if m.mode in (Mode.DONE, Mode.EMERGENCY_LANDING):
             return
@@ -211,12 +219,18 @@ class VehicleController:
             if reason and not self._fault_landing:
                 self._begin_safe_landing(now, rel, est, reason)
                 return
-            if self._fault_landing or (m.mode == Mode.LANDING and rel >= self._landing_end):
+            if self._fault_landing or self.held or (m.mode == Mode.LANDING and rel >= self._landing_end):
                 return  # a landing lasts until touchdown (see `_control`), even past its plan time
+            if self._guard(now, est, ref):
+                return
             self._follow_plan(now, rel, est)
             return
         if self._abort or low:
             m.request(Mode.DONE, now, self._abort or "low battery")
+            return
+        if self.held:
+            return  # stopped for good: the plan's timing is gone
+        if m.mode == Mode.DRIVING and self._guard(now, est, ref):
             return
         if est.stale or link:
             if m.mode != Mode.HOLDING:
@@ -226,6 +240,32 @@ class VehicleController:
                 m.request(Mode.DONE, now, "held too long, plan given up")
             return
         self._follow_plan(now, rel, est)
+
+    def _guard(self, now: float, est: Estimate, ref: RefSample | None) -> bool:
+        """The tracking guard (`FaultParams`): hold the vehicle where it is if its estimated error
+        left the plan's margin; whether it holds."""
+        f, margin = self.params.faults, self.model.margin
+        if not f.guard or margin <= 0.0 or ref is None or est.stale:
+            self._guard_since = None
+            return False
+        error = math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z))
+        limit = f.guard_factor * margin
+        if error <= limit:
+            self._guard_since = None
+            return False
+        since = self._guard_since = self._guard_since if self._guard_since is not None else now
+        if error <= f.guard_burst * margin and now - since < f.guard_s:
+            return False
+        self.held = (f"tracking error {error:.3f} m past the plan's margin {margin:.3f} m "
+                     f"for {now - since:.2f} s in {self.machine.mode}")
+        if self.machine.airborne:
+            self._hover_ref = RefSample(ref.t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, est.yaw, 0.0,
+                                        Mode.HOVERING)
+            self.machine.request(Mode.HOVERING, now, self.held)
+        else:
+            self.machine.request(Mode.HOLDING, now, self.held)
+        log.warning("%s: held by the tracking guard: %s", self.vid, self.held)
+        return True
 
     def _follow_plan(self, now: float, rel: float, est: Estimate) -> None:
         traj = self._active
@@ -261,6 +301,7 @@ class VehicleController:
         """Leave the plan for the nearest ground node; a planned landing already under way just
         ends the mission at its touchdown."""
         self._fault_landing = True
+        self._hover_ref = None
         if self.machine.mode == Mode.LANDING:
             log.info("%s: %s while landing: the mission ends at touchdown", self.vid, reason)
             return

@@ -59,7 +59,7 @@ ARRIVED = "every vehicle arrived"
 CAPABILITIES_WAIT_S = 1.0
 """How long a mission waits for its vehicles' telemetry (their capabilities, 5 Hz) before planning."""
 
-AIRBORNE_MODES = frozenset({"taking_off", "flying", "landing", "emergency_landing"})
+AIRBORNE_MODES = frozenset({"taking_off", "flying", "landing", "hovering", "emergency_landing"})
 
 
 @dataclass

@@ -20,7 +20,7 @@ NODE_RGB = {
 }
 MODE_RGB = {
     "parked": (150, 150, 150), "driving": (40, 170, 60), "taking_off": (240, 200, 0), "flying": (60, 120, 220),
-    "landing": (240, 150, 40), "holding": (160, 80, 200), "emergency_landing": (230, 30, 30),
+    "landing": (240, 150, 40), "holding": (160, 80, 200), "hovering": (200, 60, 160), "emergency_landing": (230, 30, 30),
     "stopped": (230, 30, 30), "done": (255, 255, 255),
 }
 NO_FLY_TOP = 1.2  # m: how high to draw no-fly prisms that reach the sky
