@@ -8,20 +8,31 @@ a setpoint only every few radio periods (the last one is repeated meanwhile, as 
 
 from __future__ import annotations
 
+import asyncio
 import dataclasses
 import math
+import os
+import signal
+import threading
+import time
 from collections import deque
 
 import msgspec
 import pytest
 
 from common.bus.messages import Pose, Telemetry
+from common.deploy.launcher import status
+from common.domain.planfile import Plan
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
 from services.executor.faults import FaultParams
 from services.executor.vehicle_controller import ControlParams, VehicleController
+from services.mission.demo import local_fleet
+from services.mission.runner import MissionRunner, MissionSpec
 from services.sim.crazyflie.physics import SimFlyingCar
 from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps
+from tests.support.fleet_faults import TOWN_TASKS, Watch, airborne, until
+from tests.support.fleet_faults import fly as fly_mission
 
 MODEL = VehicleModel(margin=0.03)  # the shipped maps' margin
 STEPS = reference_steps(MODEL)
@@ -136,3 +147,80 @@ def test_a_vehicle_held_in_the_air_hovers_and_lands_safely_on_abort() -> None:
     ctrl.abort("operator")
     ctrl.tick(off.t + 0.5)
     assert ctrl.mode == Mode.LANDING or ctrl.reference(off.t + 0.6).mode != Mode.HOVERING
+
+
+# ---- in the fleet: one executor starved of CPU ----------------------------------------------------
+
+STOP_S, RUN_S = 0.15, 0.05  # the starved executor runs 50 ms of every 200 ms
+
+
+def plan_position(plan: Plan, vid: str, rel: float) -> tuple[float, float, float]:
+    """Where the plan has `vid` `rel` seconds into the mission (DESIGN.md: linear between entries)."""
+    path = plan.paths[vid]
+    nodes = plan.graph.nodes
+    if rel <= path[0].t:
+        return nodes[path[0].node].pos
+    for a, b in zip(path, path[1:], strict=False):
+        if rel <= b.t:
+            f = 0.0 if b.t == a.t else (rel - a.t) / (b.t - a.t)
+            pa, pb = nodes[a.node].pos, nodes[b.node].pos
+            return (pa[0] + f * (pb[0] - pa[0]), pa[1] + f * (pb[1] - pa[1]), pa[2] + f * (pb[2] - pa[2]))
+    return nodes[path[-1].node].pos
+
+
+def starve(pid: int, stop: threading.Event) -> None:
+    """Stop and continue process `pid` in turns until `stop` is set (it is left running)."""
+    try:
+        while not stop.is_set():
+            os.kill(pid, signal.SIGSTOP)
+            time.sleep(STOP_S)
+            os.kill(pid, signal.SIGCONT)
+            time.sleep(RUN_S)
+    finally:
+        os.kill(pid, signal.SIGCONT)
+
+
+@pytest.mark.timeout(240)
+def test_a_starved_executor_holds_its_vehicles_and_nothing_touches(tmp_path) -> None:
+    spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
+    marks: dict[str, float] = {}
+    owners: dict[str, str] = {}
+    runners: list[MissionRunner] = []
+
+    async def scenario(watch: Watch, runner: MissionRunner) -> None:
+        runners.append(runner)
+        await until(lambda: watch.mode("cf1") == "flying", 60, "cf1 flying")
+        await until(airborne(watch, "cf1"), 5, "cf1 at cruise height")
+        owner = watch.states["cf1"][-1].owner
+        owners.update({vid: watch.states[vid][-1].owner for vid in TOWN_TASKS})
+        pid = next(p["pid"] for p in status(fleet.run_dir) if p["instance"] == owner)
+        stop = threading.Event()
+        marks["starved"] = time.time()
+        thread = threading.Thread(target=starve, args=(pid, stop), daemon=True)
+        thread.start()
+        try:
+            await until(lambda: watch.first("cf1", "tracking_hold") is not None or watch.mode("cf1") == "done",
+                        20, "cf1 held or done")
+            await asyncio.sleep(1.0)
+        finally:
+            stop.set()
+            thread.join()
+            marks["fed"] = time.time()
+
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="guard") as fleet:
+        result, watch = fly_mission(fleet, spec, scenario)
+
+    assert result.contacts == 0, result.summary()
+    held = watch.first("cf1", "tracking_hold", since=marks["starved"])
+    # judged in ground truth: until it was held (or the starvation ended), cf1 stayed near its plan
+    plan, t0 = runners[0].plan, runners[0].t0
+    assert plan is not None and t0 is not None
+    worst = max(math.dist((s.x, s.y, s.z), plan_position(plan, "cf1", s.t - t0))
+                for s in watch.truth_between("cf1", marks["starved"], held or marks["fed"]))
+    assert worst < 3.0 * plan.model.margin, f"cf1 {worst:.3f} m from its plan"
+    assert held is not None, f"the guard did not hold cf1: {watch.kinds('cf1')}"
+    assert not result.ok and "tracking" in result.reason, result.reason
+    for vid in TOWN_TASKS:
+        assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
+    print(f"cf1 held {held - marks['starved']:.2f} s into the starvation of {owners['cf1']}; "
+          f"worst truth distance from the plan before it: {worst:.3f} m")

@@ -11,5 +11,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("executor", help="run an executor: control loops for the vehicles it owns")
     p.add_argument("--rate", type=float, default=100.0, help="control rate (Hz)")
     p.add_argument("--state-rate", type=float, default=20.0, help="state publication rate (Hz)")
+    p.add_argument("--no-tracking-guard", dest="tracking_guard", action="store_false",
+                   help="do not hold vehicles whose tracking leaves the plan's margin (rehearsals and tests only: "
+                        "without the guard a slow control loop can bring bodies into contact)")
     add_zenoh_args(p, default_instance="executor")
     p.set_defaults(handler=lazy_handler("services.executor.service:cmd_executor"))

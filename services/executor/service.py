@@ -54,9 +54,10 @@ from common.bus.service import Service
 from common.bus.stats import percentile_figures, publish_stats
 from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
 from common.flight.modes import Mode
+from services.executor.faults import FaultParams
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
-from services.executor.vehicle_controller import VehicleController
+from services.executor.vehicle_controller import ControlParams, VehicleController
 
 log = logging.getLogger(__name__)
 
@@ -111,8 +112,10 @@ class LoopStats:
 
 
 class ExecutorService(Service):
-    def __init__(self, instance: str, *args, rate_hz: float = 100.0, state_hz: float = 20.0, **kwargs) -> None:
+    def __init__(self, instance: str, *args, rate_hz: float = 100.0, state_hz: float = 20.0,
+                 control: ControlParams | None = None, **kwargs) -> None:
         super().__init__("executor", instance, *args, **kwargs)
+        self.control = control or ControlParams()
         self.team = TeamExecutor(self)
         self.period = 1.0 / rate_hz
         self.state_every = max(1, round(rate_hz / state_hz))
@@ -200,7 +203,7 @@ class ExecutorService(Service):
         plan = self.plans[vid]
         if (vid, plan.mission) in self._failed:
             return
-        ctl = VehicleController(vid, plan.model, owner=self.instance, bank=self.bank)
+        ctl = VehicleController(vid, plan.model, owner=self.instance, params=self.control, bank=self.bank)
         ctl.load(plan)
         t0 = plan.t0 or self.starts.get(plan.mission)
         if t0:
@@ -365,6 +368,7 @@ class ExecutorService(Service):
 
 
 def cmd_executor(args: argparse.Namespace) -> int:
+    control = ControlParams(faults=FaultParams(guard=args.tracking_guard))
     svc = ExecutorService(args.instance, zconfig_from_args(args), keys_from_args(args),
-                          rate_hz=args.rate, state_hz=args.state_rate)
+                          rate_hz=args.rate, state_hz=args.state_rate, control=control)
     return run_service(svc)
