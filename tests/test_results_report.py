@@ -59,6 +59,7 @@ def test_quick_pipeline_writes_the_report_and_figures(tmp_path) -> None:
     report = (tmp_path / "results.md").read_text()
     for heading in ("Fig. 6", "Fig. 7", "Table II", "934-node", "MovingAI", "Paper 002"):
         assert heading in report
-    assert "pending" in report and "64 %" in report and "cores" in report and "commit" in report
+    assert "simulator (measured)" in report and "pending" not in report
+    assert "64 %" in report and "cores" in report and "commit" in report
     for png in ("fig6", "fig7", "scale_city", "collab_experiment"):
         assert (tmp_path / "results" / f"{png}.png").stat().st_size > 10_000
