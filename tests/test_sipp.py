@@ -299,3 +299,23 @@ def test_cost_to_go_is_exact_and_enters_spots_only_as_the_goal() -> None:
     for node, i in graph.index.items():
         assert h[i] == pytest.approx(want.get(node, math.inf), rel=1e-12)
     assert CostToGo.of(graph, 0.5) is ctg  # cached per graph and mu
+
+
+@pytest.mark.parametrize("planner", ["sipp", "ilp"])
+def test_a_vehicle_with_little_charge_left_is_refused_with_its_shortfall(planner: str) -> None:
+    """Issue 16: eq. 6's budget is what the vehicle's battery still holds, at its own voltage."""
+    from services.planner.maps.loading import problem_from_request
+    from services.planner.registry import run_planner
+
+    full = {"cf1": Task(start="WP10", goal="EP8"), "cf2": Task(start="EP7", goal="WP9")}
+    problem = problem_from_request("town", full, planner)
+    assert run_planner(problem, planner, 0.5, 20.0, 0)[0] is not None
+    model = problem.graph.model
+    empty = {**full, "cf2": Task(start="EP7", goal="WP9", charge_used_ah=model.usable_ah - 0.001, voltage=3.5)}
+    problem = problem_from_request("town", empty, planner)
+    plan, result = run_planner(problem, planner, 0.5, 20.0, 0)
+    assert plan is None and result.failed_vehicle == "cf2", result.error
+    assert "short by" in result.error and "Ah" in result.error and "3.50 V" in result.error, result.error
+    needed = float(result.error.split("needs at least ")[1].split(" Ah")[0])
+    short = float(result.error.split("short by ")[1].split(" Ah")[0])
+    assert short == pytest.approx(needed - (0.001 * 3.5 / model.voltage), abs=2e-4)

@@ -18,6 +18,7 @@ from typing import Any, Literal
 
 import msgspec
 
+from common.domain.battery import usable_ah
 from common.domain.vehicle_model import Capabilities, EdgeKind, NodeKind, VehicleModel
 from common.errors import InputError
 
@@ -52,11 +53,22 @@ class PlanGraph(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 class Task(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_defaults=True):
     """A vehicle's start and goal node; `capabilities` restricts the edge kinds it may use
-    (`CAPABLE_EDGES`: a stock Crazyflie only flies, a ground robot only drives)."""
+    (`CAPABLE_EDGES`: a stock Crazyflie only flies, a ground robot only drives). `charge_used_ah`
+    and `voltage` are the vehicle's battery as measured (0: full, at the model's voltage): the
+    planner's eq. 6 budget is what is left (`common.domain.battery.usable_ah`). `depart` (s): the
+    vehicle is at `start` from then on and may not leave before (a task added or replanned while
+    others move, issue 16)."""
 
     start: str
     goal: str
     capabilities: Capabilities = "fly+drive"
+    charge_used_ah: float = 0.0
+    voltage: float = 0.0
+    depart: float = 0.0
+
+    def usable_ah(self, model: VehicleModel) -> float:
+        """Eq. 6's budget of this vehicle in the planner's units."""
+        return usable_ah(model, self.charge_used_ah, self.voltage)
 
 
 class PathEntry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

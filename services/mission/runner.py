@@ -17,7 +17,9 @@ import zenoh
 
 from common.bus.messages import PlanReply, PlanRequest, SimTruth, Telemetry, VehiclePlan, VehicleState
 from common.bus.vehicle_plans import vehicle_plans
+from common.domain.battery import charge_used_ah
 from common.domain.planfile import Plan, Task
+from common.domain.vehicle_model import VehicleModel
 from services.mission.client import MissionClient, MissionTiming
 from services.mission.separation import SeparationMonitor
 
@@ -98,25 +100,35 @@ class MissionRunner(MissionClient[MissionResult]):
         self.tasks = dict(spec.tasks)
         self.reports = {vid: VehicleReport(vid) for vid in spec.tasks}
         self.plan: Plan | None = None
+        self.model = VehicleModel()
+        """The battery model a vehicle's resting voltage is read with (the planner's map may say
+        otherwise for the plan itself)."""
         self.voltage = 3.7
         self.sep: SeparationMonitor | None = None
         self._plans = None
 
     async def prepare(self) -> None:
-        """Each vehicle is what its gateway says (`Telemetry.capabilities`, from the radios file): a
-        stock Crazyflie's task is planned on flight edges only, whatever the scenario assumed. Waits
-        up to `CAPABILITIES_WAIT_S` for every vehicle's telemetry; a silent one keeps its task's."""
-        seen: dict[str, str] = {}
-        self.subscribe(self.keys.all_vehicles("telemetry"), Telemetry,
-                       lambda tel, _k: seen.__setitem__(tel.vid, tel.capabilities))
+        """Each vehicle is what its gateway says (`Telemetry`): its capabilities (from the radios
+        file: a stock Crazyflie's task is planned on flight edges only, whatever the scenario
+        assumed) and its battery (issue 16: the charge used, read from its resting voltage, and the
+        voltage go into eq. 4-6 through `Task.charge_used_ah` and `Task.voltage`). Waits up to
+        `CAPABILITIES_WAIT_S` for every vehicle's telemetry; a silent one keeps its task's."""
+        seen: dict[str, Telemetry] = {}
+        self.subscribe(self.keys.all_vehicles("telemetry"), Telemetry, lambda tel, _k: seen.__setitem__(tel.vid, tel))
         deadline = time.monotonic() + CAPABILITIES_WAIT_S
         while not set(self.tasks) <= set(seen) and time.monotonic() < deadline:
             await asyncio.sleep(0.05)
         for vid, task in self.tasks.items():
-            caps = seen.get(vid, task.capabilities)
-            if caps != task.capabilities:
-                self.events.append(f"{vid}: planned as {caps} (its gateway's word), not {task.capabilities}")
-                self.tasks[vid] = msgspec.structs.replace(task, capabilities=caps)
+            tel = seen.get(vid)
+            if tel is None:
+                continue
+            if tel.capabilities != task.capabilities:
+                self.events.append(f"{vid}: planned as {tel.capabilities} (its gateway's word), not {task.capabilities}")
+                task = msgspec.structs.replace(task, capabilities=tel.capabilities)
+            if tel.vbat > 0.0 and not task.charge_used_ah and not task.voltage:
+                task = msgspec.structs.replace(task, charge_used_ah=round(charge_used_ah(tel.vbat, self.model), 6),
+                                               voltage=round(tel.vbat, 3))
+            self.tasks[vid] = task
 
     def plan_request(self) -> PlanRequest:
         s = self.spec

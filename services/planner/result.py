@@ -39,3 +39,12 @@ def to_plan(graph: FleetGraph, map_name: str, planner: str, mu: float, tasks: di
         dt=graph.dt,
         mip_gap=result.mip_gap,
     )
+
+
+
+def battery_shortfall(task: Task, needed: float, usable: float) -> str:
+    """Why a task does not fit its vehicle's battery (eq. 6), with the shortfall in Ah."""
+    used = f", {task.charge_used_ah:.4f} Ah already used" if task.charge_used_ah else ""
+    at = f" at {task.voltage:.2f} V" if task.voltage else ""
+    return (f"battery: {task.start!r} -> {task.goal!r} needs at least {needed:.4f} Ah, more than the usable "
+            f"{max(usable, 0.0):.4f} Ah (eq. 6: capacity - reserve{used}{at}): short by {needed - max(usable, 0.0):.4f} Ah")

@@ -310,13 +310,17 @@ def _vehicle_stats(path: list[PathEntry], graph: _Graph, plan: Plan) -> VehicleS
                         duration_s=path[-1].t - path[0].t)
 
 
-def _battery_errors(stats: dict[str, VehicleStats], usable_ah: float) -> list[str]:
-    """§V-C: the charge drawn may not bring the battery below C_low = the reserve."""
-    return [
-        f"{vid}: battery: uses {s.charge_ah:.6f} Ah, more than the usable {usable_ah:.6f} Ah (capacity - reserve)"
-        for vid, s in stats.items()
-        if s.charge_ah > usable_ah * (1.0 + CHARGE_RTOL)
-    ]
+def _battery_errors(stats: dict[str, VehicleStats], plan: Plan) -> list[str]:
+    """§V-C: the charge drawn may not bring the battery below C_low = the reserve (of what each
+    vehicle's battery still holds when its task says so: `Task.usable_ah`)."""
+    errors = []
+    for vid, s in stats.items():
+        task = plan.tasks.get(vid)
+        usable = task.usable_ah(plan.model) if task is not None else plan.model.usable_ah
+        if s.charge_ah > usable * (1.0 + CHARGE_RTOL):
+            errors.append(f"{vid}: battery: uses {s.charge_ah:.6f} Ah, more than the usable {usable:.6f} Ah "
+                          "(capacity - reserve - charge used)")
+    return errors
 
 
 def _cost_errors(cost: float, reported: float) -> list[str]:
@@ -527,7 +531,7 @@ def validate_plan(plan: Plan) -> ValidationReport:
         errors += check.errors
     traced = [v for v, c in checks.items() if c.traceable]
     stats = {v: _vehicle_stats(plan.paths[v], graph, plan) for v, c in checks.items() if c.priceable}
-    errors += _battery_errors(stats, plan.model.usable_ah)
+    errors += _battery_errors(stats, plan)
     all_priced = len(stats) == len(plan.paths) and not model_errors
     cost = sum(s.cost for s in stats.values()) if all_priced else math.nan
     if all_priced:

@@ -51,12 +51,12 @@ class Fleet:
     wait_cost: np.ndarray  # (N,) eq. 3 per step of waiting
     move_charge: np.ndarray  # (E,) eq. 4-5 per traversal
     wait_charge: np.ndarray  # (N,) eq. 4-5 per step of waiting
-    usable: float  # Ah, the C_low budget of eq. 6
+    usable: np.ndarray  # (V,) Ah, each vehicle's C_low budget of eq. 6 (what its battery still holds)
     allowed: np.ndarray  # (V, E) the edges each vehicle's capabilities allow
 
     @classmethod
     def of(cls, graph: FleetGraph, starts: list[str], goals: list[str], mu: float,
-           capabilities: list[Capabilities] | None = None) -> Fleet:
+           capabilities: list[Capabilities] | None = None, usable: list[float] | None = None) -> Fleet:
         dt = time_step(graph)
         if dt is None:
             raise ValueError(f"graph {graph.name!r} has edges of different durations: build it with a time step dt")
@@ -69,7 +69,7 @@ class Fleet:
             wait_cost=graph.wait_cost_rate(mu) * dt,
             move_charge=graph.charge,
             wait_charge=graph.wait_charge_rate() * dt,
-            usable=graph.model.usable_ah,
+            usable=np.array(usable if usable is not None else [graph.model.usable_ah] * len(starts), dtype=float),
             allowed=np.array([graph.allowed_edges(c) for c in caps], dtype=bool).reshape(len(starts), graph.n_edges),
         )
 
@@ -206,13 +206,13 @@ def vehicle_columns(graph: FleetGraph, fleet: Fleet, horizon: int) -> Columns:
     steps = np.arange(t)
     parts: list[tuple] = []
     for i, g in enumerate(fleet.goals):
-        k, e = np.nonzero(moves[:, i] <= budget)
+        k, e = np.nonzero(moves[:, i] <= budget[i])
         parts.append((np.full(len(k), i), k, np.full(len(k), MOVE), e, tail[e], head[e],
                       fleet.move_cost[e], fleet.move_charge[e]))
-        k, n = np.nonzero(waits[:, i] <= budget)
+        k, n = np.nonzero(waits[:, i] <= budget[i])
         parts.append((np.full(len(k), i), k, np.full(len(k), WAIT), n_e + n, n, n,
                       fleet.wait_cost[n], fleet.wait_charge[n]))
-        finish = np.flatnonzero(at_goal[:, i] <= budget)
+        finish = np.flatnonzero(at_goal[:, i] <= budget[i])
         stay = steps[steps > finish[0]] if len(finish) else steps[:0]
         k = np.concatenate([finish, stay])
         parts.append((np.full(len(k), i), k, np.full(len(k), STAY), np.full(len(k), n_e + g),

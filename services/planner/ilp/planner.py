@@ -36,7 +36,7 @@ from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.ilp.arcs import arc_table
 from services.planner.ilp.network import STAY, Fleet, battery_horizons, time_step
 from services.planner.ilp.solve import MIP_REL_GAP, HorizonResult, relative_gap, solve_horizon
-from services.planner.result import PlanResult
+from services.planner.result import PlanResult, battery_shortfall
 
 EXTENSIONS = (1, 2, 4)  # extra steps tried after the first feasible horizon
 EXTENSION_FACTOR, EXTENSION_MIN_S = 2.0, 1.0  # an extension's time limit: this times the time so far, at least
@@ -105,18 +105,14 @@ def plan_ilp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: f
         return failure(f"the ILP plans on a graph where every edge takes one time step (§V-E); {graph.name!r} "
                        "has edges of different durations: use its uniform-time-step graph")
     fleet = Fleet.of(graph, [tasks[v].start for v in vids], [tasks[v].goal for v in vids], mu,
-                     [tasks[v].capabilities for v in vids])
+                     [tasks[v].capabilities for v in vids], [tasks[v].usable_ah(graph.model) for v in vids])
 
     fewest, least_charge = battery_horizons(graph, fleet)
     for i in np.flatnonzero(fewest < 0):
         task = tasks[vids[i]]
         if not np.isfinite(least_charge[i]):
             return failure(f"{vids[i]}: no route from {task.start} to {task.goal}", vids[i])
-        return failure(
-            f"{vids[i]}: battery too small for {task.start} -> {task.goal}: the least-charge route draws "
-            f"{least_charge[i]:.4f} Ah, more than the usable {fleet.usable:.4f} Ah (capacity - reserve, eq. 6)",
-            vids[i],
-        )
+        return failure(f"{vids[i]}: {battery_shortfall(task, float(least_charge[i]), float(fleet.usable[i]))}", vids[i])
     table = arc_table(graph)
     lower, cheap_steps = cheapest_routes(graph, fleet)
     bound = float(lower.sum())

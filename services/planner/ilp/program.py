@@ -92,8 +92,11 @@ def clique_rows(cols: Columns, table: ArcTable, horizon: int) -> RowBlock:
 def battery_rows(cols: Columns, fleet: Fleet, horizon: int) -> RowBlock:
     """Eq. 6 per vehicle, unless the horizon is too short to ever exceed the budget."""
     worst = horizon * max(float(fleet.move_charge.max(initial=0.0)), float(fleet.wait_charge.max(initial=0.0)))
-    drawn = (cols.charge > 0) & (worst > fleet.usable)
-    return _block(cols.veh[drawn], np.flatnonzero(drawn), cols.charge[drawn], -highspy.kHighsInf, fleet.usable)
+    drawn = (cols.charge > 0) & (worst > fleet.usable[cols.veh])
+    veh = cols.veh[drawn]
+    rows = _block(veh, np.flatnonzero(drawn), cols.charge[drawn], -highspy.kHighsInf, 0.0)
+    rows.upper[:] = fleet.usable[np.unique(veh)]  # one row per vehicle, in vehicle order
+    return rows
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 from common.domain.planfile import PathEntry, Task
 from services.planner.graph.fleet_graph import FleetGraph
-from services.planner.result import PlanResult
+from services.planner.result import PlanResult, battery_shortfall
 from services.planner.sipp.heuristic import CostToGo
 from services.planner.sipp.safe_intervals import Footprints, Reservations
 from services.planner.sipp.search import SearchGraph, SearchTimeout, TimedPath, sipp
@@ -57,6 +57,8 @@ class _Setup:
     blockers: dict[str, list[str]]
     park_starts: bool
     deadline: float
+    usable: dict[str, float]
+    """Per vehicle: eq. 6's budget (what its battery still holds)."""
 
 
 def plan_sipp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: float, seed: int) -> PlanResult:
@@ -73,6 +75,7 @@ def plan_sipp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: 
     setup = _Setup(
         graph=graph, sg=sg, ctg=ctg, ends=ends, blockers=_blockers(graph, ends),
         park_starts=not graph.open_endpoints, deadline=t0 + time_limit,
+        usable={vid: t.usable_ah(graph.model) for vid, t in tasks.items()},
     )
     order: list[str] | None = _leavers_first(list(tasks), setup.blockers)
     rng = random.Random(seed)
@@ -112,19 +115,16 @@ def _check_reachable(
     graph: FleetGraph, tasks: dict[str, Task], ends: dict[str, tuple[int, int]], ctgs: dict[str, CostToGo]
 ) -> _Failure | None:
     """Tasks no order can serve: goal unreachable, or more charge than usable even alone (§V-C)."""
-    usable = graph.model.usable_ah
     for vid, (s, g) in ends.items():
         task, ctg = tasks[vid], ctgs[vid]
         if ctg.h[g][s] == float("inf"):
             only = "" if task.capabilities == "fly+drive" else f", using only {task.capabilities} edges"
             return _Failure(vid, f"no route from {task.start!r} to {task.goal!r} (entering spots only as the goal{only})")
+        usable = task.usable_ah(graph.model)
         if ctg.q[g][s] > usable:
-            return _Failure(
-                vid,
-                f"battery: {task.start!r} -> {task.goal!r} needs at least {ctg.q[g][s]:.5f} Ah, "
-                f"more than the usable {usable:.5f} Ah (capacity - reserve)",
-            )
+            return _Failure(vid, battery_shortfall(task, ctg.q[g][s], usable))
     return None
+
 
 
 def _blockers(graph: FleetGraph, ends: dict[str, tuple[int, int]]) -> dict[str, list[str]]:
@@ -177,7 +177,7 @@ def _plan_order(setup: _Setup, order: list[str]) -> dict[str, TimedPath] | _Fail
         where = f"{graph.ids[start]!r} -> {graph.ids[goal]!r}"
         try:
             ctg = setup.ctg[vid]
-            path = sipp(setup.sg[vid], res, start, goal, ctg.h[goal], ctg.q[goal], graph.model.usable_ah, setup.deadline)
+            path = sipp(setup.sg[vid], res, start, goal, ctg.h[goal], ctg.q[goal], setup.usable[vid], setup.deadline)
         except SearchTimeout:
             return _Failure(vid, f"time limit reached while planning {where} ({len(paths)} vehicles placed)")
         for node in lifted[1:]:

@@ -23,7 +23,6 @@ Clock: `t` is the simulator's own clock (s); pass the same clock to `apply(…, 
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 from dataclasses import dataclass
 
 from common.bus.messages import FlightSetpoint, Setpoint, SimTruth, StopSetpoint, WheelSetpoint
@@ -36,20 +35,8 @@ from common.crazyflie.thrust import (
     from_flight_setpoint,
     thrust_newtons,
 )
+from common.domain.battery import open_circuit_voltage
 from common.domain.vehicle_model import G, VehicleModel
-
-# Open-circuit voltage of a 1S Li-Po against state of charge: a generic discharge curve (assumed,
-# not measured on the Crazyflie's 250 mAh cell).
-_OCV_SOC = (0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
-_OCV_V = (3.27, 3.45, 3.68, 3.74, 3.77, 3.79, 3.82, 3.87, 3.92, 3.98, 4.06, 4.20)
-
-
-def open_circuit_voltage(soc: float) -> float:
-    """Li-Po open-circuit voltage (V) at state of charge `soc` in [0, 1] (linear interpolation)."""
-    soc = min(max(soc, 0.0), 1.0)
-    i = min(bisect_right(_OCV_SOC, soc), len(_OCV_SOC) - 1)
-    s0, s1, v0, v1 = _OCV_SOC[i - 1], _OCV_SOC[i], _OCV_V[i - 1], _OCV_V[i]
-    return v0 + (v1 - v0) * (soc - s0) / (s1 - s0)
 
 
 @dataclass(frozen=True, slots=True)
