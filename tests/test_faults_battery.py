@@ -49,15 +49,15 @@ def test_low_battery_mid_flight_lands_at_the_nearest_safe_node_and_aborts_the_mi
     at = min(watch.states["cf1"], key=lambda s: abs(s.t - t_told))
     nearest = min(candidates, key=lambda s: math.dist(s.pos[:2], (at.x, at.y))).node
     assert event.node == nearest, (event.node, nearest)
-    final = watch.truth["cf1"][-1]
+    # the world says it came down there: at rest on that node, motors off, softly
     gx, gy, gz = result.plan.graph.nodes[event.node].pos
-    assert math.dist((final.x, final.y, final.z), (gx, gy, gz)) < 0.05
-    assert watch.hardest_touchdown("cf1") < 0.7
-    # the others were told (the abort): all on the ground, motors off, no contact
-    assert result.contacts == 0
+    assert watch.at_rest_on("cf1", (gx, gy, gz), 0.05), (event.node, watch.truth["cf1"][-1])
+    assert watch.landed_safely("cf1") == ""
+    # the others were told (the abort): all on the ground, motors off; no contact in ground truth
+    assert result.contacts == 0 and not watch.contacts, (watch.separation_line(), watch.contacts[:5])
     for vid in TOWN_TASKS:
         assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
         assert not watch.locked(vid), f"{vid}: the supervisor locked and was not rebooted"
     print(f"low battery reported {t_told - drained:.2f} s after the drain; landed at {event.node}, "
-          f"{100 * math.dist((final.x, final.y), (gx, gy)):.1f} cm from it, "
-          f"touchdown {watch.hardest_touchdown('cf1'):.2f} m/s")
+          f"{100 * watch.distance_to('cf1', (gx, gy, gz)):.1f} cm from it in ground truth, "
+          f"touchdown {watch.hardest_touchdown('cf1'):.2f} m/s; {watch.separation_line()}")

@@ -19,8 +19,10 @@ from common.bus.messages import ServiceStats, SimFault, SimTruth, Telemetry, Veh
 from common.bus.pubsub import Publisher, subscribe
 from common.bus.session import ZenohConfig, open_session
 from common.domain.planfile import Task
+from common.domain.vehicle_model import VehicleModel
 from services.mission.demo import LocalFleet
 from services.mission.runner import MissionResult, MissionRunner, MissionSpec
+from services.mission.separation import SeparationMonitor
 
 TOWN_TASKS = {
     "cf1": Task(start="WP10", goal="EP8"),  # flies west -> east through the corridor
@@ -29,6 +31,12 @@ TOWN_TASKS = {
 }
 """16 s plans on the town map: both flyers airborne from about 4 s to 12 s of the mission."""
 STATS_SERVICES = ("executor", "gateway", "sim", "mocap")
+AT_NODE_M = 0.08
+"""m (3D, ground truth) from a node that counts as being on it: the executor's own arrival radius
+(5 cm, on its estimate) plus its estimate's error from the truth (motion-capture noise, a few cm)."""
+SAFE_TOUCHDOWN = 0.7
+"""m/s: the hardest touchdown of a landing under position control (about 0.5 m/s: the motors stop
+2 cm up); a fall from cruise height is 2.8 m/s."""
 
 
 async def until(predicate: Callable[[], bool], timeout: float, what: str | Callable[[], str]) -> None:
@@ -52,22 +60,35 @@ class Watch:
     events: list[tuple[float, VehicleEvent]] = field(default_factory=list)
     stats: dict[str, ServiceStats] = field(default_factory=dict)
     """Latest `stats/<service>/<instance>` of each service, by service name (one instance each here)."""
+    separation: SeparationMonitor = field(default_factory=lambda: SeparationMonitor(*VehicleModel().body()))
+    """The bodies' separation in ground truth over everything watched (sampled on every truth),
+    including after the mission ended, while its vehicles settled."""
     _faults: dict[str, Publisher[SimFault]] = field(default_factory=dict)
     _session: zenoh.Session | None = None
 
     def open(self, config: ZenohConfig) -> None:
         """Subscribe (from the event loop)."""
         s = self._session = open_session(config)
-        subscribe(s, self.keys.all_sim_truth, SimTruth, lambda m, _k: self.truth[m.vid].append(m), maxlen=4096)
+        subscribe(s, self.keys.all_sim_truth, SimTruth, self._on_truth, maxlen=4096)
         subscribe(s, self.keys.all_vehicles("state"), VehicleState, lambda m, _k: self.states[m.vid].append(m))
         subscribe(s, self.keys.all_vehicles("telemetry"), Telemetry, lambda m, _k: self.telemetry[m.vid].append(m))
         subscribe(s, self.keys.all_vehicles("event"), VehicleEvent, lambda m, _k: self.events.append((time.time(), m)))
         for service in STATS_SERVICES:  # one per service: the router's access control grants them so
             subscribe(s, self.keys.all_stats(service), ServiceStats, lambda m, _k: self.stats.__setitem__(m.service, m))
 
+    def _on_truth(self, truth: SimTruth, _key: str) -> None:
+        self.truth[truth.vid].append(truth)
+        self.separation.update(truth)
+        self.separation.sample()
+
     def close(self) -> None:
         if self._session is not None:
             self._session.close()
+
+    @property
+    def contacts(self) -> list[tuple[float, str, str, float]]:
+        """(t, vid, vid, gap) of every sample in which two bodies intersected, in ground truth."""
+        return self.separation.contacts
 
     def inject(self, fault: SimFault) -> float:
         """Publish `fault`; the time it was published."""
@@ -104,6 +125,33 @@ class Watch:
     def at_rest_on_ground(self, vid: str) -> bool:
         s = self.truth[vid][-1]
         return not s.airborne and not s.motors and s.z < 0.01
+
+    def distance_to(self, vid: str, pos: tuple[float, float, float]) -> float:
+        """m from where `vid` is in ground truth (its last truth) to `pos`."""
+        s = self.truth[vid][-1]
+        return math.dist((s.x, s.y, s.z), pos)
+
+    def at_rest_on(self, vid: str, pos: tuple[float, float, float], tolerance: float = AT_NODE_M) -> bool:
+        """Whether `vid` rests on the ground within `tolerance` m of `pos`, in ground truth."""
+        return bool(self.truth[vid]) and self.at_rest_on_ground(vid) and self.distance_to(vid, pos) < tolerance
+
+    def landed_safely(self, vid: str, touchdown: float = SAFE_TOUCHDOWN) -> str:
+        """Why `vid` did not come down safely in ground truth ('' if it did): at rest on the ground,
+        motors off, no touchdown harder than `touchdown` m/s, its supervisor not left locked."""
+        if not self.truth[vid]:
+            return f"{vid}: no ground truth"
+        if not self.at_rest_on_ground(vid):
+            return f"{vid}: not at rest on the ground: {self.truth[vid][-1]}"
+        if self.hardest_touchdown(vid) >= touchdown:
+            return f"{vid}: touched down at {self.hardest_touchdown(vid):.2f} m/s (bound {touchdown})"
+        if self.locked(vid):
+            return f"{vid}: the supervisor locked and was not rebooted"
+        return ""
+
+    def separation_line(self) -> str:
+        sep = self.separation
+        gap = "none closer than 1 m" if sep.min_gap == math.inf else f"{100 * sep.min_gap:.1f} cm {sep.min_pair}"
+        return f"ground truth: closest bodies {gap}, contacts {len(sep.contacts)}"
 
 
 Scenario = Callable[[Watch, MissionRunner], Awaitable[None]]
