@@ -1,0 +1,319 @@
+"""Each fault handling disabled, its test fails: the table of docs/reliability.md, reproduced.
+
+    python -m tests.check_handlers [--only TEXT ...] [--ref REV] [--list] [--jobs 1]
+
+For every handling in `HANDLINGS`, a copy of the repository (the working tree without .venv, .git
+and outputs; or `--ref REV` exported with `git archive`) gets a small textual change that disables
+it, and that handling's test runs in the copy with this repository's venv (the copy first on
+PYTHONPATH and as the working directory, so the tests and every service process they start import
+the copy). Each test also runs once in an unchanged copy. The table says, per handling, the
+disabling change, the test, its result with the handling (it must pass) and without (it must fail,
+or pass where the table says so: defence in depth).
+
+A change names its file and the exact text it replaces, which must occur exactly once: after a
+refactor that moves or rewrites the text, the script stops before running anything and says which
+target is gone (`tests/test_check_handlers.py` checks the same in `make test`, so the refactor fails
+there first). Not collected by pytest (not a `test_*.py` file); fault tests start zenoh and a fleet:
+run it under `flock /tmp/fleet-heavy.lock` on a shared machine. Exit 0 when every row is as expected.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SKIP = {".venv", ".git", "out", ".fleet", "__pycache__", ".pytest_cache", ".ruff_cache", ".import_linter_cache",
+        ".mypy_cache"}
+"""Top-level and nested names left out of the copy (environments, caches, outputs)."""
+TEST_TIMEOUT_S = 900.0
+
+
+@dataclass(frozen=True)
+class Edit:
+    """Replace `old` (exactly one occurrence) by `new` in `path` (relative to the repository)."""
+
+    path: str
+    old: str
+    new: str
+
+
+@dataclass(frozen=True)
+class Handling:
+    name: str
+    change: str
+    """The disabling change, in words (for the table)."""
+    edits: tuple[Edit, ...]
+    test: str
+    """pytest node id, relative to the repository."""
+    disabled: str = "fail"
+    """What the test does with the handling disabled: "fail", or "pass" where another handling
+    also covers the fault (defence in depth)."""
+
+
+HANDLINGS: tuple[Handling, ...] = (
+    Handling(
+        "prediction bridging 0.3 s of motion-capture loss",
+        "estimator `stale_std` 0.25 m -> 0.10 m (stale after 0.25 s)",
+        (Edit("common/flight/estimator.py", "    stale_std: float = 0.25\n", "    stale_std: float = 0.10\n"),),
+        "tests/test_faults_mocap.py::test_a_short_dropout_is_flown_through_and_a_long_one_lands_the_vehicle"),
+    Handling(
+        "emergency landing on a stale pose in the air",
+        "executor: a stale pose in the air no longer requests EMERGENCY_LANDING",
+        (Edit("services/executor/vehicle_controller.py",
+              "            if est.stale:\n                if m.request(Mode.EMERGENCY_LANDING, now, \"pose stale in the air\"):",
+              "            if False:\n                if m.request(Mode.EMERGENCY_LANDING, now, \"pose stale in the air\"):"),),
+        "tests/test_faults_mocap.py::test_a_short_dropout_is_flown_through_and_a_long_one_lands_the_vehicle"),
+    Handling(
+        "the simulated firmware's commander watchdog",
+        "supervisor: watchdog warning and timeout never raised",
+        (Edit("services/sim/crazyflie/firmware/supervisor.py",
+              "        c.wdt_warning = inp.setpoint_age_s > WDT_WARNING_S\n", "        c.wdt_warning = False\n"),
+         Edit("services/sim/crazyflie/firmware/supervisor.py",
+              "        c.wdt_timeout = inp.setpoint_age_s > WDT_TIMEOUT_S\n", "        c.wdt_timeout = False\n")),
+        "tests/test_faults_radio.py::test_firmware_levels_at_half_a_second_cuts_at_two_and_the_gateway_reports_the_loss"),
+    Handling(
+        "the gateway's link timeout",
+        "gateway `LinkHealth.check` never reports `link_lost`",
+        (Edit("services/radio_gateway/health.py",
+              "        if not self.link_ok or now - self._since <= self.timeout_s:\n            return []\n",
+              "        if True:\n            return []\n"),),
+        "tests/test_faults_radio.py::test_firmware_levels_at_half_a_second_cuts_at_two_and_the_gateway_reports_the_loss"),
+    Handling(
+        "the executor's lost-link landing",
+        "executor `FaultMonitor.link_lost` always False",
+        (Edit("services/executor/faults.py",
+              "    def link_lost(self, now: float) -> bool:\n",
+              "    def link_lost(self, now: float) -> bool:\n        return False  # disabled\n"),),
+        "tests/test_faults_radio.py::test_a_link_lost_mid_flight_lands_the_vehicle_and_aborts_the_mission"),
+    Handling(
+        "the executor's low-battery landing",
+        "executor: `low` always False in its supervision (the event still comes at the planned landing)",
+        (Edit("services/executor/vehicle_controller.py",
+              "        low = self.faults.low_battery(self.charge_used_ah, now)\n", "        low = False\n"),),
+        "tests/test_faults_battery.py::test_low_battery_mid_flight_lands_at_the_nearest_safe_node_and_aborts_the_mission"),
+    Handling(
+        "the executor's `low_battery` event",
+        "executor: a landing never reported as `low_battery`",
+        (Edit("services/executor/service.py",
+              "            if ctl.faults.low_battery(ctl.charge_used_ah, now):\n                kind = \"low_battery\"\n",
+              "            if False:\n                kind = \"low_battery\"\n"),),
+        "tests/test_faults_battery.py::test_low_battery_mid_flight_lands_at_the_nearest_safe_node_and_aborts_the_mission"),
+    Handling(
+        "ownership frozen while the router is lost",
+        "executor: a change of the live executors applied even without the router",
+        (Edit("services/executor/service.py",
+              "        if self._router_lost_at is None and self.session.info.routers_zid():\n",
+              "        if True:\n"),),
+        "tests/test_faults_router.py::test_router_restart_mid_flight_aborts_the_mission_cleanly"),
+    Handling(
+        "executors abort their missions when they lose the router",
+        "executor: nothing aborted on losing the router",
+        (Edit("services/executor/service.py",
+              "                for vid, ctl in self.controllers.items():\n"
+              "                    if ctl.t0 is not None:  # started (or due to start): its timing is gone\n",
+              "                for vid, ctl in {}.items():\n"
+              "                    if ctl.t0 is not None:  # started (or due to start): its timing is gone\n"),),
+        "tests/test_faults_router.py::test_router_restart_mid_flight_aborts_the_mission_cleanly"),
+    Handling(
+        "the runner's lost-contact check",
+        "mission client: `_check_contact` not called",
+        (Edit("services/mission/client.py", "                self._check_contact(now)\n", "                pass\n"),),
+        "tests/test_faults_router.py::test_router_restart_mid_flight_aborts_the_mission_cleanly",
+        disabled="pass"),
+    Handling(
+        "the runner's planner liveliness check",
+        "mission client: no check that a planner is alive",
+        (Edit("services/mission/client.py", "        if not (await self.watch_alive(\"planner\")).instances:\n",
+              "        if False:\n"),),
+        "tests/test_faults_planner.py::test_a_mission_without_a_reachable_planner_fails_within_seconds"),
+    Handling(
+        "the runner's `QueryError` handling",
+        "mission client: `QueryError` from the plan query not caught",
+        (Edit("services/mission/client.py", "        except QueryError as exc:\n",
+              "        except ZeroDivisionError as exc:\n"),),
+        "tests/test_faults_planner.py::test_a_mission_without_a_reachable_planner_fails_within_seconds"),
+    Handling(
+        "take-over of a dead executor's vehicles",
+        "executor: `VehicleOwnership.reassign` never takes a vehicle",
+        (Edit("services/executor/takeover.py",
+              "            if self.mine(vid) and not held:\n                self._take(vid)\n",
+              "            if False:\n                self._take(vid)\n"),),
+        "tests/test_fleet_e2e.py::test_executor_killed_mid_flight_its_vehicles_still_arrive"),
+    Handling(
+        "median hover thrust of the gateway's blind landing",
+        "gateway: the last setpoint's thrust instead of the median",
+        (Edit("services/radio_gateway/vehicle.py", "        hover = statistics.median(self._thrusts)\n",
+              "        hover = self._thrusts[-1]\n"),),
+        "tests/test_faults_blind_landing.py::test_a_blind_safety_landing_from_any_moment_of_the_flight_touches_down_gently"),
+    Handling(
+        "refusing stop or wheels during the safety landing",
+        "gateway: no `while_landing` refusal",
+        (Edit("services/radio_gateway/vehicle.py", "        if self.mode == Drive.LANDING and not flight:\n",
+              "        if False:\n"),),
+        "tests/test_faults_blind_landing.py::test_a_stop_or_wheel_command_does_not_end_the_safety_landing_in_the_air"),
+    Handling(
+        "waiting for rest before the emergency descent's cut",
+        "executor: motors off at the predicted time, poses or not",
+        (Edit("services/executor/vehicle_controller.py",
+              "        if cut is not None and now >= cut and (est.stale or abs(est.vz) < faults.rest_speed):\n",
+              "        if cut is not None and now >= cut:\n"),),
+        "tests/test_faults_router.py::test_a_blind_descent_whose_commands_were_lost_waits_for_the_vehicle_to_rest"),
+    Handling(
+        "re-stopping on a status that shows the motors running",
+        "gateway: no `motors_restopped`",
+        (Edit("services/radio_gateway/vehicle.py",
+              "        if (fresh and after_stops and status.flags & crtp.FLAG_MOTORS",
+              "        if (False and fresh and after_stops and status.flags & crtp.FLAG_MOTORS"),),
+        "tests/test_gateway_scheduler.py::test_motors_reported_running_after_the_stops_were_lost_are_stopped_again"),
+    Handling(
+        "a safe landing from the node's height",
+        "executor `_MIN_DESCENT` 0.01 -> 0",
+        (Edit("services/executor/faults.py", "_MIN_DESCENT = 0.01\n", "_MIN_DESCENT = 0.0\n"),),
+        "tests/test_faults_radio.py::test_a_safe_landing_from_the_ground_is_still_a_trajectory"),
+)
+
+
+class TargetMissing(Exception):
+    """A disabling change's target text is not in its file exactly once."""
+
+
+def apply(edit: Edit, root: Path) -> None:
+    """Apply `edit` to the tree at `root`; `TargetMissing` unless its text occurs exactly once."""
+    path = root / edit.path
+    if not path.is_file():
+        raise TargetMissing(f"{edit.path}: no such file")
+    text = path.read_text()
+    n = text.count(edit.old)
+    if n != 1:
+        raise TargetMissing(f"{edit.path}: the target text occurs {n} times (must be once): {edit.old!r}")
+    path.write_text(text.replace(edit.old, edit.new))
+
+
+def check_targets(root: Path, handlings: tuple[Handling, ...] = HANDLINGS) -> list[str]:
+    """What is wrong with the targets in the tree at `root` ([] if every one is there, once), and
+    whether each test's file defines its test function."""
+    problems = []
+    for h in handlings:
+        for e in h.edits:
+            path = root / e.path
+            n = path.read_text().count(e.old) if path.is_file() else -1
+            if n != 1:
+                problems.append(f"{h.name}: {e.path}: " + ("no such file" if n < 0 else f"target text found {n} times")
+                                + f": {e.old!r}")
+        file, _, func = h.test.partition("::")
+        test_file = root / file
+        if not test_file.is_file() or f"def {func}(" not in test_file.read_text():
+            problems.append(f"{h.name}: test {h.test} not found")
+    return problems
+
+
+def _ignore(_dir: str, names: list[str]) -> set[str]:
+    return {n for n in names if n in SKIP or n.endswith(".pyc")}
+
+
+def copy_tree(dest: Path, ref: str | None) -> Path:
+    """The repository's working tree (or `ref`, exported) at `dest`."""
+    if ref is None:
+        shutil.copytree(REPO, dest, ignore=_ignore)
+    else:
+        dest.mkdir(parents=True)
+        archive = subprocess.run(["git", "-C", str(REPO), "archive", "--format=tar", ref], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    return dest
+
+
+def run_test(root: Path, node: str, log: Path) -> tuple[str, float]:
+    """Run `node` in the tree at `root` with this repository's venv: ("pass" | "fail" | "error
+    (rc N)" | "timeout", seconds); pytest's output goes to `log`."""
+    python = REPO / ".venv" / "bin" / "python"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    started = time.monotonic()
+    with log.open("w") as out:
+        try:
+            rc = subprocess.run([str(python), "-m", "pytest", "-q", "-p", "no:cacheprovider", "-o", "addopts=", node],
+                                cwd=root, env=env, stdout=out, stderr=subprocess.STDOUT,
+                                timeout=TEST_TIMEOUT_S).returncode
+        except subprocess.TimeoutExpired:
+            return "timeout", time.monotonic() - started
+    took = time.monotonic() - started
+    return {0: "pass", 1: "fail"}.get(rc, f"error (rc {rc})"), took
+
+
+def _short(node: str) -> str:
+    file, _, func = node.partition("::")
+    return f"`{Path(file).name}::{func}`"
+
+
+def table(rows: list[tuple[Handling, str, str]]) -> str:
+    lines = ["| handling disabled | disabling change | test | with the handling | disabled | as expected |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for h, base, off in rows:
+        ok = base == "pass" and off == h.disabled
+        lines.append(f"| {h.name} | {h.change} | {_short(h.test)} | {base} | {off}"
+                     f"{' (expected: pass)' if h.disabled == 'pass' else ''} | {'yes' if ok else '**no**'} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m tests.check_handlers", description=__doc__.splitlines()[0])
+    ap.add_argument("--only", nargs="+", default=[], metavar="TEXT",
+                    help="only the handlings whose name or test contains one of these")
+    ap.add_argument("--ref", help="check this git revision (git archive) instead of the working tree")
+    ap.add_argument("--list", action="store_true", help="list the handlings and their targets, run nothing")
+    ap.add_argument("--keep", action="store_true", help="keep the copies and logs (their directory is printed)")
+    args = ap.parse_args(argv)
+
+    chosen = tuple(h for h in HANDLINGS if not args.only or any(t in h.name or t in h.test for t in args.only))
+    if not chosen:
+        print(f"no handling matches {args.only}", file=sys.stderr)
+        return 2
+    if args.list:
+        for h in chosen:
+            print(f"{h.name}: {h.change}; {', '.join(e.path for e in h.edits)}; {h.test}")
+        return 0
+    work = Path(tempfile.mkdtemp(prefix="check-handlers-"))
+    try:
+        pristine = copy_tree(work / "pristine", args.ref)
+        problems = check_targets(pristine, chosen)
+        if problems:
+            print("disabling changes whose target is gone (update HANDLINGS in tests/check_handlers.py):",
+                  *problems, sep="\n  ", file=sys.stderr)
+            return 2
+        started = time.monotonic()
+        baseline: dict[str, str] = {}
+        for node in dict.fromkeys(h.test for h in chosen):
+            result, took = run_test(pristine, node, work / f"base-{len(baseline)}.log")
+            baseline[node] = result
+            print(f"with every handling: {_short(node)}: {result} ({took:.0f} s)", flush=True)
+        rows = []
+        for i, h in enumerate(chosen):
+            copy = copy_tree(work / f"off-{i}", args.ref)
+            for edit in h.edits:
+                apply(edit, copy)
+            result, took = run_test(copy, h.test, work / f"off-{i}.log")
+            print(f"without {h.name}: {_short(h.test)}: {result} ({took:.0f} s)", flush=True)
+            rows.append((h, baseline[h.test], result))
+            if not args.keep:
+                shutil.rmtree(copy)
+        source = f"git {args.ref}" if args.ref else "the working tree"
+        print(f"\n{len(rows)} handlings, {source}, {(time.monotonic() - started) / 60:.1f} min\n")
+        print(table(rows))
+        return 0 if all(base == "pass" and off == h.disabled for h, base, off in rows) else 1
+    finally:
+        if args.keep:
+            print(f"\ncopies and logs in {work}")
+        else:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
