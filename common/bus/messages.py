@@ -15,6 +15,11 @@ from common.domain.planfile import Plan, PlanGraph, PlanModel, Task
 from common.domain.team_plan import Robot, Step, TeamPlan, Vec3
 from common.domain.vehicle_model import EdgeKind, NodeKind
 
+ControlMode = Literal["offboard", "onboard"]
+"""How a vehicle flies (DESIGN.md "Vehicles"): `offboard` (paper 000: the executor's LQR sends
+attitude and thrust) or `onboard` (motion capture streamed to its estimator, position setpoints to
+its own controller)."""
+
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 """Payloads above this are rejected before decoding (a plan for 120 vehicles is well under 1 MiB)."""
 
@@ -77,7 +82,26 @@ class StopSetpoint(msgspec.Struct, frozen=True, tag="stop", forbid_unknown_field
     """Motors and wheels off: only for a vehicle on the ground (or an emergency cut)."""
 
 
-Setpoint = FlightSetpoint | WheelSetpoint | StopSetpoint
+class PositionSetpoint(msgspec.Struct, frozen=True, tag="position", forbid_unknown_fields=True):
+    """Onboard control mode (DESIGN.md "Vehicles"): a full-state setpoint for the vehicle's own
+    position controller (cflib `Commander.send_full_state_setpoint`, crazyflie-firmware
+    crtp_commander_generic.c `fullStateDecoder`): position (m), velocity (m/s) and acceleration
+    (m/s^2) feed-forward in the map frame, yaw (rad, CCW from +x) and yaw rate (rad/s)."""
+
+    x: float
+    y: float
+    z: float
+    vx: float = 0.0
+    vy: float = 0.0
+    vz: float = 0.0
+    ax: float = 0.0
+    ay: float = 0.0
+    az: float = 0.0
+    yaw: float = 0.0
+    yaw_rate: float = 0.0
+
+
+Setpoint = FlightSetpoint | PositionSetpoint | WheelSetpoint | StopSetpoint
 
 
 class Cmd(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -157,7 +181,9 @@ class Telemetry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     (packets handed to the link), `skipped` (packets not sent: not connected or link busy),
     `dropped` (the wheel app's lost app-channel packets), `cmd_rate_hz` (flight and wheel packets
     sent per second), `wheel_app_ok` (a flying car's wheel app answers its STATUS requests; always
-    true without wheels). `capabilities`, `firmware`: what the vehicle is and runs."""
+    true without wheels). `capabilities`, `firmware`: what the vehicle is and runs; `control`: its
+    control mode from the radios file (`offboard`: attitude setpoints from the executor's LQR;
+    `onboard`: motion capture to its estimator, position setpoints to its own controller)."""
 
     vid: str
     t: float
@@ -178,6 +204,7 @@ class Telemetry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     firmware: str = ""
     estopped: bool = False
     wheel_app_ok: bool = True
+    control: ControlMode = "offboard"
 
 
 class EmergencyStop(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

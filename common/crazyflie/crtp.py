@@ -7,7 +7,7 @@ firmware leaves them clear; decoders ignore them), channel in bits 1-0.
 - Flight: commander port 3, channel 0, ``<fffH`` roll, -pitch, yaw rate, thrust: byte for byte what
   cflib's `Commander.send_setpoint` sends (it negates pitch on the wire). Motors off: the generic
   commander's stop (port 7, channel 0, type 0), as `Commander.send_stop_setpoint`; the generic
-  position setpoint (type 7); notify-setpoint-stop (port 7, channel 1, type 0) hands the commander
+  position setpoint (type 7) and full-state setpoint (type 6, onboard control mode); notify-setpoint-stop (port 7, channel 1, type 0) hands the commander
   back to the high-level commander, whose idle setpoints keep the firmware's watchdog fed.
 - Supervisor (port 9, channel 1, protocol version 12): arming request, crash recovery, emergency stop.
 - Localization (port 6): external position (channel 0) and pose (channel 1, type 8).
@@ -26,7 +26,7 @@ import struct
 
 import msgspec
 
-from common.bus.messages import FlightSetpoint
+from common.bus.messages import FlightSetpoint, PositionSetpoint
 
 PORT_CONSOLE = 0x00
 PORT_PARAM = 0x02
@@ -64,11 +64,12 @@ FLAG_LOW_BATTERY = 0x40
 FLAG_MEASURED = 0x80
 
 SUPERVISOR_ARM, SUPERVISOR_RECOVER, SUPERVISOR_EMERGENCY_STOP = 0x01, 0x02, 0x03
-GENERIC_STOP, GENERIC_POSITION = 0, 7
+GENERIC_STOP, GENERIC_FULL_STATE, GENERIC_POSITION = 0, 6, 7
 META_NOTIFY_SETPOINT_STOP = 0
 LOC_EXT_POSE = 8
 
 _SETPOINT = struct.Struct("<fffH")
+_FULL_STATE = struct.Struct("<BhhhhhhhhhIhhh")
 _HEAD = struct.Struct("<BB")
 _WHEELS = struct.Struct("<BBhh")
 _STATUS_REQUEST = struct.Struct("<BBI")
@@ -166,6 +167,46 @@ def encode_position(x: float, y: float, z: float, yaw_deg: float) -> bytes:
     if not _finite(x, y, z, yaw_deg):
         raise ValueError("non-finite position setpoint")
     return bytes((_H_GENERIC,)) + struct.pack("<Bffff", GENERIC_POSITION, x, y, z, yaw_deg)
+
+
+def compress_quaternion(qx: float, qy: float, qz: float, qw: float) -> int:
+    """The firmware's `quatcompress` ("smallest three", 32 bits), as cflib's
+    `cflib.utils.encoding.compress_quaternion`: the largest component's index, then the other three
+    as sign and 9-bit magnitude relative to 1/sqrt(2), the largest made positive."""
+    q = (qx, qy, qz, qw)
+    norm = math.sqrt(sum(c * c for c in q))
+    q = tuple(c / norm for c in q)
+    largest = max(range(4), key=lambda i: (abs(q[i]), -i))
+    negate = q[largest] < 0
+    comp = largest
+    for i in range(4):
+        if i != largest:
+            mag = int(((1 << 9) - 1) * (abs(q[i]) * math.sqrt(2.0)) + 0.5)
+            comp = comp << 10 | int((q[i] < 0) ^ negate) << 9 | mag
+    return comp
+
+
+def _mm(v: float) -> int:
+    """m (or m/s, m/s^2) as the int16 millimetres of the full-state packet (cflib truncates)."""
+    if not -32.768 <= v < 32.768:
+        raise ValueError(f"{v} out of the full-state setpoint's int16 mm range")
+    return int(v * 1000.0)
+
+
+def encode_full_state(sp: PositionSetpoint) -> bytes:
+    """The generic commander's full-state setpoint (type 6; crazyflie-firmware
+    crtp_commander_generic.c `fullStateDecoder`): position, velocity and acceleration as int16 mm,
+    mm/s, mm/s^2, the yaw as a compressed quaternion, body rates as int16 millirad/s (roll and
+    pitch 0). Byte for byte cflib's `Commander.send_full_state_setpoint`, except that cflib scales
+    the rates as if given in deg/s while the firmware reads millirad/s: here the yaw rate goes as
+    the firmware reads it."""
+    values = (sp.x, sp.y, sp.z, sp.vx, sp.vy, sp.vz, sp.ax, sp.ay, sp.az, sp.yaw, sp.yaw_rate)
+    if not _finite(*values):
+        raise ValueError(f"non-finite position setpoint {sp!r}")
+    half = 0.5 * sp.yaw
+    quat = compress_quaternion(0.0, 0.0, math.sin(half), math.cos(half))
+    return bytes((_H_GENERIC,)) + _FULL_STATE.pack(GENERIC_FULL_STATE, *(_mm(v) for v in values[:9]), quat, 0, 0,
+                                                   _mm(sp.yaw_rate))
 
 
 def encode_notify_setpoint_stop(remain_valid_ms: int = 0) -> bytes:

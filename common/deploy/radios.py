@@ -8,7 +8,7 @@ radios:
     link: {budget_pps: 500, latency_s: 0.002, loss: 0.01}   # optional, docs/radio.md
     vehicles:
       cf1: {uri: "radio://0/80/2M/E7E7E7E7E1"}
-      cf2: {uri: "udp://127.0.0.1:19850", start: [0.5, 0.0, 0.0], yaw: 0.0}
+      cf2: {uri: "udp://127.0.0.1:19850", start: [0.5, 0.0, 0.0], yaw: 0.0, control: onboard}
 gateway: {tick_hz: 100, stale_s: 0.2}                          # optional, GatewayParams
 ```
 
@@ -28,6 +28,7 @@ import msgspec
 import yaml
 
 from common.bus.keys import check_chunk
+from common.bus.messages import ControlMode
 from common.deploy.compose import interpolate
 from common.domain.mapfile import decode_yaml, read_text
 from common.domain.vehicle_model import Capabilities
@@ -130,15 +131,23 @@ class MocapModel(msgspec.Struct, **_Strict):
 
 
 FirmwarePlatform = Literal["cf21", "cf21-brushless"]
+ONBOARD_PARAMS: dict[str, float] = {"stabilizer.estimator": 2, "stabilizer.controller": 2}
+"""Onboard control mode's firmware parameters, as crazyswarm2's crazyflies.yaml `firmware_params`:
+the Kalman estimator (which fuses external pose) and the Mellinger controller (which follows the
+full-state setpoint's velocity and acceleration; the PID's position loop ignores them)."""
 
 
 class VehicleLink(msgspec.Struct, **_Strict):
     """One vehicle: its cflib link URI; what it can do (`capabilities`: a flying car has the wheel app,
-    docs/wheel_protocol.md; "fly" is a stock Crazyflie); parameters written on connect, over the
-    file's `gateway.params`; for the simulator, which Crazyflie it is, where it starts (m) and its yaw (rad)."""
+    docs/wheel_protocol.md; "fly" is a stock Crazyflie); how it flies (`control`: `offboard`, the
+    executor's LQR sends attitude and thrust, paper 000; `onboard`, the gateway streams its motion
+    capture to the vehicle's Kalman estimator and the executor sends full-state setpoints to its own
+    controller, with `ONBOARD_PARAMS` written first); parameters written on connect, over the file's
+    `gateway.params`; for the simulator, which Crazyflie it is, where it starts (m) and its yaw (rad)."""
 
     uri: str
     capabilities: Capabilities = "fly+drive"
+    control: ControlMode = "offboard"
     params: dict[str, float] = {}
     firmware: FirmwarePlatform = "cf21"
     start: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -152,6 +161,17 @@ class VehicleLink(msgspec.Struct, **_Strict):
     @property
     def flies(self) -> bool:
         return "fly" in self.capabilities
+
+    @property
+    def onboard(self) -> bool:
+        """Onboard control mode: motion capture streamed to the vehicle, position setpoints."""
+        return self.control == "onboard"
+
+    def firmware_params(self, common: Mapping[str, float], mass: float) -> dict[str, float]:
+        """The parameters written on connect: `common` (the file's `gateway.params`), then for
+        onboard control `ONBOARD_PARAMS` and `ctrlMel.mass` = `mass`, then the vehicle's own."""
+        onboard = {**ONBOARD_PARAMS, "ctrlMel.mass": mass} if self.onboard else {}
+        return {**common, **onboard, **self.params}
 
 
 class RadioSpec(msgspec.Struct, **_Strict):
@@ -216,6 +236,8 @@ def check_radios(spec: RadiosFile, source: str) -> None:
                 raise InputError(source, field, str(exc)) from None
             if vid in owner:
                 raise InputError(source, field, f"vehicle already on radio {owner[vid]}")
+            if link.onboard and not link.flies:
+                raise InputError(source, f"{field}.control", "onboard control needs a vehicle that flies")
             owner[vid] = name
         if len(dongles) > 1:
             raise InputError(source, f"{where}.vehicles", f"radio:// URIs name several dongles {sorted(dongles)}")
@@ -260,10 +282,11 @@ def free_udp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
 def simulated_radios(starts: Mapping[str, tuple[float, float, float]], per_radio: int,
                      link: LinkModel | None = None, gateway: GatewayParams | None = None,
                      ports: Sequence[int] | None = None, host: str = "127.0.0.1",
-                     yaws: Mapping[str, float] | None = None, prefix: str = "r") -> RadiosFile:
+                     yaws: Mapping[str, float] | None = None, prefix: str = "r",
+                     control: ControlMode = "offboard") -> RadiosFile:
     """Simulated vehicles (`vid -> start`, facing `yaws[vid]` or +x), `per_radio` to a radio named
     <prefix>0, <prefix>1, ..., on UDP ports `ports` (default: free ones), with the default link model
-    and gateway parameters unless given."""
+    and gateway parameters unless given, all in control mode `control`."""
     if per_radio < 1:
         raise ValueError("per_radio must be at least 1")
     vids = list(starts)
@@ -273,7 +296,7 @@ def simulated_radios(starts: Mapping[str, tuple[float, float, float]], per_radio
     groups: dict[str, dict[str, VehicleLink]] = {}
     for i, (vid, port) in enumerate(zip(vids, ports, strict=False)):
         groups.setdefault(f"{prefix}{i // per_radio}", {})[vid] = VehicleLink(
-            uri=f"udp://{host}:{port}", start=starts[vid], yaw=(yaws or {}).get(vid, 0.0))
+            uri=f"udp://{host}:{port}", start=starts[vid], yaw=(yaws or {}).get(vid, 0.0), control=control)
     link = link or LinkModel()
     radios = {name: RadioSpec(vehicles=vehicles, link=link) for name, vehicles in groups.items()}
     spec = RadiosFile(radios=radios, gateway=gateway or GatewayParams())

@@ -28,6 +28,7 @@ from common.domain.vehicle_model import G, VehicleModel
 from common.flight.estimator import Estimate, EstimatorParams, KalmanBank, PoseEstimator
 from common.flight.lqr import FlightLqr, LqrWeights
 from common.flight.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
+from services.executor import onboard
 from services.executor.faults import FaultMonitor, FaultParams, safe_landing_steps
 from services.executor.pure_pursuit import PurePursuit, PursuitParams
 from services.executor.trajectory import RefSample, Trajectory, TrajectoryParams
@@ -326,6 +327,8 @@ class VehicleController:
                 self._after_touchdown(now, ref.t, est)
                 self.estimator.set_input((0.0, 0.0, 0.0), now)
                 return StopSetpoint()
+            if onboard.onboard(self.faults.last_telemetry):  # its own controller flies it (onboard.py)
+                return onboard.follow(ref, self.estimator, now, not self.faults.link_lost(now))
             # commands over a lost link do not reach the vehicle: neither learn from them (the
             # integrators wound up and threw it up on reconnection) nor predict with them
             effective = est.z - self._ground_z > self.params.liftoff_height and not self.faults.link_lost(now)
@@ -372,6 +375,8 @@ class VehicleController:
             self.machine.request(Mode.DONE, now, "emergency descent complete")
             return StopSetpoint()
         accel = faults.descent_accel_cmd(est.vz)
+        if onboard.onboard(self.faults.last_telemetry):
+            return onboard.descent(est, accel, self.estimator, faults, now)
         d = self.lqr.model.drag_rate  # the thrust also makes up for the drag of the descent
         self.estimator.set_input((-d * est.vx, -d * est.vy, accel), now)
         thrust = self.model.mass * (G + self.lqr.accel_bias() + accel + d * est.vz)

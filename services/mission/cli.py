@@ -64,6 +64,9 @@ def _register_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", help="scenario YAML (default: maps/scenarios/town_8.yaml, or town_fly.yaml)")
     p.add_argument("--vehicles", choices=["fly+drive", "fly"], default="fly+drive",
                    help="flying cars (the paper's), or stock Crazyflies that only fly (no wheel app)")
+    p.add_argument("--control", choices=["offboard", "onboard"], default="offboard",
+                   help="offboard: the executors' LQR sends attitude setpoints (paper 000); onboard: motion "
+                        "capture streamed to each vehicle's estimator, position setpoints to its own controller")
     p.add_argument("--planner", choices=["sipp", "ilp"], default="sipp")
     p.add_argument("--mu", type=float, default=0.5)
     p.add_argument("--time-limit", type=float, default=30.0)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import msgspec
 
+from common.bus.messages import ControlMode
 from common.deploy.compose import Process
 from common.deploy.local import LocalFleet, bring_up
 from common.deploy.radios import LinkModel, RadiosFile, dump_radios, simulated_radios
@@ -31,13 +32,13 @@ FLY_SCENARIO = MAPS_DIR / "scenarios" / "town_fly.yaml"
 
 
 def demo_radios(map_name: str, tasks: dict[str, Task], per_radio: int = 2, link: LinkModel | None = None,
-                source: str = "") -> RadiosFile:
+                source: str = "", control: ControlMode = "offboard") -> RadiosFile:
     """Simulated Crazyflies parked on their start spots, `per_radio` to a radio (the paper found 2
-    reliable), radios named radio0, radio1, ..."""
+    reliable), radios named radio0, radio1, ..., flying in control mode `control`."""
     spec = load_map(map_name)
     poses = {vid: spot_pose(spec, task.start, source) for vid, task in tasks.items()}
     radios = simulated_radios({vid: p[:3] for vid, p in poses.items()}, per_radio, link,
-                              yaws={vid: p[3] for vid, p in poses.items()}, prefix="radio")
+                              yaws={vid: p[3] for vid, p in poses.items()}, prefix="radio", control=control)
     return msgspec.structs.replace(radios, radios={  # each vehicle is what its task says (wheels or not)
         name: msgspec.structs.replace(radio, vehicles={
             vid: msgspec.structs.replace(v, capabilities=tasks[vid].capabilities) for vid, v in radio.vehicles.items()})
@@ -67,11 +68,12 @@ def with_args(procs: list[Process], extra: Mapping[str, list[str]]) -> list[Proc
 @contextmanager
 def local_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int = 2, per_radio: int = 2,
                 fleet: str = "demo", link: LinkModel | None = None, extra_args: Mapping[str, list[str]] | None = None,
-                without: Iterable[str] = ()) -> Iterator[LocalFleet]:
+                without: Iterable[str] = (), control: ControlMode = "offboard") -> Iterator[LocalFleet]:
     """compose.yaml's fleet with simulated Crazyflies for `tasks`, up and serving; stopped on exit.
-    `extra_args`: more arguments per service; `without`: services not to start."""
+    `extra_args`: more arguments per service; `without`: services not to start; `control`: every
+    vehicle's control mode."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    radios = demo_radios(map_name, tasks, per_radio, link)
+    radios = demo_radios(map_name, tasks, per_radio, link, control=control)
     radios_path = run_dir / "radios.yaml"
     radios_path.write_text(dump_radios(radios))
     overrides = {"FLEET_NAME": fleet, "FLEET_RADIOS": str(radios_path), "FLEET_EXECUTORS": str(executors),
@@ -101,7 +103,7 @@ def run_demo(args: argparse.Namespace) -> int:
         demo_radios(map_name, tasks, args.per_radio, source=str(path))  # bad starts: an error before any process
         viewer = (["--viewer"] if args.viewer else []) + (["--web"] if args.web else [])
         with local_fleet(map_name, tasks, out / "run", args.executors, args.per_radio,
-                         extra_args={"telemetry": viewer}) as fleet:
+                         extra_args={"telemetry": viewer}, control=args.control) as fleet:
             runner = MissionRunner(spec, fleet.client_config(), fleet.keys)
             asyncio.run(runner.run())
     except RuntimeError as exc:

@@ -80,7 +80,8 @@ class RadioGateway(Service):
         self.params = spec.gateway
         self.subscribe_each = subscribe_each
         now = time.time()
-        self.channels = {vid: VehicleChannel(vid, self.params, now, wheels=link.wheels, flies=link.flies)
+        self.channels = {vid: VehicleChannel(vid, self.params, now, wheels=link.wheels, flies=link.flies,
+                                             onboard=link.onboard)
                          for vid, link in self.spec.vehicles.items()}
         self.scheduler = Scheduler(list(self.channels.values()),
                                    schedulable_pps(self.spec.link.budget_pps, len(self.channels)), self.params, now)
@@ -108,7 +109,8 @@ class RadioGateway(Service):
         batches = self.subscribe(self.keys.gateway_cmd(self.instance), CmdBatch)
         in_loop = lambda fn: lambda *a: call_in_loop(loop, fn, *a)  # noqa: E731
         period_ms = round(self.params.log_period_s * 1000)
-        self._links = {vid: VehicleLink(vid, link.uri, {**self.params.params, **link.params}, period_ms,
+        self._links = {vid: VehicleLink(vid, link.uri, link.firmware_params(self.params.params, self.params.landing.mass),
+                                        period_ms,
                                         in_loop(self._on_log), in_loop(self._on_packet), in_loop(self._on_link_state))
                        for vid, link in self.spec.vehicles.items()}
         sender = RadioSender(self.radio, in_loop(self._on_link_error), self.counters)
@@ -316,7 +318,7 @@ class RadioGateway(Service):
         now = time.time()
         for p in frame.poses:
             ch = self.channels.get(p.vid)
-            if ch is not None and ch.landing is not None:
+            if ch is not None and ch.wants_poses:
                 ch.on_pose(frame.pose(p), now)
 
     def _on_estop(self, stop: EmergencyStop, _key: str) -> None:
@@ -339,8 +341,9 @@ class RadioGateway(Service):
                 "flight_skipped": self.scheduler.flight_skipped, **percentile_figures("pose_to_radio", self.latency)}
 
     def _sync_pose_subscriptions(self) -> None:
-        """Poses only matter during a safety landing: motion-capture frames while one lasts."""
-        landing = any(ch.landing is not None for ch in self.channels.values())
+        """Motion-capture frames while a vehicle needs them: in onboard control mode (streamed to
+        it), during a safety landing."""
+        landing = any(ch.wants_poses for ch in self.channels.values())
         if landing and self._poses is None:
             self._poses = subscribe(self.session, self.keys.mocap_frame, PoseFrame, self._on_frame,
                                     counters=self.counters)
@@ -370,4 +373,4 @@ class RadioGateway(Service):
                                                and k.endswith(f":{vid}")),
             supervisor=-1 if h.supervisor is None else h.supervisor, pm_state=h.pm_state, rssi=h.rssi,
             capabilities=self.spec.vehicles[vid].capabilities, firmware=link.firmware if link else "",
-            estopped=ch.estopped, wheel_app_ok=h.app_ok is not False))
+            estopped=ch.estopped, wheel_app_ok=h.app_ok is not False, control=self.spec.vehicles[vid].control))

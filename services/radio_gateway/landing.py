@@ -8,6 +8,10 @@ one in the air when its executor goes silent).
   to twice `touchdown_height` below the ground, so the vehicle settles on it at the descent speed instead
   of being held just above; motors off once it has rested `rest_s` (slower than 5 cm/s) at least
   `touchdown_height` above the reference: on the ground, or on something higher (a helipad).
+- Onboard control mode (`OnboardLanding`): the vehicle's own estimator (fed the motion capture by
+  the gateway) and controller fly it; full-state setpoints hold x, y and yaw where the landing
+  began, hover, then descend the same way; motors off on the same rest rule, or, without poses
+  (the onboard estimate then drifts: the IMU alone), a margin after the predicted touchdown.
 - Without a trusted pose: level and open loop (`OpenLoopDescent`), the thrust scaled from the last
   flight setpoint (the hover thrust the executor had found) and making up for the descent's drag:
   from the vertical speed it had, to `speed` at `accel`, then coast at `speed` onto the ground
@@ -21,7 +25,7 @@ import logging
 import math
 from dataclasses import dataclass
 
-from common.bus.messages import FlightSetpoint, Pose
+from common.bus.messages import FlightSetpoint, Pose, PositionSetpoint
 from common.crazyflie.firmware import FIRMWARE_MIN_THRUST
 from common.crazyflie.thrust import DRAG, thrust_command, thrust_newtons, to_flight_setpoint
 from common.deploy.radios import LandingParams
@@ -83,6 +87,30 @@ class OpenLoopDescent:
         return self.v0 + (self.speed - self.v0) * t / self._ramp if t < self._ramp else self.speed
 
 
+def descent_ref(params: LandingParams, t0: float, z0: float, now: float) -> tuple[float, float]:
+    """The landing's vertical reference (z, vz) at `now` for a descent from `z0` starting at `t0`:
+    down at `speed` to twice `touchdown_height` below the ground, where it stays."""
+    floor = -2.0 * params.touchdown_height
+    z_ref = max(z0 - params.speed * max(now - t0, 0.0), floor)
+    return z_ref, (-params.speed if floor < z_ref < z0 else 0.0)
+
+
+class RestWatch:
+    """Touchdown: at least `touchdown_height` above the reference (the ground or a helipad holds it)
+    and slower than `_REST_SPEED`, for `rest_s`."""
+
+    def __init__(self, params: LandingParams) -> None:
+        self.params = params
+        self._since: float | None = None
+
+    def __call__(self, now: float, above_ref: float, vz: float) -> bool:
+        if above_ref >= self.params.touchdown_height and abs(vz) < _REST_SPEED:
+            self._since = self._since if self._since is not None else now
+            return now - self._since >= self.params.rest_s
+        self._since = None
+        return False
+
+
 class SafeLanding:
     """One vehicle's hover-then-land, started at `start` after `last` (the last flight setpoint sent).
     Feed it poses with `on_pose`; `step(now)` gives the next setpoint, or None once landed."""
@@ -101,7 +129,7 @@ class SafeLanding:
         self._vertical: tuple[float, float, float] | None = None  # t, z, vz of the last estimate used
         self.closed_loop = False
         self._anchor: tuple[float, float, float, float, float] | None = None  # t, x, y, z, yaw
-        self._resting_since: float | None = None
+        self._rests = RestWatch(params)
         self._open_loop: tuple[float, OpenLoopDescent] | None = None
 
     @property
@@ -134,9 +162,7 @@ class SafeLanding:
             self.lqr.reset()
         self.closed_loop = True
         t0, x0, y0, z0, yaw0 = self._anchor
-        floor = -2.0 * p.touchdown_height
-        z_ref = max(z0 - p.speed * max(now - t0, 0.0), floor)
-        vz_ref = -p.speed if floor < z_ref < z0 else 0.0
+        z_ref, vz_ref = descent_ref(p, t0, z0, now)
         if self._rests(now, est.z - z_ref, est.vz):
             return None
         ref = RefSample(t=now, x=x0, y=y0, z=z_ref, vx=0.0, vy=0.0, vz=vz_ref, ax=0.0, ay=0.0, az=0.0,
@@ -146,13 +172,6 @@ class SafeLanding:
         sp = self.lqr.command(est, ref, integrate=aloft)
         self.estimator.set_input(self.lqr.expected_accel if aloft else (0.0, 0.0, 0.0), now)
         return sp
-
-    def _rests(self, now: float, above_ref: float, vz: float) -> bool:
-        if above_ref >= self.params.touchdown_height and abs(vz) < _REST_SPEED:
-            self._resting_since = self._resting_since if self._resting_since is not None else now
-            return now - self._resting_since >= self.params.rest_s
-        self._resting_since = None
-        return False
 
     def _descend_open_loop(self, now: float) -> FlightSetpoint | None:
         if self._open_loop is None:
@@ -178,3 +197,46 @@ class SafeLanding:
     def _level(self, accel: float) -> FlightSetpoint:
         """Level attitude, no yaw rate, the thrust for vertical acceleration `accel` (m/s^2)."""
         return to_flight_setpoint(0.0, 0.0, 0.0, thrust_command(self.hover_newtons * (G + accel) / G))
+
+
+class OnboardLanding:
+    """Onboard control mode's safety landing (module docstring), started at `start` after `last`
+    (the last full-state setpoint sent): `on_pose` the motion capture, `step(now)` the next
+    setpoint, None once landed."""
+
+    def __init__(self, start: float, last: PositionSetpoint, params: LandingParams) -> None:
+        self.params = params
+        self.start = start
+        self.last = last
+        self.estimator = PoseEstimator()
+        self.pose_at = -math.inf
+        self.closed_loop = False
+        """Poses showed the touchdown (else the predicted time ended it)."""
+        self._anchor: tuple[float, float, float] | None = None  # x, y, z where it hovers
+        self._rests = RestWatch(params)
+
+    def on_pose(self, pose: Pose, now: float) -> None:
+        if self.estimator.update(pose):
+            self.pose_at = now
+
+    def _fresh(self, now: float) -> Estimate | None:
+        if now - self.pose_at > self.params.pose_timeout_s:
+            return None
+        est = self.estimator.estimate(now)
+        return None if est.stale else est
+
+    def step(self, now: float) -> PositionSetpoint | None:
+        p, est = self.params, self._fresh(now)
+        if self._anchor is None:
+            src = est if est is not None else self.last
+            self._anchor = (src.x, src.y, src.z)
+        x0, y0, z0 = self._anchor
+        t0 = self.start + p.hover_s
+        z_ref, vz_ref = descent_ref(p, t0, z0, now)
+        if est is not None:
+            if self._rests(now, est.z - z_ref, est.vz):
+                self.closed_loop = True
+                return None
+        elif now >= t0 + (1.0 + _CUT_SLACK) * (z0 + 2.0 * p.touchdown_height) / p.speed + _CUT_MARGIN_S:
+            return None  # no poses: the predicted touchdown, plus a margin
+        return PositionSetpoint(x=x0, y=y0, z=z_ref, vz=vz_ref, yaw=self.last.yaw)

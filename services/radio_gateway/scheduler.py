@@ -7,9 +7,11 @@ holds at most two ticks' worth) and spends them, as one batch, in this order:
 0. an operator's emergency stop, to every vehicle, ahead of everything (it may overdraw the bucket);
 1. the driving command switch: one FIFO of vehicles whose wheel command is due, served at most
    `drive_hz` packets per second for all drivers together, one packet at a time;
-2. flight: one commander packet per flying (or landing, stopping, settling) vehicle, round-robin
-   from where the last tick stopped, with the slots left. When the budget is short, every flying
-   vehicle's rate drops equally instead of some starving;
+2. flight: one commander packet per flying (or landing, stopping, settling) vehicle, and for each
+   vehicle in onboard control mode its newest motion-capture pose not yet sent (external pose,
+   before its setpoint: the onboard estimator flies on it), round-robin from where the last tick
+   stopped, with the slots left. When the budget is short, every flying vehicle's rate drops
+   equally instead of some starving;
 3. supervisor requests (arming, crash recovery) and the wheel app's status requests, `status_hz`
    per vehicle with the app, staggered: with the slots flight left (they wait, setpoints do not).
 """
@@ -108,13 +110,16 @@ class Scheduler:
     def _flight(self, now: float, batch: list[Packet], events: list[tuple[str, Event]]) -> None:
         n = len(self.channels)
         order = [self.channels[(self._rr + k) % n] for k in range(n)]
-        for k, ch in enumerate(order):
-            if not ch.flight_due(now):
-                continue
+        wanted = [(k, ch, pose) for k, ch in enumerate(order) for pose in (True, False)
+                  if (ch.extpose_due() if pose else ch.flight_due(now))]
+        for i, (k, ch, pose) in enumerate(wanted):
             if not self._take():
-                self.flight_skipped += sum(c.flight_due(now) for c in order[k:])
+                self.flight_skipped += len(wanted) - i
                 self._rr = (self._rr + k) % n
                 return
+            if pose:
+                batch.append((ch.vid, ch.extpose_packet()))
+                continue
             raw, caused = ch.flight_packet(now)
             events.extend((ch.vid, e) for e in caused)
             if raw is None:

@@ -44,7 +44,7 @@ import statistics
 from collections import deque
 from enum import StrEnum
 
-from common.bus.messages import FlightSetpoint, Pose, Setpoint, StopSetpoint, WheelSetpoint
+from common.bus.messages import FlightSetpoint, Pose, PositionSetpoint, Setpoint, StopSetpoint, WheelSetpoint
 from common.crazyflie import crtp
 from common.crazyflie.firmware import FIRMWARE_MIN_THRUST
 from common.crazyflie.thrust import thrust_command, thrust_newtons
@@ -60,7 +60,7 @@ from services.radio_gateway.health import (
     Event,
     LinkHealth,
 )
-from services.radio_gateway.landing import SafeLanding
+from services.radio_gateway.landing import OnboardLanding, SafeLanding
 
 _UNLOCK = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=0)
 
@@ -103,16 +103,22 @@ ESTOP_AGAIN_S = 0.2
 class VehicleChannel:
     """One vehicle's command state, safety and health on the gateway. `wheels`: it has the wheel
     app (a flying car); without it wheel commands are refused and no STATUS is asked for. `flies`:
-    its capabilities include flight; without it flight setpoints are refused (a drive-only car)."""
+    its capabilities include flight; without it flight setpoints are refused (a drive-only car).
+    `onboard`: onboard control mode (docs/radio.md): it takes full-state setpoints instead of
+    attitude ones, and its motion-capture pose is streamed to it (`extpose_packet`)."""
 
-    def __init__(self, vid: str, params: GatewayParams, now: float, wheels: bool = True, flies: bool = True) -> None:
+    def __init__(self, vid: str, params: GatewayParams, now: float, wheels: bool = True, flies: bool = True,
+                 onboard: bool = False) -> None:
         self.vid = vid
         self.params = params
         self.wheels = wheels
         self.flies = flies
+        self.onboard = onboard
         self.mode = Drive.IDLE
         self.health = LinkHealth(now, params.link_timeout_s, params.log_period_s)
-        self.landing: SafeLanding | None = None
+        self.landing: SafeLanding | OnboardLanding | None = None
+        self._position: PositionSetpoint | None = None  # the owner's last full-state setpoint (onboard)
+        self._ext_pose: Pose | None = None  # the newest pose not yet streamed (onboard)
         self.cmd_at = -float("inf")
         self.took_over = False
         """The gateway is landing or stopped the vehicle because its command went stale."""
@@ -151,25 +157,36 @@ class VehicleChannel:
             raise Refused("emergency_stop", "the operator's emergency stop: commands refused until it is released")
         if isinstance(setpoint, WheelSetpoint) and not self.wheels:
             raise Refused("no_wheels", f"{self.vid} has no wheels (capabilities without drive)")
-        if isinstance(setpoint, FlightSetpoint) and not self.flies:
+        flight = isinstance(setpoint, (FlightSetpoint, PositionSetpoint))
+        if flight and not self.flies:
             raise Refused("no_flight", f"{self.vid} does not fly (capabilities without fly)")
-        if self.mode == Drive.LANDING and not isinstance(setpoint, FlightSetpoint):
+        if isinstance(setpoint, FlightSetpoint) and self.onboard:
+            raise Refused("attitude_onboard", f"{self.vid} is in onboard control mode: position setpoints only")
+        if isinstance(setpoint, PositionSetpoint) and not self.onboard:
+            raise Refused("position_offboard", f"{self.vid} is in offboard control mode: attitude setpoints only")
+        if self.mode == Drive.LANDING and not flight:
             raise Refused("while_landing", f"{type(setpoint).__name__} during the safety landing: "
                                            "landing on, motors off once landed")
         events: list[Event] = []
-        if isinstance(setpoint, FlightSetpoint):
-            raw = crtp.encode_setpoint(setpoint)
+        if isinstance(setpoint, (FlightSetpoint, PositionSetpoint)):
+            if isinstance(setpoint, FlightSetpoint):
+                raw = crtp.encode_setpoint(setpoint)
+                self._flight = setpoint
+            else:
+                raw = crtp.encode_full_state(setpoint)
+                self._position = setpoint
             if self.mode == Drive.LANDING:
                 events.append(("cmd_resumed", "fresh flight command during the safety landing"))
             elif self.mode != Drive.FLIGHT:
-                self._unlocks_left = self.params.stop_repeats
+                # the thrust lock is the RPYT decoder's (crtp_commander_rpyt.c): generic setpoints have none
+                self._unlocks_left = 0 if self.onboard else self.params.stop_repeats
                 self._thrusts.clear()  # a new flight
                 if self.mode == Drive.DRIVE:  # a driver taking off: zero wheels, repeated like a stop
                     self._wheels = (0.0, 0.0)
                     self._wheel_zeros_left = self.params.stop_repeats
-            self._flight, self._flight_raw = setpoint, raw
+            self._flight_raw = raw
             self._flight_new = True
-            if setpoint.thrust >= FIRMWARE_MIN_THRUST:
+            if isinstance(setpoint, FlightSetpoint) and setpoint.thrust >= FIRMWARE_MIN_THRUST:
                 self._thrusts.append(thrust_newtons(setpoint.thrust) * math.cos(math.radians(setpoint.roll))
                                      * math.cos(math.radians(setpoint.pitch)))
             self._stops_left = 0  # flying again: pending stops are void (other modes finish them)
@@ -211,7 +228,7 @@ class VehicleChannel:
         on again (it is after every boot), so the next flight packets are the zero-thrust ones that
         release it; not for a vehicle its supervisor last reported flying (a lock needs a reboot,
         which would have brought it down)."""
-        if not was_flying:
+        if not was_flying and not self.onboard:
             self._unlocks_left = self.params.stop_repeats
         if self.estopped:  # the stop may not have reached it before the link went
             self.estop_left = self.params.estop_repeats
@@ -241,8 +258,26 @@ class VehicleChannel:
         return events
 
     def on_pose(self, pose: Pose, now: float) -> None:
+        """A motion-capture pose of this vehicle: streamed to it in onboard mode, and the safety
+        landing's."""
+        if self.onboard:
+            self._ext_pose = pose
         if self.landing is not None:
             self.landing.on_pose(pose, now)
+
+    @property
+    def wants_poses(self) -> bool:
+        return self.onboard or self.landing is not None
+
+    def extpose_due(self) -> bool:
+        """Onboard mode: a pose not yet streamed, the link up and no emergency stop."""
+        return self._ext_pose is not None and self.health.link_ok and not self.estopped
+
+    def extpose_packet(self) -> bytes:
+        """The newest pose as the localization service's external pose (cflib `send_extpose`)."""
+        pose, self._ext_pose = self._ext_pose, None
+        assert pose is not None
+        return self._count(crtp.encode_ext_pose(pose.x, pose.y, pose.z, pose.yaw))
 
     def supervise(self, now: float) -> list[Event]:
         """Safety rules at `now`, before the tick's packets are chosen; the events they cause."""
@@ -251,7 +286,11 @@ class VehicleChannel:
             events += self.health.check_app(now)
         age = now - self.cmd_at
         if self.mode == Drive.FLIGHT and self.stale(now):
-            self.landing = SafeLanding(now, self._hover_setpoint(), self.params.landing, 1.0 / self.params.tick_hz)
+            if self.onboard and self._position is not None:
+                self.landing = OnboardLanding(now, self._position, self.params.landing)
+            else:
+                self.landing = SafeLanding(now, self._hover_setpoint(), self.params.landing,
+                                           1.0 / self.params.tick_hz)
             self.mode = Drive.LANDING
             self.took_over = True
             events.append(("stale_cmd_landing", f"no command for {age:.2f} s in flight: hover, then land"))
@@ -360,6 +399,8 @@ class VehicleChannel:
         if self.mode == Drive.LANDING:
             assert self.landing is not None
             sp = self.landing.step(now)
+            if isinstance(sp, PositionSetpoint):
+                return self._count(crtp.encode_full_state(sp)), []
             if sp is not None:
                 self._flight = sp
                 return self._count(crtp.encode_setpoint(sp)), []

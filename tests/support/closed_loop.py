@@ -14,13 +14,14 @@ from typing import Literal
 
 import msgspec
 
-from common.bus.messages import PlanStep, Pose, SimTruth, Telemetry, VehiclePlan
+from common.bus.messages import ControlMode, PlanStep, Pose, SimTruth, Telemetry, VehiclePlan
 from common.domain.planfile import PlanModel
 from common.domain.vehicle_model import EdgeKind, NodeKind, VehicleModel
 from common.flight.modes import Mode
 from services.executor.trajectory import RefSample
 from services.executor.vehicle_controller import VehicleController
 from services.sim.crazyflie.physics import SimFlyingCar
+from tests.support.onboard_loop import FirmwareCar
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,12 +98,13 @@ def reference_steps(model: VehicleModel) -> list[PlanStep]:
     return steps
 
 
-def run(ctrl: VehicleController, sim: SimFlyingCar, until: float, mocap: Mocap | None = None,
+def run(ctrl: VehicleController, sim: SimFlyingCar | FirmwareCar, until: float, mocap: Mocap | None = None,
         dt: float = 0.01, telemetry_every: int = 10,
-        on_tick: Callable[[float], None] | None = None) -> list[Record]:
+        on_tick: Callable[[float], None] | None = None, control: ControlMode = "offboard") -> list[Record]:
     """Step the loop from the simulator's clock to `until`: pose -> controller -> setpoint ->
-    physics, with battery telemetry every `telemetry_every` ticks. `on_tick(now)` runs before each
-    tick (fault injection)."""
+    physics, with battery telemetry every `telemetry_every` ticks (saying control mode `control`;
+    onboard needs `sim` to be a `tests.support.onboard_loop.FirmwareCar`). `on_tick(now)` runs
+    before each tick (fault injection)."""
     mocap = mocap or Mocap()
     records: list[Record] = []
     k = 0
@@ -117,7 +119,7 @@ def run(ctrl: VehicleController, sim: SimFlyingCar, until: float, mocap: Mocap |
         if telemetry_every and k % telemetry_every == 0:
             ctrl.on_telemetry(Telemetry(vid=sim.vid, t=now, gateway="sim", vbat=sim.battery.vbat,
                                         link_quality=1.0, sent=k, dropped=0,
-                                        cmd_rate_hz=1.0 / dt), now)
+                                        cmd_rate_hz=1.0 / dt, control=control), now)
         cmd, _ = ctrl.tick(now)
         sim.apply(cmd.setpoint, now)
         records.append(Record(now, truth, ctrl.reference(now), ctrl.mode))

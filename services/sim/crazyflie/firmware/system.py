@@ -51,7 +51,15 @@ from services.sim.crazyflie.firmware.commander import (
     generic,
 )
 from services.sim.crazyflie.firmware.logs import FLOAT, INT8, UINT8, UINT16, LogService, LogVar
-from services.sim.crazyflie.firmware.onboard import KALMAN, OnboardEstimator, OnboardState, PositionController
+from services.sim.crazyflie.firmware.onboard import (
+    CF_MASS,
+    COMPLEMENTARY,
+    MELLINGER,
+    PID,
+    OnboardEstimator,
+    OnboardState,
+    PositionController,
+)
 from services.sim.crazyflie.firmware.params import CORE, EXTENDED, RONLY, Param, ParamService
 from services.sim.crazyflie.firmware.supervisor import PERIOD_S, Inputs, State, Supervisor
 from services.sim.crazyflie.firmware.wheels_app import AppView, WheelsApp
@@ -146,22 +154,28 @@ class CrazyflieFirmware:
 
         def reset_est(v: float) -> None:
             if v:
-                pv = self.params.values
-                self.estimator.reset((pv["kalman.initialX"], pv["kalman.initialY"], pv["kalman.initialZ"]),
-                                     pv["kalman.initialYaw"])
+                pv, c = self.params.values, self.car
+                self.estimator.reset((c.x, c.y, c.z), c.yaw, initial=(pv["kalman.initialX"], pv["kalman.initialY"],
+                                                                       pv["kalman.initialZ"]))
                 pv["kalman.resetEstimation"] = 0  # cleared silently, as estimator_kalman.c does
+
+        def ctrl(v: float) -> None:  # controller.c: 0 (any) is the PID; Mellinger is 2
+            self.controller.kind = MELLINGER if int(v) == MELLINGER else PID
 
         def sup(attr: str) -> Callable[[float], None]:
             return lambda v: setattr(self.supervisor, attr, v / 1000.0)
 
         return [
             Param("stabilizer", "estimator", params.UINT8 | CORE, 1, est),
-            Param("stabilizer", "controller", params.UINT8 | CORE, 1),
+            Param("stabilizer", "controller", params.UINT8 | CORE, 1, ctrl),
+            Param("ctrlMel", "mass", params.FLOAT | CORE | EXTENDED, CF_MASS,
+                  lambda v: setattr(self.controller, "mel_mass", v)),
             Param("stabilizer", "stop", params.UINT8 | CORE, 0),
             Param("commander", "enHighLevel", params.UINT8 | CORE, 0),
             Param("hlCommander", "vtoff", params.FLOAT | CORE, 0.5),
             Param("hlCommander", "vland", params.FLOAT | CORE, 0.5),
-            Param("locSrv", "extPosStdDev", params.FLOAT | CORE, 0.01),
+            Param("locSrv", "extPosStdDev", params.FLOAT | CORE, 0.01,
+                  lambda v: setattr(self.estimator, "ext_std", max(v, 1e-6))),
             Param("locSrv", "extQuatStdDev", params.FLOAT | CORE, 0.0045),
             Param("kalman", "resetEstimation", params.UINT8 | CORE, 0, reset_est),
             Param("kalman", "initialX", params.FLOAT | CORE, 0.0),
@@ -255,10 +269,8 @@ class CrazyflieFirmware:
         return 10 * sum(1 for c in curve[1:] if v >= c)
 
     def _variance(self, axis: int) -> float:
-        """Position variance of the Kalman filter: small while external positions come, growing after."""
-        if self.estimator.kind != KALMAN or self.estimator.ext_at is None:
-            return 100.0
-        return 1e-4 + 0.01 * (self.car.t - self.estimator.ext_at) ** 2
+        """`kalman.varPX` ...: the Kalman filter's position variance (`onboard.py`)."""
+        return self.estimator.variance(axis)
 
     def _acc_z(self) -> float:
         """Body z specific force in g (the supervisor's tumble input): 1 at rest, thrust over weight in
@@ -292,9 +304,13 @@ class CrazyflieFirmware:
         self.commander.reboot(now)
         self.hl.reboot()
         c = self.car
-        self.estimator.kind = 1
+        self.estimator.kind = COMPLEMENTARY
+        self.estimator.ext_std = self.params.get("locSrv.extPosStdDev")
         self.estimator.ext_pos = self.estimator.ext_at = None
+        self.estimator.ext_count = 0
         self.estimator.reset((c.x, c.y, c.z), c.yaw)
+        self.controller.kind = PID
+        self.controller.mel_mass = self.params.get("ctrlMel.mass")
         self.controller.reset()
         self.estop_latched = False
         self.estop_watchdog_at = None

@@ -1,0 +1,50 @@
+"""Onboard control mode (DESIGN.md "Vehicles"; issue 17): the vehicle flies on its own estimator and
+controller, and the executor sends it full-state setpoints (position, velocity and acceleration
+feed-forward, yaw) along the same reference the LQR of paper 000 §VI-B would track in offboard
+mode. The gateway streams the vehicle's motion-capture pose to its Kalman estimator (external pose)
+and has set the Mellinger controller, which follows the feed-forward (crazyswarm2's setup;
+docs/control.md "Onboard control mode").
+
+A vehicle is in onboard mode when its gateway says so (`Telemetry.control`, from the radios file):
+the vehicle's configuration lives in one place. Everything on the ground (pure pursuit), the mode
+machine, the take-off and landing references, the tracking guard and the fault landings are the
+same in both modes; only the setpoint and the estimator's input differ:
+
+- following a reference (take-off, flight, landing, a fault landing, a held hover): the reference
+  itself as the setpoint; the executor's Kalman filter predicts with the reference's acceleration
+  (the onboard controller feeds it forward), or none while the link is lost (the vehicle then holds
+  its last setpoint);
+- emergency descent (poses stale in the air, `faults.py`): the executor's dead-reckoned state, braked
+  horizontally and steered down at the descent speed, *is* the setpoint: without motion capture the
+  onboard estimate drifts on the IMU alone (slowly: centimetres over a descent), its controller
+  follows the descending setpoint in that frame, and the motors stop on the same predicted-touchdown
+  rule as in offboard mode.
+"""
+
+from __future__ import annotations
+
+from common.bus.messages import PositionSetpoint, Telemetry
+from common.flight.estimator import Estimate, PoseEstimator
+from common.flight.reference import RefSample
+from services.executor.faults import FaultParams
+
+
+def onboard(tel: Telemetry | None) -> bool:
+    """The vehicle is in onboard control mode (its gateway's word; offboard until it has spoken)."""
+    return tel is not None and tel.control == "onboard"
+
+
+def follow(ref: RefSample, estimator: PoseEstimator, now: float, link_ok: bool) -> PositionSetpoint:
+    """The full-state setpoint of reference `ref`; the estimator predicts with its acceleration."""
+    estimator.set_input((ref.ax, ref.ay, ref.az) if link_ok else (0.0, 0.0, 0.0), now)
+    return PositionSetpoint(x=ref.x, y=ref.y, z=ref.z, vx=ref.vx, vy=ref.vy, vz=ref.vz, ax=ref.ax, ay=ref.ay,
+                            az=ref.az, yaw=ref.yaw, yaw_rate=ref.yaw_rate)
+
+
+def descent(est: Estimate, accel: float, estimator: PoseEstimator, faults: FaultParams, now: float) -> PositionSetpoint:
+    """One step of the emergency descent: vertical acceleration `accel` (`FaultParams.descent_accel_cmd`),
+    the horizontal speed braked at `descent_gain`; the dead-reckoned state as the setpoint."""
+    ax, ay = -faults.descent_gain * est.vx, -faults.descent_gain * est.vy
+    estimator.set_input((ax, ay, accel), now)
+    return PositionSetpoint(x=est.x, y=est.y, z=est.z, vx=est.vx, vy=est.vy, vz=est.vz, ax=ax, ay=ay, az=accel,
+                            yaw=est.yaw)
