@@ -1,6 +1,7 @@
 """The wheel app's portable C logic (firmware/wheels): its host tests, and its packet filter driven
 with packets built here by hand, so that the bytes of firmware/wheels/PROTOCOL.md (version 2) are
-checked from Python as well as from C. Builds into a temporary directory: nothing is written to the
+checked from Python as well as from C, and with the gateway's own codec (`common.crazyflie.crtp`)
+both ways. Builds into a temporary directory: nothing is written to the
 tree. The tests that build are skipped when no C compiler or make is installed."""
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ import subprocess
 from pathlib import Path
 
 import pytest
+
+from common.crazyflie import crtp
 
 HOST = Path(__file__).resolve().parents[1] / "firmware" / "wheels" / "host"
 
@@ -135,3 +138,21 @@ def test_status_example_bytes_match_protocol_md() -> None:
     for name, payload in examples.items():
         assert f"`{bytes((DOWN,)).hex()} {payload.hex(' ')}`" in doc, name
     assert f"`{_wheels(100, -50).hex(' ')}`" in doc and f"`{_request(1234).hex(' ')}`" in doc
+
+
+@needs_cc
+def test_the_gateways_codec_and_the_c_app_understand_each_other(build: Path) -> None:
+    """Packets encoded by the gateway's codec (`common.crazyflie.crtp`, the bytes it sends) decoded
+    by the compiled C app, and the C app's STATUS replies decoded by the codec."""
+    speeds = [(0.1, -0.05), (0.2, 0.2), (-0.0125, 0.0), (40.0, -40.0)]  # m/s; the last clamps to int16 mm/s
+    lines = ["0 set vbat 3912", "0 set age 7", f"0 set flags {FLAG_ARMED:#x}"]
+    lines += [f"{10 * (i + 1)} {crtp.encode_wheels(left, right).hex()}" for i, (left, right) in enumerate(speeds)]
+    lines.append(f"100 {crtp.encode_status_request(4321).hex()}")
+    out = _filter(build, lines, "-s", "40000")
+    taken = [(int(rest[0]), int(rest[1])) for _t, kind, *rest in out if kind == "wheels"]
+    assert taken == [(100, -50), (200, 200), (-12, 0), (32767, -32768)]
+    replies = [bytes.fromhex(rest[0]) for _t, kind, *rest in out if kind == "reply"]
+    assert len(replies) == 1
+    status = crtp.decode_downlink(replies[0])
+    assert status == crtp.Status(echo_seq=4321, received=5, uptime_ms=100, rejected=0, vbat_mv=3912,
+                                 wheel_left_mm_s=32767, wheel_right_mm_s=-32768, setpoint_age_ms=7, flags=FLAG_ARMED)
