@@ -311,9 +311,37 @@ class TeamTask(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     improve_s: float = 1.0
 
 
+class Sweep(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A body that left its plan (issue 16): it moves from `p0` to `p1` (m) linearly over mission
+    time [t0, t1] (s) and, if `rest`, stays at `p1` for ever after (a vehicle landing after a fault,
+    as its executor does it)."""
+
+    vid: str
+    p0: Vec3
+    p1: Vec3
+    t0: float
+    t1: float
+    rest: bool = False
+
+
+class Replan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Plan a running mission on from mission time `at` (issue 16). Every vehicle of `base` not in
+    `left` keeps its path up to the first node it reaches at or after `at` and is planned on from
+    there to its goal (or its new goal in `goals`: a task added while the others move; a vehicle
+    that arrived starts again from its goal); the vehicles in `left` are gone from the plan and
+    their bodies are `sweeps`. The answer's paths are whole (prefix + new suffix), in mission time."""
+
+    base: Plan
+    at: float
+    left: list[str] = []
+    sweeps: list[Sweep] = []
+    goals: dict[str, str] = {}
+
+
 class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Query payload of `planner/plan`. `map` is a shipped map name or a path readable by the planner.
-    A team request (planner "collab") gives `team` and no `tasks`; `map` is a collab map."""
+    A team request (planner "collab") gives `team` and no `tasks`; `map` is a collab map. A `replan`
+    request plans a running mission on (its `map` and `planner` must be the base plan's)."""
 
     map: str
     tasks: dict[str, Task]
@@ -323,6 +351,7 @@ class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     mission: str = ""
     seed: int = 0
     team: TeamTask | None = None
+    replan: Replan | None = None
 
 
 class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -361,7 +390,7 @@ class VehicleTeamPlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 class TeamAction(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Executor -> robot (`vehicle/<vid>/action`): run step `index` of the robot's sequence (the
     controller action and the pose it should end in). Re-sent until the robot reports it done or
-    failed; a robot runs each (mission, index) once and answers repeats with its status."""
+    failed; a robot runs each (mission, index, attempt) once and answers repeats with its status."""
 
     vid: str
     owner: str
@@ -369,6 +398,9 @@ class TeamAction(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     index: int
     step: Step
     t: float
+    attempt: int = 0
+    """0 for the plan's step; n for the executor's n-th re-try of it (an action that ended off its
+    planned end under sensing noise, `services/executor/team_robots.py`): a new action."""
 
 
 ActionState = Literal["started", "done", "failed"]
@@ -385,6 +417,8 @@ class ActionStatus(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     pose: Vec3
     t: float
     detail: str = ""
+    attempt: int = 0
+    """The `TeamAction.attempt` this reports on."""
 
 
 class MissionStart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -9,6 +9,8 @@ import time
 from collections.abc import Callable
 from importlib import import_module
 
+import msgspec
+
 from common.bus.messages import PlanReply, PlanRequest
 from common.domain.planfile import Plan, Task
 from common.errors import InputError
@@ -46,8 +48,42 @@ def solve(req: PlanRequest) -> PlanReply:
         return PlanReply(ok=False, error=f"mu must be in [0, 1], got {req.mu}")
     if req.time_limit <= 0:
         return PlanReply(ok=False, error="time_limit must be positive")
+    if req.replan is not None:
+        return solve_replan(req)
     solver: Solver = _load(PLANNERS[req.planner])
     return solver(req)
+
+
+def solve_replan(req: PlanRequest) -> PlanReply:
+    """Plan a running mission on (`Replan`, issue 16) with SIPP on its base plan's graph; the
+    spliced plan is validated as a whole (prefixes + new suffixes + the vehicles at rest)."""
+    from services.planner.sipp.replan import replan_sipp
+    from services.planner.validate import validate_plan
+
+    rp = req.replan
+    assert rp is not None
+    base = rp.base
+    try:
+        problem = problem_from_request(base.map, base.tasks, base.planner)
+    except InputError as exc:
+        return PlanReply(ok=False, error=str(exc))
+    unknown = sorted((set(rp.left) | set(rp.goals)) - set(base.paths))
+    if unknown:
+        return PlanReply(ok=False, error=f"replan: {', '.join(unknown)} not in the plan")
+    missing = sorted(g for g in rp.goals.values() if g not in problem.graph.index)
+    if missing:
+        return PlanReply(ok=False, error=f"replan: no node {', '.join(map(repr, missing))} on map {base.map!r}")
+    result = replan_sipp(problem.graph, rp, base.mu, req.time_limit, req.seed)
+    if not result.ok:
+        return PlanReply(ok=False, error=f"no plan (could not place {result.failed_vehicle}): {result.error}")
+    tasks = {vid: msgspec.structs.replace(base.tasks[vid], goal=rp.goals.get(vid, base.tasks[vid].goal))
+             for vid in result.paths}
+    plan = to_plan(problem.graph, base.map, base.planner, base.mu, tasks, result)
+    plan = msgspec.structs.replace(plan, cost=validate_plan(plan).cost)  # whole paths, priced by the validator
+    report = validate_plan(plan)
+    if not report.ok:
+        return PlanReply(ok=False, error="replan failed validation: " + "; ".join(report.errors[:5]))
+    return PlanReply(ok=True, plan=plan)
 
 
 def solve_on_graph(req: PlanRequest) -> PlanReply:

@@ -41,7 +41,6 @@ def to_plan(graph: FleetGraph, map_name: str, planner: str, mu: float, tasks: di
     )
 
 
-
 def battery_shortfall(task: Task, needed: float, usable: float) -> str:
     """Why a task does not fit its vehicle's battery (eq. 6), with the shortfall in Ah."""
     used = f", {task.charge_used_ah:.4f} Ah already used" if task.charge_used_ah else ""

@@ -198,7 +198,7 @@ def _reserve(res: Reservations, path: TimedPath) -> None:
             res.move(path.edges[i], path.depart[i])
 
 
-def _entries(graph: FleetGraph, path: TimedPath) -> list[PathEntry]:
+def path_entries(graph: FleetGraph, path: TimedPath) -> list[PathEntry]:
     """Plan-file entries: each arrival, and the end of each wait (DESIGN.md "Plan file")."""
     out = []
     for node, arrive, depart in zip(path.nodes, path.arrive, path.depart, strict=True):
@@ -212,7 +212,7 @@ def _solved(graph: FleetGraph, vids: list[str], paths: dict[str, TimedPath], t0:
             order: list[str]) -> PlanResult:
     return PlanResult(
         ok=True,
-        paths={vid: _entries(graph, paths[vid]) for vid in vids},
+        paths={vid: path_entries(graph, paths[vid]) for vid in vids},
         cost=sum(p.cost for p in paths.values()),
         planning_time_s=time.perf_counter() - t0,
         stats={"orders": orders},

@@ -89,32 +89,33 @@ def sipp(
     q_to_go: list[float],
     usable_ah: float,
     deadline: float,
+    t_start: float = 0.0,
 ) -> TimedPath | None:
-    """Alg. 1: the path found for one vehicle from `start` (at time 0) to rest at `goal` forever, or
-    None when none exists under the reservations and the battery. Raises SearchTimeout."""
+    """Alg. 1: the path found for one vehicle from `start` (at time `t_start`) to rest at `goal`
+    forever, or None when none exists under the reservations and the battery. Raises SearchTimeout."""
     node_s, node_e = res.node_start, res.node_end
     edge_s, edge_e = res.edge_start, res.edge_end
     closed_n, closed_e = res.node_closed, res.edge_closed
     out, wait_cost, wait_charge, passable = sg.out, sg.wait_cost, sg.wait_charge, sg.passable
     n_nodes = len(out)
 
-    k0 = bisect_right(node_s[start], 0.0) - 1
-    if k0 < 0 or node_e[start][k0] < 0.0 or h[start] == INF:
+    k0 = bisect_right(node_s[start], t_start) - 1
+    if k0 < 0 or node_e[start][k0] < t_start or h[start] == INF:
         return None
     # arrivals: node, state key, end of its safe interval, time, cost, charge, parent arrival,
     # departure from the parent's node, edge from the parent
     a_node = [start]
     a_key = [k0 * n_nodes + start]
     a_end = [node_e[start][k0]]
-    a_t = [0.0]
+    a_t = [t_start]
     a_c = [0.0]
     a_q = [0.0]
     a_parent = [-1]
-    a_dep = [0.0]
+    a_dep = [t_start]
     a_edge = [-1]
     # per state: [earliest (t, c, arrival id), cheapest (c, t, arrival id)]
-    best: dict[int, list] = {a_key[0]: [0.0, 0.0, 0, 0.0, 0.0, 0]}
-    heap: list[tuple[float, float, float, int]] = [(h[start], h[start], 0.0, 0)]
+    best: dict[int, list] = {a_key[0]: [t_start, 0.0, 0, 0.0, t_start, 0]}
+    heap: list[tuple[float, float, float, int]] = [(h[start], h[start], t_start, 0)]
     pops = 0
     while heap:
         _, _, t, aid = heapq.heappop(heap)

@@ -1,0 +1,216 @@
+"""Planning a running mission on from its current state (issue 16): after a vehicle left the plan
+(a fault: it lands or stops where its executor decides) or when a vehicle gets a new goal while the
+others move.
+
+From the switch time `at` (mission time) on, every remaining vehicle keeps its path up to the first
+node it reaches at or after `at` (its *prefix*: the executors fly it unchanged, so the switch needs
+no stop) and is planned from that node and time to its goal with prioritized SIPP (paper 000 §V-D),
+against:
+- the paths of the vehicles that already rest at their goals (for ever) and every prefix;
+- the bodies that left the plan (`Sweep`s: a segment swept over a time window, then a rest for
+  ever), as closures of every node whose body could touch the segment and every edge whose
+  traversal could, over the window (conservative: the segment is sampled at a quarter of a body's
+  radius and the sampling step is added to the contact distance);
+- each vehicle's battery: what its task's budget (`Task.usable_ah`) leaves after its prefix.
+
+Priority: the vehicles that must move first (earliest switch node) first; a vehicle that cannot be
+placed is promoted to the front and the others follow in their order, until the time limit. Starts
+are not closed for the vehicles planned later (as on open-endpoint maps): a vehicle whose switch node
+an earlier path crosses must leave it before, or is promoted (an order is never tried twice). The answer is whole paths (prefix +
+new suffix) that the validator checks like any plan.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from itertools import pairwise
+
+import numpy as np
+
+from common.bus.messages import Replan, Sweep
+from common.domain.planfile import PathEntry, Task
+from services.planner.graph.fleet_graph import FleetGraph
+from services.planner.result import PlanResult, battery_shortfall
+from services.planner.sipp.heuristic import CostToGo
+from services.planner.sipp.planner import path_entries
+from services.planner.sipp.safe_intervals import Reservations, carve
+from services.planner.sipp.search import SearchGraph, SearchTimeout, TimedPath, sipp
+
+INF = math.inf
+
+
+@dataclass(frozen=True)
+class Leg:
+    """A remaining vehicle to plan: its prefix, the node and time it is planned from, its goal and
+    the charge its battery still allows after the prefix (planner units, eq. 6)."""
+
+    vid: str
+    prefix: list[PathEntry]
+    start: int
+    depart: float
+    goal: int
+    usable: float
+    task: Task
+
+
+def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float, seed: int = 0) -> PlanResult:
+    """The spliced paths of every remaining vehicle (see the module doc); PlanResult names the vehicle
+    it could not place."""
+    t0 = time.perf_counter()
+    deadline = t0 + time_limit
+    fixed, legs = _split(graph, replan)
+    for caps in {leg.task.capabilities for leg in legs}:  # one batched Dijkstra per kind of vehicle
+        CostToGo.of(graph, mu, caps).prepare(leg.goal for leg in legs if leg.task.capabilities == caps)
+    for leg in legs:
+        ctg = CostToGo.of(graph, mu, leg.task.capabilities)
+        if ctg.h[leg.goal][leg.start] == INF:
+            return _failed(leg.vid, f"no route from {leg.task.start!r} to {leg.task.goal!r}", t0)
+        if ctg.q[leg.goal][leg.start] > leg.usable:
+            return _failed(leg.vid, battery_shortfall(leg.task, ctg.q[leg.goal][leg.start], leg.usable), t0)
+    order = sorted(legs, key=lambda leg: (leg.depart, leg.vid))
+    seen = {tuple(leg.vid for leg in order)}
+    tried = 0
+    while True:
+        tried += 1
+        outcome = _plan_order(graph, replan.sweeps, fixed, order, mu, deadline)
+        if isinstance(outcome, dict):
+            paths = {**fixed}
+            for leg in legs:
+                suffix = outcome[leg.vid]
+                paths[leg.vid] = leg.prefix[:-1] + path_entries(graph, suffix)
+            cost = sum(p.cost for p in outcome.values())
+            return PlanResult(ok=True, paths={v: paths[v] for v in replan.base.paths if v in paths}, cost=cost,
+                              planning_time_s=time.perf_counter() - t0, stats={"orders": tried},
+                              priority=[leg.vid for leg in order])
+        vid, reason = outcome
+        order = [next(leg for leg in order if leg.vid == vid)] + [leg for leg in order if leg.vid != vid]
+        key = tuple(leg.vid for leg in order)
+        if key in seen or time.perf_counter() > deadline:
+            return _failed(vid, f"{reason} after {tried} priority order{'s' if tried > 1 else ''}", t0)
+        seen.add(key)
+
+
+def _split(graph: FleetGraph, replan: Replan) -> tuple[dict[str, list[PathEntry]], list[Leg]]:
+    """The vehicles that stay as they are (resting at their goals by `at`) and those planned on."""
+    base, at, left = replan.base, replan.at, set(replan.left)
+    fixed: dict[str, list[PathEntry]] = {}
+    legs: list[Leg] = []
+    for vid, path in base.paths.items():
+        if vid in left:
+            continue
+        task = base.tasks[vid]
+        goal = replan.goals.get(vid, task.goal)
+        if path[-1].t <= at:
+            if goal == path[-1].node:
+                fixed[vid] = path
+                continue
+            prefix, depart = path, at
+        else:
+            k = next(i for i, e in enumerate(path) if e.t >= at)
+            prefix, depart = path[:k + 1], path[k].t
+        usable = task.usable_ah(graph.model) - prefix_charge(graph, prefix)
+        legs.append(Leg(vid, list(prefix), graph.index[prefix[-1].node], depart, graph.index[goal], usable,
+                        Task(start=prefix[-1].node, goal=goal, capabilities=task.capabilities,
+                             charge_used_ah=task.charge_used_ah, voltage=task.voltage, depart=depart)))
+    return fixed, legs
+
+
+def prefix_charge(graph: FleetGraph, entries: list[PathEntry]) -> float:
+    """Eq. 4-5 over a path's entries: each traversal's charge and each wait at its node's rate."""
+    rate = graph.wait_charge_rate()
+    total = 0.0
+    for a, b in pairwise(entries):
+        u, v = graph.index[a.node], graph.index[b.node]
+        total += float(rate[u]) * (b.t - a.t) if u == v else float(graph.charge[graph.edge_index[(u, v)]])
+    return total
+
+
+def _plan_order(graph: FleetGraph, sweeps: list[Sweep], fixed: dict[str, list[PathEntry]], order: list[Leg],
+                mu: float, deadline: float) -> dict[str, TimedPath] | tuple[str, str]:
+    res = Reservations(graph)
+    for path in fixed.values():
+        _reserve_entries(res, graph, path, forever=True)
+    for leg in order:
+        _reserve_entries(res, graph, leg.prefix, forever=False)
+    for sweep in sweeps:
+        block_sweep(res, graph, sweep)
+    out: dict[str, TimedPath] = {}
+    for leg in order:
+        ctg = CostToGo.of(graph, mu, leg.task.capabilities)
+        where = f"{graph.ids[leg.start]!r} at {leg.depart:.1f} s -> {graph.ids[leg.goal]!r}"
+        try:
+            path = sipp(SearchGraph.of(graph, mu, leg.task.capabilities), res, leg.start, leg.goal, ctg.h[leg.goal],
+                        ctg.q[leg.goal], leg.usable, deadline, t_start=leg.depart)
+        except SearchTimeout:
+            return leg.vid, f"time limit reached while planning {where}"
+        if path is None:
+            return leg.vid, f"no collision-free path {where} within the battery ({len(out)} vehicles placed)"
+        for i, node in enumerate(path.nodes):
+            if path.depart[i] > path.arrive[i]:
+                res.rest(node, path.arrive[i], path.depart[i])
+            if i < len(path.edges):
+                res.move(path.edges[i], path.depart[i])
+        out[leg.vid] = path
+    return out
+
+
+def _reserve_entries(res: Reservations, graph: FleetGraph, entries: list[PathEntry], forever: bool) -> None:
+    """Claim the space-time of plan-file entries (rests and traversals), and the last node for ever."""
+    first = graph.index[entries[0].node]
+    if entries[0].t > 0:
+        res.rest(first, 0.0, entries[0].t)
+    for a, b in pairwise(entries):
+        u, v = graph.index[a.node], graph.index[b.node]
+        if u == v:
+            res.rest(u, a.t, b.t)
+        else:
+            res.move(graph.edge_index[(u, v)], a.t)
+    if forever:
+        res.rest(graph.index[entries[-1].node], entries[-1].t, INF)
+
+
+def block_sweep(res: Reservations, graph: FleetGraph, sweep: Sweep) -> None:
+    """Close, over the sweep's window (and for ever after it when it rests), every node a body at
+    which could touch the swept body, and the departures on every edge whose traversal could."""
+    nodes, edges = touched_by_segment(graph, sweep.p0, sweep.p1)
+    end = INF if sweep.rest else sweep.t1
+    d = graph.duration
+    for n in nodes.tolist():
+        carve(res.node_start[n], res.node_end[n], sweep.t0, end)
+    for e in edges.tolist():
+        carve(res.edge_start[e], res.edge_end[e], sweep.t0 - float(d[e]), end)
+
+
+def touched_by_segment(graph: FleetGraph, p0: tuple[float, float, float],
+                       p1: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the nodes and edges whose bodies (cylinders of the graph's envelope) could touch a
+    body anywhere on the segment p0 -> p1."""
+    r, h = graph.model.radius, graph.model.height
+    step = r / 4
+    a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
+    k = max(2, int(np.ceil(np.linalg.norm(b - a) / step)) + 1)
+    seg = a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)  # (K, 3)
+    reach = 2 * r + step
+
+    def touch(points: np.ndarray) -> np.ndarray:  # (..., 3) -> (...,) whether any sample touches
+        d = points[..., None, :] - seg
+        return ((np.hypot(d[..., 0], d[..., 1]) < reach) & (np.abs(d[..., 2]) < h + step)).any(axis=-1)
+
+    pos = np.asarray(graph.pos, dtype=float)
+    nodes = np.flatnonzero(touch(pos))
+    tail, head = pos[graph.edges[:, 0]], pos[graph.edges[:, 1]]
+    length = np.linalg.norm(head - tail, axis=1)
+    m = max(2, int(np.ceil(length.max(initial=0.0) / step)) + 1)
+    f = np.linspace(0.0, 1.0, m)
+    samples = tail[:, None, :] + f[None, :, None] * (head - tail)[:, None, :]  # (E, M, 3)
+    # only edges near the segment's bounding box are sampled finely
+    lo, hi = seg.min(axis=0) - reach - h, seg.max(axis=0) + reach + h
+    near = np.flatnonzero(((np.minimum(tail, head) <= hi) & (np.maximum(tail, head) >= lo)).all(axis=1))
+    edges = near[touch(samples[near]).any(axis=1)] if len(near) else near
+    return nodes, edges
+
+
+def _failed(vid: str, reason: str, t0: float) -> PlanResult:
+    return PlanResult(ok=False, error=f"{vid}: {reason}", failed_vehicle=vid, planning_time_s=time.perf_counter() - t0)

@@ -1,0 +1,124 @@
+"""Replanning a running mission (issue 16): the remaining vehicles keep their paths up to the first
+node at or after the switch time and are planned on from there, around a body that left the plan;
+a vehicle that arrived gets a new goal while the others move. Judged by the validator on the whole
+(spliced) plan and by sampling the paths against the left body's sweep."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import msgspec
+import pytest
+
+from common.bus.messages import PlanRequest, Replan, Sweep
+from common.domain.planfile import Plan, Task
+from services.planner.registry import solve
+from services.planner.validate import validate_plan
+
+TASKS = {
+    "cf1": Task(start="WP10", goal="EP8"),
+    "cf2": Task(start="EP7", goal="WP9"),
+    "cf3": Task(start="WP7", goal="WP3"),
+    "cf4": Task(start="WP1", goal="WP6"),
+}
+
+
+def plan_of(planner: str = "sipp", tasks: dict[str, Task] = TASKS) -> Plan:
+    reply = solve(PlanRequest(map="town", tasks=tasks, planner=planner, time_limit=30))
+    assert reply.ok and reply.plan is not None, reply.error
+    return reply.plan
+
+
+def position(plan: Plan, vid: str, t: float) -> tuple[float, float, float]:
+    path, nodes = plan.paths[vid], plan.graph.nodes
+    if t <= path[0].t:
+        return nodes[path[0].node].pos
+    for a, b in zip(path, path[1:], strict=False):
+        if t <= b.t:
+            f = 0.0 if b.t == a.t else (t - a.t) / (b.t - a.t)
+            pa, pb = nodes[a.node].pos, nodes[b.node].pos
+            return tuple(pa[i] + f * (pb[i] - pa[i]) for i in range(3))  # type: ignore[return-value]
+    return nodes[path[-1].node].pos
+
+
+def airborne_at(plan: Plan, vid: str) -> float:
+    """A time at which `vid` is in the air (mid-path)."""
+    path = plan.paths[vid]
+    air = [e.t for e in path if plan.graph.nodes[e.node].kind == "air"]
+    assert air, f"{vid} never flies"
+    return 0.5 * (air[0] + air[-1])
+
+
+def test_the_others_are_planned_on_around_a_vehicle_landing_after_a_fault() -> None:
+    base = plan_of()
+    at = airborne_at(base, "cf2")
+    here = position(base, "cf2", at)
+    below = (here[0], here[1], 0.0)
+    sweeps = [Sweep("cf2", here, below, at, at + 4.0, rest=True)]
+    t = time.perf_counter()
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+                              replan=Replan(base=base, at=at + 1.0, left=["cf2"], sweeps=sweeps)))
+    took = time.perf_counter() - t
+    assert reply.ok and reply.plan is not None, reply.error
+    plan = reply.plan
+    assert set(plan.paths) == {"cf1", "cf3", "cf4"}
+    report = validate_plan(plan)
+    assert report.ok, report.errors
+    for vid, path in plan.paths.items():
+        old = base.paths[vid]
+        kept = [e for e in old if e.t <= at + 1.0]
+        assert path[:len(kept)] == kept, vid  # the prefix is flown unchanged
+        assert path[-1].node == TASKS[vid].goal
+        # never near cf2's body while it comes down and rests (envelopes: 2 x radius apart)
+        for k in range(400):
+            s = at + 1.0 + k * 0.1
+            p = position(plan, vid, s)
+            z_lo = below[2] if s >= at + 4.0 else min(here[2], below[2])
+            horizontal = math.hypot(p[0] - here[0], p[1] - here[1])
+            if z_lo - plan.model.height < p[2] < here[2] + plan.model.height:
+                assert horizontal >= 2 * plan.model.radius - 1e-6, (vid, s, p)
+    print(f"replanned 3 vehicles in {1e3 * took:.0f} ms")
+
+
+def test_an_arrived_vehicle_gets_a_new_goal_while_the_others_move() -> None:
+    base = plan_of()
+    cf3_done = base.paths["cf3"][-1].t
+    at = cf3_done + 0.5
+    assert any(p[-1].t > at for p in base.paths.values()), "someone must still be moving"
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+                              replan=Replan(base=base, at=at, goals={"cf3": "WP7"})))
+    assert reply.ok and reply.plan is not None, reply.error
+    path = reply.plan.paths["cf3"]
+    assert path[-1].node == "WP7" and reply.plan.tasks["cf3"].goal == "WP7"
+    assert min(e.t for e in path if e.t > cf3_done) >= at
+    assert validate_plan(reply.plan).ok
+
+
+def test_a_replan_the_battery_cannot_serve_names_the_vehicle() -> None:
+    base = plan_of()
+    # the battery, read again, holds less than it did: all the usable charge is used up
+    base = msgspec.structs.replace(base, tasks={**base.tasks, "cf4": Task(
+        start="WP1", goal="WP6", charge_used_ah=base.model.usable_ah)})
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+                              replan=Replan(base=base, at=1.0, goals={"cf4": "EP4"})))
+    assert not reply.ok and "cf4" in reply.error and "short by" in reply.error, reply.error
+
+
+def test_a_replan_naming_an_unknown_vehicle_or_node_is_refused() -> None:
+    base = plan_of()
+    for rp, what in ((Replan(base=base, at=1.0, left=["cf9"]), "cf9"),
+                     (Replan(base=base, at=1.0, goals={"cf1": "NOPE"}), "NOPE")):
+        reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, replan=rp))
+        assert not reply.ok and what in reply.error, reply.error
+
+
+@pytest.mark.parametrize("planner", ["ilp"])
+def test_a_plan_of_the_ilp_is_replanned_on_its_graph(planner: str) -> None:
+    base = plan_of(planner)
+    at = airborne_at(base, "cf1")
+    here = position(base, "cf1", at)
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, replan=Replan(
+        base=base, at=at + 1.0, left=["cf1"], sweeps=[Sweep("cf1", here, (here[0], here[1], 0.0), at, at + 4.0, True)])))
+    assert reply.ok and reply.plan is not None, reply.error
+    assert validate_plan(reply.plan).ok
