@@ -17,7 +17,7 @@ from common.bus.pubsub import QueryError, query
 from common.bus.service import Service
 from common.domain.mapfile import load_map
 from common.errors import InputError
-from services.telemetry.rerun_log import FleetRecording
+from services.telemetry.rerun_log import GRPC_PORT, WEB_PORT, FleetRecording, web_viewer_url
 
 log = logging.getLogger(__name__)
 
@@ -27,7 +27,8 @@ GRAPH_TIMEOUT_S = 10.0
 
 class TelemetryService(Service):
     def __init__(self, instance: str, *args, out: Path = Path("out/recordings"), viewer: bool = False,
-                 web: bool = False, max_hz: float = 20.0, **kwargs) -> None:
+                 web: bool = False, max_hz: float = 20.0, web_port: int = WEB_PORT, grpc_port: int = GRPC_PORT,
+                 **kwargs) -> None:
         super().__init__("telemetry", instance, *args, **kwargs)
         if max_hz <= 0:
             raise ValueError("max_hz must be positive")
@@ -36,15 +37,17 @@ class TelemetryService(Service):
         self._logged_at: dict[str, float] = {}
         self.viewer = viewer
         self.web = web
+        self.ports = {"web_port": web_port, "grpc_port": grpc_port}
         self.mission = ""
         self.recording: FleetRecording | None = None
         self.files: list[Path] = []
         self.drawn: set[str] = set()
+        self._log_state = self._with_recording(FleetRecording.log_state)
 
     async def main(self) -> None:
         k = self.keys
         self.subscribe(k.all_vehicles("plan"), VehiclePlan, self._on_plan)
-        self.subscribe(k.all_vehicles("state"), VehicleState, self._with_recording(FleetRecording.log_state), maxlen=4096)
+        self.subscribe(k.all_vehicles("state"), VehicleState, self._on_state, maxlen=4096)
         self.subscribe(k.all_vehicles("telemetry"), Telemetry, self._with_recording(FleetRecording.log_telemetry), maxlen=4096)
         self.subscribe(k.all_sim_truth, SimTruth, self._with_recording(FleetRecording.log_truth), maxlen=4096)
         try:
@@ -52,6 +55,12 @@ class TelemetryService(Service):
         finally:
             if self.recording is not None:
                 self.recording.close()
+
+    def _on_state(self, state: VehicleState, key: str) -> None:
+        """Every mode change reaches the timeline; the rest of the states at most `max_hz`."""
+        if self.recording is not None:
+            self.recording.log_mode(state)
+        self._log_state(state, key)
 
     def _with_recording(self, log_fn):
         """At most `max_hz` messages per key are drawn: the streams arrive at up to 100 Hz per
@@ -78,7 +87,9 @@ class TelemetryService(Service):
         self.mission = plan.mission
         self.drawn.clear()
         path = self.out / f"{plan.mission or 'no-mission'}.rrd"
-        self.recording = FleetRecording(plan.mission or "fleet", path, viewer=self.viewer, web=self.web)
+        self.recording = FleetRecording(plan.mission or "fleet", path, viewer=self.viewer, web=self.web, **self.ports)
+        if self.web:
+            log.warning("live view of mission %s: %s", plan.mission, web_viewer_url(**self.ports))
         self.files.append(path)
         self.spawn(self._draw_map(self.recording, plan.map), name=f"map {plan.map}")
         log.info("recording mission %s to %s", plan.mission, path)
@@ -100,5 +111,6 @@ def cmd_telemetry(args: argparse.Namespace) -> int:
         raise InputError(f"--max-hz: must be positive, got {args.max_hz}")
     lower_priority(args.nice)
     svc = TelemetryService(args.instance, zconfig_from_args(args), keys_from_args(args),
-                           out=args.out, viewer=args.viewer, web=args.web, max_hz=args.max_hz)
+                           out=args.out, viewer=args.viewer, web=args.web, max_hz=args.max_hz,
+                           web_port=args.web_port, grpc_port=args.grpc_port)
     return run_service(svc)
