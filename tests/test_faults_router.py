@@ -63,12 +63,10 @@ def test_router_restart_mid_flight_aborts_the_mission_cleanly(tmp_path) -> None:
     print(f"router down {up - down:.2f} s, states flow again {back - down:.2f} s after it went; touchdowns (m/s): "
           f"{ {vid: round(watch.hardest_touchdown(vid), 2) for vid in TOWN_TASKS} }")
     assert not result.ok and ("lost contact" in result.reason or "in emergency landing" in result.reason), result.reason
-    assert result.contacts == 0
+    assert result.contacts == 0 and not watch.contacts, (watch.separation_line(), watch.contacts[:5])
     assert watch.stats["sim"].figures["watchdog_cuts"] == 0  # no motors cut in the air
-    for vid in TOWN_TASKS:
-        assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
-        assert not watch.locked(vid), f"{vid}: the supervisor locked and was not rebooted"
-        assert watch.hardest_touchdown(vid) < BLIND_TOUCHDOWN, (vid, watch.hardest_touchdown(vid))
+    for vid in TOWN_TASKS:  # every vehicle is faulted here: each came down safely, in ground truth
+        assert watch.landed_safely(vid, touchdown=BLIND_TOUCHDOWN) == ""
         after = [s.mode for s in watch.states[vid] if s.t > up]
         assert after and not {"driving", "taking_off", "flying"} & set(after), (vid, after)  # no plan resumed
         owners = {s.owner for s in watch.states[vid]}
