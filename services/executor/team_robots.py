@@ -8,8 +8,14 @@ another). The step goes to the robot as a `TeamAction` on `vehicle/<vid>/action`
 `RESEND_S` until the robot reports it done or failed on `vehicle/<vid>/action_status`; every
 change of progress is published at once as a `VehicleState` (step = steps done, mode), and again
 every `HEARTBEAT_S`. A failed action stops the robot's sequence with a `VehicleEvent`
-("action_failed"). A robot taken over from a dead executor resumes at the step its last state
-named: robots run each (mission, index) once, so re-sending the step in flight is safe.
+("action_failed"), except a drone action that ended near, but not at, its planned end: under
+sensing noise (002 §III-B; `services/sim/team/world.py` `SensingNoise`) a trigger fires early or
+late, or a landmark is mis-measured, and the drone stops in a neighbouring cell. That step is
+re-tried from where the drone is (a new `attempt` of the same index, up to `RETRIES` times): its
+perceptual controller localizes afresh on the wall, landmark or UGV it needs, so the re-try ends
+where the plan does unless the noise strikes again; the partner waits meanwhile (the step is not
+done). A robot taken over from a dead executor resumes at the step its last state named: robots run
+each (mission, index, attempt) once, so re-sending the step in flight (or a re-try) is safe.
 """
 
 from __future__ import annotations
@@ -40,6 +46,11 @@ HEARTBEAT_S = 0.5
 """A team robot's state is re-published this often without changes (late joiners, take-over)."""
 TICK_S = 0.05
 """Period of the timer that starts sequences at their start time, re-sends and heartbeats."""
+RETRIES = 2
+"""Re-tries of a drone step that ended off its planned end before the robot's sequence fails."""
+RETRY_RADIUS_M = 0.75
+"""An off-plan end this near the planned one (a neighbouring cell of the 0.5 m lattice, diagonals
+included) is a trigger fired early or late; farther away, the plan no longer fits the world."""
 
 
 class TeamRobot:
@@ -59,6 +70,12 @@ class TeamRobot:
         self.pose: Vec3 = plan.drone_start if self.robot == "drone" else plan.ugv_start
         self.t0: float | None = None
         self.inflight: int | None = None
+        self.attempt = 0
+        """Of the step in flight: 0, then 1.. for its re-tries."""
+        self.retries = 0
+        """Re-tries made over the whole sequence (sensing noise at work)."""
+        self.sent_from: Vec3 | None = None
+        """The robot's reported pose when the step in flight was first sent."""
         self.sent_at = -math.inf
         self.failure = ""
         self.aborted = ""
@@ -107,25 +124,46 @@ class TeamRobot:
         if self.inflight is None:
             if not self.progress.can_start(self.robot):
                 return None
-            self.inflight, self.sent_at = self.done, -math.inf
+            self.inflight, self.attempt, self.sent_at, self.sent_from = self.done, 0, -math.inf, self.pose
         if now - self.sent_at < RESEND_S:
             return None
         self.sent_at = now
         return TeamAction(vid=self.assignment.vid, owner=self.owner, mission=self.assignment.mission, index=self.inflight,
-                          step=self.steps[self.inflight], t=now)
+                          step=self.steps[self.inflight], t=now, attempt=self.attempt)
 
     def on_status(self, status: ActionStatus) -> bool:
         """The robot's report on its current step (also one a previous owner sent); True if the
-        robot's progress or mode changed."""
-        if status.mission != self.assignment.mission or status.index != self.done or self.failure or status.status == "started":
+        robot's progress, pose or mode changed. A failed drone step that ended off its planned end
+        is re-tried (`retry`) instead of failing the sequence."""
+        if (status.mission != self.assignment.mission or status.index != self.done or self.failure
+                or status.status == "started" or status.attempt < self.attempt):
             return False
         self.pose = status.pose
+        self.attempt = status.attempt
+        if status.status == "failed" and self.retry(status):
+            self.attempt += 1
+            self.retries += 1
+            self.inflight, self.sent_at, self.sent_from = status.index, -math.inf, status.pose
+            log.info("%s: step %d (%s) ended at %s, off its planned end: re-try %d", self.assignment.vid,
+                     status.index, action_name(self.steps[status.index]), status.pose, self.attempt)
+            return True
         self.inflight = None
         if status.status == "failed":
-            self.failure = f"step {status.index} ({action_name(self.steps[status.index])}): {status.detail}"
+            tries = f" (after {status.attempt} re-tries)" if status.attempt else ""
+            self.failure = f"step {status.index} ({action_name(self.steps[status.index])}): {status.detail}{tries}"
         else:
             self.progress.complete(self.robot)
+            self.attempt = 0
         return True
+
+    def retry(self, status: ActionStatus) -> bool:
+        """Whether a failed step is re-tried: a drone step, re-tries left, and the drone moved (the
+        action ran) to within `RETRY_RADIUS_M` of the planned end at its altitude, but not onto it."""
+        end = self.steps[status.index].end
+        moved = self.sent_from is None or math.dist(status.pose, self.sent_from) > 1e-6
+        off = math.dist(status.pose[:2], end[:2])
+        return (self.robot == "drone" and status.attempt < RETRIES and moved and abs(status.pose[2] - end[2]) < 1e-6
+                and 1e-6 < off <= RETRY_RADIUS_M)
 
     def state(self, now: float) -> VehicleState:
         """Progress for the partner's executor and the mission: step = steps done; the pose the robot

@@ -6,12 +6,15 @@ team of paper 002; `fleet sim replay PLAN` executes a team plan file in that wor
 from __future__ import annotations
 
 import argparse
-from typing import get_args
+from typing import TYPE_CHECKING, get_args
 
 from common.bus.args import add_zenoh_args, keys_from_args, lazy_handler, run_service, zconfig_from_args
 from common.bus.messages import SimFaultKind
 from common.domain.team_plan import parse_vec3
 from common.errors import InputError
+
+if TYPE_CHECKING:
+    from services.sim.team.world import SensingNoise
 
 # The demo room of paper 002's team (maps/collab/demo-room.yaml), as `fleet collab plan` knows it.
 ROOM_MAP, ROOM_START, ROOM_UGV = "demo-room", "1.25,1.25,1", "0.75,1.25,0"
@@ -35,6 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--ugv-id", default="ugv1", help="the UGV's vehicle id")
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per real second")
     p.add_argument("--truth-rate", type=float, default=10.0, help="ground truth publication rate (Hz)")
+    _noise_args(p)
     add_zenoh_args(p, default_instance="team-sim")
     p.set_defaults(handler=_team)
 
@@ -43,7 +47,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = ssub.add_parser("replay", help="execute a team plan file in the simulated world, honouring its sync points")
     p.add_argument("plan", help="team plan JSON (`fleet collab plan --out`)")
     p.add_argument("--map", help="default: the plan's map")
+    _noise_args(p)
     p.set_defaults(handler=_replay)
+
+
+def _noise_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--range-noise", type=float, default=0.0, help="drone range sensing error, std dev in m")
+    p.add_argument("--bearing-noise", type=float, default=0.0, help="drone bearing sensing error, std dev in deg")
+    p.add_argument("--noise-seed", type=int, default=0, help="seed of the sensing errors")
+
+
+def _noise(args: argparse.Namespace, source: str) -> SensingNoise:
+    """The drone's sensing errors the command asks for (`SensingNoise`)."""
+    from services.sim.team.world import SensingNoise
+
+    try:
+        return SensingNoise(args.range_noise, args.bearing_noise)
+    except ValueError as e:
+        raise InputError(source, "--range-noise/--bearing-noise", str(e)) from None
 
 
 def _register_fault(ssub: argparse._SubParsersAction) -> None:
@@ -88,7 +109,7 @@ def _team(args: argparse.Namespace) -> int:
     start, ugv = parse_vec3(args.start, "--start", source), parse_vec3(args.ugv, "--ugv", source)
     sensing = Sensing(load_env(args.map), TeamModel())
     problem_in_metres(sensing, start, ugv, start, source)  # both robots may stand there
-    world = TeamWorld(sensing, start, ugv)
+    world = TeamWorld(sensing, start, ugv, _noise(args, source), args.noise_seed)
     svc = TeamSimService(args.instance, zconfig_from_args(args), keys_from_args(args), world,
                          {"drone": args.drone_id, "ugv": args.ugv_id}, args.time_scale, args.truth_rate)
     return run_service(svc)
@@ -102,7 +123,8 @@ def _replay(args: argparse.Namespace) -> int:
     from services.sim.team.world import TeamSim
 
     plan = read_plan(args.plan)
-    report = TeamSim(Sensing(load_env(args.map or plan.map), TeamModel()), plan).run()
+    noise = _noise(args, "fleet sim replay")
+    report = TeamSim(Sensing(load_env(args.map or plan.map), TeamModel()), plan, noise, args.noise_seed).run()
     for e in report.events:
         mark = "ok " if e.ok else "ERR"
         pose = ", ".join(f"{v:.2f}" for v in e.pose)

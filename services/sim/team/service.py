@@ -8,7 +8,7 @@ An action takes its simulated duration divided by `time_scale` in real time; the
 `started`, then `done` or `failed` with its pose, on `vehicle/<vid>/action_status`. Its outcome is
 decided from the world as the action starts and the robot moves when it ends: a drone that flies to
 a UGV still on its way sees it where it was. Each robot runs one action at a time and each
-(mission, index) once; a repeated action is answered with its status (also an earlier one: an
+(mission, index, attempt) once (an executor's re-try is a new attempt); a repeated action is answered with its status (also an earlier one: an
 executor that takes a robot over without its last state replays the finished steps). Ground truth
 (`sim/truth/<vid>`) for both robots at `truth_hz`, moving linearly during an action.
 """
@@ -34,6 +34,7 @@ class _Run:
 
     mission: str
     index: int
+    attempt: int
     status: ActionStatus
     outcome: ActionOutcome
     start: Vec3
@@ -54,8 +55,8 @@ class TeamSimService(Service):
         self.time_scale = time_scale
         self.truth_period = 1.0 / truth_hz
         self.runs: dict[str, _Run] = {}
-        self.finished: dict[tuple[str, str, int], ActionStatus] = {}
-        """(vid, mission, index) -> how the action ended."""
+        self.finished: dict[tuple[str, str, int, int], ActionStatus] = {}
+        """(vid, mission, index, attempt) -> how the action ended."""
         self._status: dict[str, Publisher[ActionStatus]] = {}
         self._truth: dict[str, Publisher[SimTruth]] = {}
 
@@ -75,8 +76,9 @@ class TeamSimService(Service):
         if robot is None:
             return
         run = self.runs.get(action.vid)
-        ended = self.finished.get((action.vid, action.mission, action.index))
-        if ended is not None or (run is not None and (run.mission, run.index) == (action.mission, action.index)):
+        key = (action.mission, action.index, action.attempt)
+        ended = self.finished.get((action.vid, *key))
+        if ended is not None or (run is not None and (run.mission, run.index, run.attempt) == key):
             self._status[action.vid].put(ended or run.status)  # a repeat: its status
             return
         if run is not None and run.status.status == "started":
@@ -86,8 +88,8 @@ class TeamSimService(Service):
         out = self.world.outcome(robot, action.step)
         now = time.time()
         status = ActionStatus(vid=action.vid, mission=action.mission, index=action.index, status="started",
-                              pose=start, t=now)
-        run = self.runs[action.vid] = _Run(action.mission, action.index, status, out, start, now,
+                              pose=start, t=now, attempt=action.attempt)
+        run = self.runs[action.vid] = _Run(action.mission, action.index, action.attempt, status, out, start, now,
                                            now + out.duration_s / self.time_scale)
         self._status[action.vid].put(status)
         self.spawn(self._finish(action.vid, robot, run), name=f"{action.vid} step {action.index}")
@@ -97,8 +99,8 @@ class TeamSimService(Service):
         self.world.apply(robot, run.outcome)
         run.status = ActionStatus(vid=vid, mission=run.mission, index=run.index,
                                   status="done" if run.outcome.ok else "failed", pose=self.world.xyz(robot),
-                                  t=time.time(), detail=run.outcome.detail)
-        self.finished[(vid, run.mission, run.index)] = run.status
+                                  t=time.time(), detail=run.outcome.detail, attempt=run.attempt)
+        self.finished[(vid, run.mission, run.index, run.attempt)] = run.status
         self._status[vid].put(run.status)
 
     def _truth_of(self, vid: str, robot: Robot, now: float) -> SimTruth:
