@@ -23,15 +23,16 @@ import zenoh
 
 from common.bus.messages import PlanStep, SimFault
 from common.bus.session import ZenohConfig
+from common.bus.vehicle_plans import vehicle_plans
 from common.deploy.radios import simulated_radios
 from common.domain.vehicle_model import VehicleModel
-from services.executor.faults import safe_landing_steps
+from services.executor.faults import landing_nodes, safe_landing_steps
 from services.executor.trajectory import Trajectory
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from services.radio_gateway.gateway import RadioGateway
 from services.sim.crazyflie.service import SimService
-from tests.support.fleet_faults import TOWN_TASKS, Watch, fly, until
+from tests.support.fleet_faults import SAFE_TOUCHDOWN, TOWN_TASKS, Watch, fly, until
 from tests.support.loadgen import LoadCommander, running
 
 
@@ -76,6 +77,7 @@ def test_firmware_levels_at_half_a_second_cuts_at_two_and_the_gateway_reports_th
     assert cf0.firmware.running and not cf0.firmware.supervisor.locked  # rebooted, flyable again
     assert cf1.watchdog_levels == 0 and cf1.car.z > 0.4 and "link_lost" not in watch.kinds("cf1")
     assert cf0.blacked_out > 0
+    assert watch.truth["cf0"] and not watch.contacts, watch.separation_line()  # cf0 fell beside cf1, not onto it
 
 
 @pytest.mark.timeout(180)
@@ -98,12 +100,24 @@ def test_a_link_lost_mid_flight_lands_the_vehicle_and_aborts_the_mission(tmp_pat
     assert "sim_watchdog_cut" not in kinds and "vehicle_locked" not in kinds  # back in range before 2 s
     assert any(not tel.link_ok for tel in watch.telemetry["cf1"] if tel.t > cut)
     assert not result.ok and "cf1: link_lost" in result.reason, result.reason
-    assert any(e.kind == "link_lost" and e.node for _, e in watch.events if e.vid == "cf1")  # the executor's
-    assert result.contacts == 0
+    # the executor's event names where it lands cf1: a node where cf1's plan takes off or lands ...
+    told = [e for _, e in watch.events if e.vid == "cf1" and e.kind == "link_lost" and e.node]
+    assert told, [(e.kind, e.detail) for _, e in watch.events if e.vid == "cf1"]
+    node = told[0].node
+    assert result.plan is not None
+    ground = {s.node for s in landing_nodes(vehicle_plans(result.plan, result.mission)["cf1"].steps)}
+    assert node in ground, (node, ground)
+    # ... and the world says it came down there: at rest on that node, motors off
+    pos = result.plan.graph.nodes[node].pos
+    assert watch.at_rest_on("cf1", pos), (node, pos, watch.truth["cf1"][-1], round(watch.distance_to("cf1", pos), 3))
+    assert watch.landed_safely("cf1") == ""
+    assert result.contacts == 0 and not watch.contacts, (watch.separation_line(), watch.contacts[:5])
     for vid in TOWN_TASKS:
         assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
         assert not watch.locked(vid), f"{vid}: the supervisor locked and was not rebooted"
-        assert watch.hardest_touchdown(vid) < 0.7, (vid, watch.hardest_touchdown(vid))
+        assert watch.hardest_touchdown(vid) < SAFE_TOUCHDOWN, (vid, watch.hardest_touchdown(vid))
+    print(f"cf1 landed at {node} (its event's), {100 * watch.distance_to('cf1', pos):.1f} cm from it in ground "
+          f"truth, touchdown {watch.hardest_touchdown('cf1'):.2f} m/s; {watch.separation_line()}")
 
 
 def test_a_safe_landing_from_the_ground_is_still_a_trajectory() -> None:
