@@ -18,7 +18,7 @@ from common.domain.planfile import Task
 from common.domain.scenario import read_scenario
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from tests.support.fleet_faults import TOWN_TASKS
+from tests.support.fleet_faults import SETTLE_S, TOWN_TASKS, Watch, settle
 from tests.support.service_logs import service_warnings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -46,17 +46,24 @@ def test_executor_killed_mid_flight_its_vehicles_still_arrive(tmp_path) -> None:
                     return
                 await asyncio.sleep(0.05)
 
+        watch = Watch(fleet.keys)  # ground truth
+
         async def scenario() -> None:
-            mission = asyncio.create_task(runner.run())
-            await asyncio.wait_for(kill_when_flying(), timeout=60)
-            # the vehicle passes to the surviving executor: at once when the router sees the
-            # connection close (0.17-0.23 s measured), else when the 0.8 s lease expires (seen once
-            # in CI: over 1.5 s), plus the 0.1 s grace and the new owner's first state
-            while runner.states[killed["vid"]].owner == killed["owner"]:
-                assert time.time() - killed["t"] < 2.5, "no take-over within 2.5 s" + service_warnings(fleet.run_dir)
-                await asyncio.sleep(0.02)
-            killed["handover_s"] = time.time() - killed["t"]
-            assert await mission == 0
+            watch.open(fleet.client_config())
+            try:
+                mission = asyncio.create_task(runner.run())
+                await asyncio.wait_for(kill_when_flying(), timeout=60)
+                # the vehicle passes to the surviving executor: at once when the router sees the
+                # connection close (0.17-0.23 s measured), else when the 0.8 s lease expires (seen
+                # once in CI: over 1.5 s), plus the 0.1 s grace and the new owner's first state
+                while runner.states[killed["vid"]].owner == killed["owner"]:
+                    assert time.time() - killed["t"] < 2.5, "no take-over within 2.5 s" + service_warnings(fleet.run_dir)
+                    await asyncio.sleep(0.02)
+                killed["handover_s"] = time.time() - killed["t"]
+                assert await mission == 0
+                await settle(watch, spec.tasks, SETTLE_S)
+            finally:
+                watch.close()
 
         asyncio.run(scenario())
     result = runner.result
@@ -66,6 +73,14 @@ def test_executor_killed_mid_flight_its_vehicles_still_arrive(tmp_path) -> None:
     assert result.contacts == 0
     assert all(r.arrived for r in result.vehicles.values())
     assert result.vehicles[killed["vid"]].owner not in ("", killed["owner"])
+    # the world agrees: no contact, and every vehicle, those handed over too, rests on its goal
+    assert not watch.contacts, (watch.separation_line(), watch.contacts[:5])
+    assert result.plan is not None
+    for vid, task in spec.tasks.items():
+        goal = result.plan.graph.nodes[task.goal].pos
+        assert watch.at_rest_on(vid, goal), (vid, task.goal, watch.truth[vid][-1] if watch.truth[vid] else None)
+    print(f"{watch.separation_line()}; ground-truth goal errors (m):",
+          {vid: round(watch.distance_to(vid, result.plan.graph.nodes[t.goal].pos), 3) for vid, t in spec.tasks.items()})
 
 
 @pytest.mark.timeout(240)
