@@ -304,7 +304,11 @@ def main(argv: list[str] | None = None) -> int:
             rows.append((h, baseline[h.test], result))
             if not args.keep:
                 shutil.rmtree(copy)
-        source = f"git {args.ref}" if args.ref else "the working tree"
+        source = "the working tree"
+        if args.ref:
+            rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", args.ref], capture_output=True,
+                                 text=True, check=True).stdout.strip()
+            source = f"git {args.ref} ({rev})"
         print(f"\n{len(rows)} handlings, {source}, {(time.monotonic() - started) / 60:.1f} min\n")
         print(table(rows))
         return 0 if all(base == "pass" and off == h.disabled for h, base, off in rows) else 1
