@@ -280,14 +280,20 @@ def main(argv: list[str] | None = None) -> int:
         for h in chosen:
             print(f"{h.name}: {h.change}; {', '.join(e.path for e in h.edits)}; {h.test}")
         return 0
+    ref, source = None, "the working tree"
+    if args.ref:  # resolved once: every copy is of the same commit, wherever HEAD moves meanwhile
+        ref = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--verify", f"{args.ref}^{{commit}}"],
+                             capture_output=True, text=True, check=True).stdout.strip()
+        source = f"git {args.ref} ({ref[:7]})"
     work = Path(tempfile.mkdtemp(prefix="check-handlers-"))
     try:
-        pristine = copy_tree(work / "pristine", args.ref)
+        pristine = copy_tree(work / "pristine", ref)
         problems = check_targets(pristine, chosen)
         if problems:
             print("disabling changes whose target is gone (update HANDLINGS in tests/check_handlers.py):",
                   *problems, sep="\n  ", file=sys.stderr)
             return 2
+        print(f"checking {len(chosen)} handlings in {source}", flush=True)
         started = time.monotonic()
         baseline: dict[str, str] = {}
         for node in dict.fromkeys(h.test for h in chosen):
@@ -296,7 +302,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"with every handling: {_short(node)}: {result} ({took:.0f} s)", flush=True)
         rows = []
         for i, h in enumerate(chosen):
-            copy = copy_tree(work / f"off-{i}", args.ref)
+            copy = copy_tree(work / f"off-{i}", ref)
             for edit in h.edits:
                 apply(edit, copy)
             result, took = run_test(copy, h.test, work / f"off-{i}.log")
@@ -304,11 +310,6 @@ def main(argv: list[str] | None = None) -> int:
             rows.append((h, baseline[h.test], result))
             if not args.keep:
                 shutil.rmtree(copy)
-        source = "the working tree"
-        if args.ref:
-            rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", args.ref], capture_output=True,
-                                 text=True, check=True).stdout.strip()
-            source = f"git {args.ref} ({rev})"
         print(f"\n{len(rows)} handlings, {source}, {(time.monotonic() - started) / 60:.1f} min\n")
         print(table(rows))
         return 0 if all(base == "pass" and off == h.disabled for h, base, off in rows) else 1
