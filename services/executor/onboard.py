@@ -11,7 +11,7 @@ machine, the take-off and landing references, the tracking guard and the fault l
 same in both modes; only the setpoint and the estimator's input differ:
 
 - following a reference (take-off, flight, landing, a fault landing, a held hover): the reference
-  itself as the setpoint; the executor's Kalman filter predicts with the reference's acceleration
+  as the setpoint, its acceleration taken `ACCEL_LEAD_S` ahead; the executor's Kalman filter predicts with the reference's acceleration
   (the onboard controller feeds it forward), or none while the link is lost (the vehicle then holds
   its last setpoint);
 - emergency descent (poses stale in the air, `faults.py`): the executor's dead-reckoned state, braked
@@ -28,17 +28,25 @@ from common.flight.estimator import Estimate, PoseEstimator
 from common.flight.reference import RefSample
 from services.executor.faults import FaultParams
 
+ACCEL_LEAD_S = 0.1
+"""The acceleration feed-forward is taken this far ahead on the reference: the vehicle's attitude
+loop realises a commanded tilt about its time constant later (docs/control.md: 0.10 s assumed),
+so at the reference's corners (the parabolic blends) it arrives on time instead of late."""
+
 
 def onboard(tel: Telemetry | None) -> bool:
     """The vehicle is in onboard control mode (its gateway's word; offboard until it has spoken)."""
     return tel is not None and tel.control == "onboard"
 
 
-def follow(ref: RefSample, estimator: PoseEstimator, now: float, link_ok: bool) -> PositionSetpoint:
-    """The full-state setpoint of reference `ref`; the estimator predicts with its acceleration."""
+def follow(ref: RefSample, ahead: RefSample | None, estimator: PoseEstimator, now: float,
+           link_ok: bool) -> PositionSetpoint:
+    """The full-state setpoint of reference `ref`, with the acceleration of `ahead` (the reference
+    `ACCEL_LEAD_S` later, or `ref`); the estimator predicts with `ref`'s acceleration."""
     estimator.set_input((ref.ax, ref.ay, ref.az) if link_ok else (0.0, 0.0, 0.0), now)
-    return PositionSetpoint(x=ref.x, y=ref.y, z=ref.z, vx=ref.vx, vy=ref.vy, vz=ref.vz, ax=ref.ax, ay=ref.ay,
-                            az=ref.az, yaw=ref.yaw, yaw_rate=ref.yaw_rate)
+    acc = ahead or ref
+    return PositionSetpoint(x=ref.x, y=ref.y, z=ref.z, vx=ref.vx, vy=ref.vy, vz=ref.vz, ax=acc.ax, ay=acc.ay,
+                            az=acc.az, yaw=ref.yaw, yaw_rate=ref.yaw_rate)
 
 
 def descent(est: Estimate, accel: float, estimator: PoseEstimator, faults: FaultParams, now: float) -> PositionSetpoint:

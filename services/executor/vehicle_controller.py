@@ -328,7 +328,8 @@ class VehicleController:
                 self.estimator.set_input((0.0, 0.0, 0.0), now)
                 return StopSetpoint()
             if onboard.onboard(self.faults.last_telemetry):  # its own controller flies it (onboard.py)
-                return onboard.follow(ref, self.estimator, now, not self.faults.link_lost(now))
+                return onboard.follow(ref, self.reference(now + onboard.ACCEL_LEAD_S), self.estimator, now,
+                                      not self.faults.link_lost(now))
             # commands over a lost link do not reach the vehicle: neither learn from them (the
             # integrators wound up and threw it up on reconnection) nor predict with them
             effective = est.z - self._ground_z > self.params.liftoff_height and not self.faults.link_lost(now)

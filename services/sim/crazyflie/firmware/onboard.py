@@ -49,6 +49,8 @@ PROC_NOISE_ACC = (0.5, 0.5, 1.0)
 INITIAL_STD = (100.0, 100.0, 1.0)
 """stdDevInitialPosition_xy, _z (m); stdDevInitialVelocity is `INITIAL_VEL_STD`."""
 INITIAL_VEL_STD = 0.01
+MELLINGER_GAINS = {"kp_xy": 0.4, "kd_xy": 0.2, "ki_xy": 0.05, "kp_z": 1.25, "kd_z": 0.4, "ki_z": 0.05}
+"""controller_mellinger.c's defaults (parameters `ctrlMel.<name>`)."""
 CF_MASS = 0.029
 """platform_defaults_cf2.h CF_MASS (kg): `ctrlMel.mass` until the gateway writes the vehicle's."""
 
@@ -160,6 +162,8 @@ class PositionController:
     mass: float
     kind: int = PID
     mel_mass: float = CF_MASS
+    mel_gains: dict[str, float] = field(default_factory=lambda: dict(MELLINGER_GAINS))
+    """`ctrlMel.kp_xy` ... `ki_z` (N/m, N s/m, N/(m s))."""
     _ints: dict[str, _Pi] = field(default_factory=dict)
 
     def reset(self) -> None:
@@ -186,11 +190,13 @@ class PositionController:
 
     def _mellinger(self, sp: Setpoint, est: OnboardState, dt: float, yaw_rate: float, level: bool) -> FlightSetpoint:
         """`controllerMellinger()`: target force = mass (acc + g) + kp e_p + kd e_v + ki int e_p."""
-        i = self._ints
+        i, g = self._ints, self.mel_gains
         force = []
-        for k, (kp, kd, name) in enumerate(((0.4, 0.2, "mx"), (0.4, 0.2, "my"), (1.25, 0.4, "mz"))):
+        for k, (axis, name) in enumerate((("xy", "mx"), ("xy", "my"), ("z", "mz"))):
             err = sp.pos[k] - est.pos[k]
-            force.append(self.mel_mass * sp.acc[k] + kp * err + kd * (sp.vel[k] - est.vel[k]) + i[name](err, dt))
+            i[name].ki = g[f"ki_{axis}"]
+            force.append(self.mel_mass * sp.acc[k] + g[f"kp_{axis}"] * err + g[f"kd_{axis}"] * (sp.vel[k] - est.vel[k])
+                         + i[name](err, dt))
         force[2] += self.mel_mass * G
         if level:
             force[0] = force[1] = 0.0

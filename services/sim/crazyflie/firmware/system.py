@@ -55,6 +55,7 @@ from services.sim.crazyflie.firmware.onboard import (
     CF_MASS,
     COMPLEMENTARY,
     MELLINGER,
+    MELLINGER_GAINS,
     PID,
     OnboardEstimator,
     OnboardState,
@@ -170,6 +171,8 @@ class CrazyflieFirmware:
             Param("stabilizer", "controller", params.UINT8 | CORE, 1, ctrl),
             Param("ctrlMel", "mass", params.FLOAT | CORE | EXTENDED, CF_MASS,
                   lambda v: setattr(self.controller, "mel_mass", v)),
+            *(Param("ctrlMel", name, params.FLOAT | CORE | EXTENDED, value, self._mel_gain(name))
+              for name, value in MELLINGER_GAINS.items()),
             Param("stabilizer", "stop", params.UINT8 | CORE, 0),
             Param("commander", "enHighLevel", params.UINT8 | CORE, 0),
             Param("hlCommander", "vtoff", params.FLOAT | CORE, 0.5),
@@ -238,6 +241,9 @@ class CrazyflieFirmware:
             LogVar("ctrltarget", "roll", FLOAT, lambda: ctrl().roll if ctrl() else 0.0),
             LogVar("ctrltarget", "pitch", FLOAT, lambda: ctrl().pitch if ctrl() else 0.0),
         ]
+
+    def _mel_gain(self, name: str) -> Callable[[float], None]:
+        return lambda v: self.controller.mel_gains.__setitem__(name, v)
 
     # ---- state ----------------------------------------------------------------------------------
     def _state(self) -> OnboardState:
@@ -311,6 +317,7 @@ class CrazyflieFirmware:
         self.estimator.reset((c.x, c.y, c.z), c.yaw)
         self.controller.kind = PID
         self.controller.mel_mass = self.params.get("ctrlMel.mass")
+        self.controller.mel_gains = {name: self.params.get(f"ctrlMel.{name}") for name in MELLINGER_GAINS}
         self.controller.reset()
         self.estop_latched = False
         self.estop_watchdog_at = None
