@@ -231,6 +231,15 @@ def copy_tree(dest: Path, ref: str | None) -> Path:
     return dest
 
 
+def first_error(log: Path, width: int = 110) -> str:
+    """The first assertion or error line (`E ...`) of pytest's output in `log`, shortened."""
+    for line in log.read_text(errors="replace").splitlines():
+        if line.startswith("E "):
+            text = " ".join(line[1:].split()).replace("|", "/")
+            return text if len(text) <= width else text[:width - 3] + "..."
+    return ""
+
+
 def run_test(root: Path, node: str, log: Path) -> tuple[str, float]:
     """Run `node` in the tree at `root` with this repository's venv: ("pass" | "fail" | "error
     (rc N)" | "timeout", seconds); pytest's output goes to `log`."""
@@ -253,13 +262,16 @@ def _short(node: str) -> str:
     return f"`{Path(file).name}::{func}`"
 
 
-def table(rows: list[tuple[Handling, str, str]]) -> str:
-    lines = ["| handling disabled | disabling change | test | with the handling | disabled | as expected |",
-             "| --- | --- | --- | --- | --- | --- |"]
-    for h, base, off in rows:
+def table(rows: list[tuple[Handling, str, str, str]]) -> str:
+    """Markdown: one row per (handling, result with it, result without it, how it failed without)."""
+    lines = ["| handling disabled | disabling change | test | with the handling | disabled | as expected | "
+             "first failure, disabled |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for h, base, off, why in rows:
         ok = base == "pass" and off == h.disabled
         lines.append(f"| {h.name} | {h.change} | {_short(h.test)} | {base} | {off}"
-                     f"{' (expected: pass)' if h.disabled == 'pass' else ''} | {'yes' if ok else '**no**'} |")
+                     f"{' (expected: pass)' if h.disabled == 'pass' else ''} | {'yes' if ok else '**no**'} | "
+                     f"{why} |")
     return "\n".join(lines)
 
 
@@ -297,22 +309,25 @@ def main(argv: list[str] | None = None) -> int:
         started = time.monotonic()
         baseline: dict[str, str] = {}
         for node in dict.fromkeys(h.test for h in chosen):
-            result, took = run_test(pristine, node, work / f"base-{len(baseline)}.log")
+            log = work / f"base-{len(baseline)}.log"
+            result, took = run_test(pristine, node, log)
             baseline[node] = result
-            print(f"with every handling: {_short(node)}: {result} ({took:.0f} s)", flush=True)
+            print(f"with every handling: {_short(node)}: {result} ({took:.0f} s) {first_error(log)}", flush=True)
         rows = []
         for i, h in enumerate(chosen):
             copy = copy_tree(work / f"off-{i}", ref)
             for edit in h.edits:
                 apply(edit, copy)
-            result, took = run_test(copy, h.test, work / f"off-{i}.log")
-            print(f"without {h.name}: {_short(h.test)}: {result} ({took:.0f} s)", flush=True)
-            rows.append((h, baseline[h.test], result))
+            log = work / f"off-{i}.log"
+            result, took = run_test(copy, h.test, log)
+            why = first_error(log)
+            print(f"without {h.name}: {_short(h.test)}: {result} ({took:.0f} s) {why}", flush=True)
+            rows.append((h, baseline[h.test], result, why))
             if not args.keep:
                 shutil.rmtree(copy)
         print(f"\n{len(rows)} handlings, {source}, {(time.monotonic() - started) / 60:.1f} min\n")
         print(table(rows))
-        return 0 if all(base == "pass" and off == h.disabled for h, base, off in rows) else 1
+        return 0 if all(base == "pass" and off == h.disabled for h, base, off, _why in rows) else 1
     finally:
         if args.keep:
             print(f"\ncopies and logs in {work}")
