@@ -15,7 +15,7 @@ fleet's own mission runner (`fleet mission run`, `fleet mission team`) as a proc
 imports another service (docs/architecture.md).
 """
 
-import logging
+import logging as _logging
 
 from common.bus.messages import TeamTask, Telemetry, VehiclePlan
 from common.domain.planfile import Plan, Task
@@ -43,4 +43,4 @@ __all__ = [
     "VehicleError", "UnknownVehicle", "VehicleBusy", "CommandRefused",
 ]
 
-logging.getLogger("common").addHandler(logging.NullHandler())  # a library: the application decides what is shown
+_logging.getLogger("common").addHandler(_logging.NullHandler())  # a library: the application decides what is shown

@@ -45,7 +45,7 @@ class VehicleError(FleetError):
 
 
 class UnknownVehicle(VehicleError):
-    """No executor reports this vehicle (not in the fleet, or its executor is down)."""
+    """The fleet does not see this vehicle (no executor state, no motion-capture pose)."""
 
 
 class VehicleBusy(VehicleError):

@@ -12,7 +12,7 @@ import sys
 import tempfile
 import time
 import uuid
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Literal
 
@@ -23,7 +23,7 @@ import zenoh
 from common.bus.args import credentials
 from common.bus.keys import DEFAULT_FLEET, Keys
 from common.bus.liveliness import AliveSet, watch_alive
-from common.bus.messages import MissionAbort, PlanReply, PlanRequest, TeamTask, Telemetry, VehicleState
+from common.bus.messages import MissionAbort, PlanReply, PlanRequest, Pose, TeamTask, Telemetry, VehicleState
 from common.bus.pubsub import Publisher, QueryError, Subscription, query, subscribe
 from common.bus.session import ZenohConfig, open_session
 from common.domain.mapfile import load_map, spot_pose
@@ -39,8 +39,8 @@ from services.api._errors import (
     VehicleBusy,
 )
 from services.api._local import LocalStack
-from services.api._mission import EventCallback, Mission
-from services.api._types import MissionResult, VehicleInfo
+from services.api._mission import Mission
+from services.api._types import MissionEvent, MissionResult, VehicleInfo
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where `fleet up` puts the router."""
@@ -56,13 +56,14 @@ PLAN_WAIT_S = 30.0
 """How long a single-vehicle command waits for the mission runner to hand out its plan."""
 PLANNER_MARGIN_S = 10.0
 """The planner's answer may come this much later than the planning time limit."""
-AT_REST_ON_GROUND = frozenset({"parked", "done", "holding"})
+AT_REST_ON_GROUND = frozenset({"idle", "parked", "done", "holding"})
+IDLE = "idle"
+"""The mode of a vehicle no executor controls yet (no plan since the fleet started): it sits where
+its motion-capture pose says."""
 
-Route = Literal["any", "drive", "fly"]
-TaskLike = Task | tuple[str, str]
 
 
-def _tasks(tasks: Mapping[str, TaskLike]) -> dict[str, Task]:
+def _tasks(tasks: Mapping[str, Task | tuple[str, str]]) -> dict[str, Task]:
     return {vid: t if isinstance(t, Task) else Task(start=t[0], goal=t[1]) for vid, t in tasks.items()}
 
 
@@ -82,6 +83,7 @@ class AsyncFleet:
         self._states: dict[str, VehicleState] = {}
         self._heard: dict[str, float] = {}
         self._telemetry: dict[str, Telemetry] = {}
+        self._poses: dict[str, Pose] = {}
         self._missions: AliveSet | None = None
         self._running: dict[str, Mission] = {}
         self._tmp = tempfile.TemporaryDirectory(prefix="fleet-api-")
@@ -152,7 +154,8 @@ class AsyncFleet:
             raise ConnectError(f"cannot reach the fleet's router at {', '.join(self._zconfig.connect)}: {exc}") from None
         k, s = self.keys, self._session
         self._subs = [subscribe(s, k.all_vehicles("state"), VehicleState, self._on_state, maxlen=4096),
-                      subscribe(s, k.all_vehicles("telemetry"), Telemetry, self._on_telemetry, maxlen=4096)]
+                      subscribe(s, k.all_vehicles("telemetry"), Telemetry, self._on_telemetry, maxlen=4096),
+                      subscribe(s, k.all_vehicles("pose"), Pose, self._on_pose, maxlen=4096)]
         self._missions = await watch_alive(s, k, "mission")
 
     async def close(self) -> None:
@@ -180,6 +183,7 @@ class AsyncFleet:
 
     @property
     def session(self) -> zenoh.Session:
+        """The zenoh session, for what the API does not cover (keys: `keys`, messages: common/bus/messages.py)."""
         if self._session is None:
             raise ConnectError("the fleet connection is closed")
         return self._session
@@ -189,10 +193,14 @@ class AsyncFleet:
         self._states[state.vid] = state
         self._heard[state.vid] = time.monotonic()
         for mission in list(self._running.values()):
-            mission.on_state(state)
+            mission._on_fleet_state(state)
 
     def _on_telemetry(self, tel: Telemetry, _key: str) -> None:
         self._telemetry[tel.vid] = tel
+
+    def _on_pose(self, pose: Pose, _key: str) -> None:
+        self._poses[pose.vid] = pose
+        self._heard[pose.vid] = time.monotonic()
 
     def _owner_mission(self, vid: str) -> str | None:
         """The running mission that owns `vid`, if any: one of ours, or one whose runner is alive
@@ -207,21 +215,25 @@ class AsyncFleet:
         return None
 
     def _info(self, vid: str) -> VehicleInfo:
-        s, tel = self._states[vid], self._telemetry.get(vid)
-        return VehicleInfo(vid=vid, mode=s.mode, x=s.x, y=s.y, z=s.z, yaw=s.yaw, mission=s.mission,
-                           busy=self._owner_mission(vid) is not None, arrived=s.arrived, owner=s.owner,
+        """From its executor's state; a vehicle no executor controls yet from its pose (mode `IDLE`)."""
+        s, pose, tel = self._states.get(vid), self._poses.get(vid), self._telemetry.get(vid)
+        where = s if s is not None else pose
+        assert where is not None
+        return VehicleInfo(vid=vid, mode=s.mode if s else IDLE, x=where.x, y=where.y, z=where.z, yaw=where.yaw,
+                           mission=s.mission if s else "", busy=self._owner_mission(vid) is not None,
+                           arrived=s.arrived if s else False, owner=s.owner if s else "",
                            battery_v=tel.vbat if tel else None, link_quality=tel.link_quality if tel else None,
-                           capabilities=tel.capabilities if tel else "fly+drive", t=s.t)
+                           capabilities=tel.capabilities if tel else "fly+drive", t=where.t)
 
     async def vehicles(self, expect: Iterable[str] | int = 1, timeout: float = 5.0) -> dict[str, VehicleInfo]:
-        """Every vehicle an executor reports now, by id. Waits up to `timeout` s until the ids in
-        `expect` (or that many vehicles) are heard; then returns what is known."""
+        """Every vehicle the fleet sees now (its executor's state, or its motion-capture pose), by id. Waits up to `timeout` s until the ids in
+        `expect` (or that many vehicles) are heard, with their telemetry; then returns what is known."""
         want = expect if isinstance(expect, int) else None
         ids = set() if isinstance(expect, int) else set(expect)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             live = self._live()
-            if ids <= live and (want is None or len(live) >= want):
+            if ids <= live and (want is None or len(live) >= want) and live <= set(self._telemetry):
                 break
             await asyncio.sleep(0.05)
         return {vid: self._info(vid) for vid in sorted(self._live())}
@@ -231,9 +243,9 @@ class AsyncFleet:
         return {vid for vid, t in self._heard.items() if now - t < STALE_S}
 
     def vehicle(self, vid: str) -> VehicleInfo:
-        """One vehicle now; `UnknownVehicle` if no executor reports it."""
+        """One vehicle now; `UnknownVehicle` if the fleet does not see it."""
         if vid not in self._live():
-            raise UnknownVehicle(vid, "no executor reports it (not in the fleet, or its executor is down)")
+            raise UnknownVehicle(vid, "neither an executor nor motion capture reports it")
         return self._info(vid)
 
     def telemetry(self, vid: str) -> Telemetry | None:
@@ -241,7 +253,7 @@ class AsyncFleet:
         return self._telemetry.get(vid)
 
     # ---- planning ------------------------------------------------------------------------------
-    async def plan(self, map: str, tasks: Mapping[str, TaskLike], *, planner: str = "sipp", mu: float = 0.5,
+    async def plan(self, map: str, tasks: Mapping[str, Task | tuple[str, str]], *, planner: str = "sipp", mu: float = 0.5,
                    time_limit: float = 30.0) -> Plan:
         """Plan `tasks` (vehicle -> Task or (start, goal)) on `map` with the fleet's planner ("sipp",
         "ilp"); the validated plan. Nothing moves. `PlanningError` says why it failed."""
@@ -270,9 +282,9 @@ class AsyncFleet:
         return reply
 
     # ---- missions ------------------------------------------------------------------------------
-    async def start_mission(self, map: str, tasks: Mapping[str, TaskLike], *, planner: str = "sipp",
+    async def start_mission(self, map: str, tasks: Mapping[str, Task | tuple[str, str]], *, planner: str = "sipp",
                             mu: float = 0.5, time_limit: float = 30.0, keep_going: bool = False,
-                            on_event: EventCallback | None = None) -> Mission:
+                            on_event: Callable[[MissionEvent], None] | None = None) -> Mission:
         """Start a mission of flying cars: the fleet's mission runner plans `tasks` on `map`, hands
         the plans out, starts every vehicle together and watches (a vehicle fault aborts it unless
         `keep_going`). Returns at once; `on_event` is called with each `MissionEvent` (on the event loop).
@@ -288,7 +300,7 @@ class AsyncFleet:
         return await self._launch(mission, list(tasks), args, on_event)
 
     async def start_team_mission(self, map: str, team: TeamTask, *, time_limit: float = 30.0,
-                                 on_event: EventCallback | None = None) -> Mission:
+                                 on_event: Callable[[MissionEvent], None] | None = None) -> Mission:
         """Start a ground-air team mission (paper 002) through the executors: the drone and the UGV
         of `team` on the collab `map`."""
         for vid in (team.drone, team.ugv):
@@ -301,7 +313,7 @@ class AsyncFleet:
         return await self._launch(mission, [team.drone, team.ugv], args, on_event)
 
     async def _launch(self, mission: str, vehicles: list[str], args: list[str],
-                      on_event: EventCallback | None) -> Mission:
+                      on_event: Callable[[MissionEvent], None] | None) -> Mission:
         z = self._zconfig
         argv = [sys.executable, "-m", "services.cli", "mission", *args, "--connect", ",".join(z.connect),
                 "--fleet", self.keys.fleet]
@@ -313,9 +325,9 @@ class AsyncFleet:
         await run._launch()
         return run
 
-    async def run_mission(self, map: str, tasks: Mapping[str, TaskLike], *, planner: str = "sipp",
+    async def run_mission(self, map: str, tasks: Mapping[str, Task | tuple[str, str]], *, planner: str = "sipp",
                           mu: float = 0.5, time_limit: float = 30.0, keep_going: bool = False,
-                          on_event: EventCallback | None = None, check: bool = True) -> MissionResult:
+                          on_event: Callable[[MissionEvent], None] | None = None, check: bool = True) -> MissionResult:
         """`start_mission` and wait for its result; `MissionFailed` (with the result) if not every
         vehicle arrived without contact, unless `check` is False."""
         mission = await self.start_mission(map, tasks, planner=planner, mu=mu, time_limit=time_limit,
@@ -323,7 +335,7 @@ class AsyncFleet:
         return self._checked(await mission.wait(), check)
 
     async def run_team_mission(self, map: str, team: TeamTask, *, time_limit: float = 30.0,
-                               on_event: EventCallback | None = None, check: bool = True) -> MissionResult:
+                               on_event: Callable[[MissionEvent], None] | None = None, check: bool = True) -> MissionResult:
         """`start_team_mission` and wait for its result (`MissionFailed` unless it succeeded or not `check`)."""
         mission = await self.start_team_mission(map, team, time_limit=time_limit, on_event=on_event)
         return self._checked(await mission.wait(), check)
@@ -369,8 +381,8 @@ class AsyncFleet:
                                            f"{dist:.2f} m away): move it there first")
         return best
 
-    async def go_to(self, vid: str, spot: str, *, map: str | None = None, via: Route = "any",
-                    time_limit: float = 10.0, on_event: EventCallback | None = None) -> MissionResult:
+    async def go_to(self, vid: str, spot: str, *, map: str | None = None, via: Literal["any", "drive", "fly"] = "any",
+                    time_limit: float = 10.0, on_event: Callable[[MissionEvent], None] | None = None) -> MissionResult:
         """Take one vehicle from the spot it stands on to `spot` (a parking spot or helipad): a
         one-vehicle plan from the planner, flown through the executors as a mission (the same
         safety checks: faults abort and land it). `via="drive"` refuses a plan that takes off,
@@ -391,7 +403,7 @@ class AsyncFleet:
         except InputError as exc:
             raise CommandRefused(vid, str(exc)) from None
         for other in self._live() - {vid}:
-            o = self._states[other]
+            o = self._info(other)
             if math.hypot(o.x - x, o.y - y) < GOAL_CLEAR_M:
                 raise CommandRefused(vid, f"{spot} is taken by {other}")
         mu = {"any": 0.5, "drive": 1.0, "fly": 0.0}[via]  # all energy: it drives if it can; all time: it flies

@@ -20,15 +20,13 @@ AT_REST_MODES = frozenset({"done", "parked", "holding", "failed", "aborted"})
 LAND_WAIT_S = 15.0
 """After an abort, how long `Mission.abort` waits for every vehicle to come to rest."""
 
-EventCallback = Callable[[MissionEvent], None]
-
 
 class Mission:
     """A running mission: `events()` iterates over what happens (from its beginning), `wait()`
     returns its result, `abort()` lands every vehicle. Made by `AsyncFleet.start_mission`."""
 
     def __init__(self, fleet_session, keys, mission: str, vehicles: Sequence[str], argv: list[str],
-                 env: dict[str, str], on_event: EventCallback | None = None) -> None:
+                 env: dict[str, str], on_event: Callable[[MissionEvent], None] | None = None) -> None:
         self.id = mission
         self.vehicles = list(vehicles)
         self.plans: dict[str, VehiclePlan] = {}
@@ -125,7 +123,7 @@ class Mission:
             self._notes.append(text)
             self._emit("vehicle_event", vid=event.vid, detail=text)
 
-    def on_state(self, state: VehicleState) -> None:
+    def _on_fleet_state(self, state: VehicleState) -> None:
         """A state of any vehicle (the fleet hands every one to its running missions)."""
         if state.vid not in self._outcome or state.mission != self.id:
             return

@@ -5,14 +5,16 @@ Jupyter); every method waits for its asynchronous twin and has its docstring."""
 from __future__ import annotations
 
 import asyncio
+import functools
 import queue
 import threading
 from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from typing import Any, TypeVar
 
+from common.bus.messages import Telemetry, VehiclePlan
 from services.api._fleet import AsyncFleet
 from services.api._mission import Mission
-from services.api._types import MissionEvent, MissionResult
+from services.api._types import MissionEvent, MissionResult, VehicleInfo
 
 T = TypeVar("T")
 
@@ -37,10 +39,10 @@ class _LoopThread:
 def _blocking(method: Callable[..., Awaitable[T]]) -> Callable[..., T]:
     """The blocking twin of an `AsyncFleet` coroutine method (same arguments and docstring)."""
 
+    @functools.wraps(method)
     def call(self: Fleet, *args: Any, **kwargs: Any) -> T:
         return self._thread.run(method(self.aio, *args, **kwargs))
 
-    call.__name__, call.__doc__ = method.__name__, method.__doc__
     return call
 
 
@@ -54,7 +56,7 @@ class SyncMission:
         self._thread = thread
 
     @property
-    def plans(self) -> dict:
+    def plans(self) -> dict[str, VehiclePlan]:
         """Each vehicle's plan as the mission handed it out (`VehiclePlan`)."""
         return dict(self.aio.plans)
 
@@ -134,10 +136,10 @@ class Fleet:
         """The map single-vehicle commands refer to unless told otherwise."""
         return self.aio.map
 
-    def vehicle(self, vid: str):
+    def vehicle(self, vid: str) -> VehicleInfo:
         return self.aio.vehicle(vid)
 
-    def telemetry(self, vid: str):
+    def telemetry(self, vid: str) -> Telemetry | None:
         return self.aio.telemetry(vid)
 
     vehicle.__doc__, telemetry.__doc__ = AsyncFleet.vehicle.__doc__, AsyncFleet.telemetry.__doc__

@@ -10,7 +10,8 @@ EventKind = Literal["planned", "started", "progress", "mode", "arrived", "vehicl
 
 
 class VehicleInfo(msgspec.Struct, frozen=True):
-    """A vehicle as the fleet sees it now: its executor's latest state and its gateway's telemetry.
+    """A vehicle as the fleet sees it now: its executor's latest state (before any plan: its
+    motion-capture pose, mode "idle") and its gateway's telemetry.
     `mission` is the mission whose plan it holds ("" for none); `busy` says whether that mission is
     still running (its runner is alive), in which case single-vehicle commands are refused."""
 

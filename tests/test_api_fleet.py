@@ -1,0 +1,108 @@
+"""The Python API (`services.api`) and the examples against `fleet up` (issue 19): compose.yaml's
+simulated town fleet as local processes; the API connects as a user's script would (the endpoint and
+`fleet up`'s credentials), and each example in examples/ runs as a process against the same fleet
+(the team example brings up its own team). Vehicles are used so that each test starts them from
+where the one before left them."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from common.bus.session import free_tcp_endpoint
+from services.api import Fleet, MissionEvent, PlanningError, VehicleBusy
+from tests.support.service_logs import service_warnings
+
+REPO = Path(__file__).resolve().parents[1]
+FLEET = [sys.executable, "-m", "services.cli"]
+
+
+@pytest.fixture(scope="module")
+def fleet_up(tmp_path_factory: pytest.TempPathFactory):
+    """`fleet up` (the town's 8 simulated flying cars); yields (run_dir, the environment a client uses)."""
+    run_dir = tmp_path_factory.mktemp("api-fleet")
+    port = free_tcp_endpoint().rsplit(":", 1)[1]
+    up = subprocess.run([*FLEET, "up", "--run-dir", str(run_dir), "--set", f"FLEET_ROUTER_PORT={port}",
+                         "--set", "FLEET_NAME=apitest", "--set", f"FLEET_RECORDINGS={run_dir / 'recordings'}"],
+                        cwd=REPO, capture_output=True, text=True, timeout=120)
+    try:
+        assert up.returncode == 0, up.stdout + up.stderr
+        yield run_dir, {"FLEET_ZENOH_CONNECT": f"tcp/127.0.0.1:{port}", "FLEET_NAME": "apitest",
+                        "FLEET_ZENOH_USER": "mission",
+                        "FLEET_ZENOH_PASSWORD_FILE": str(run_dir / "secrets" / "zenoh-mission")}
+    finally:
+        subprocess.run([*FLEET, "down", "--run-dir", str(run_dir)], cwd=REPO, capture_output=True, timeout=120)
+
+
+@pytest.mark.timeout(180)
+def test_the_api_lists_plans_runs_refuses_a_busy_vehicle_and_aborts(fleet_up) -> None:
+    run_dir, env = fleet_up
+    with Fleet.connect(env["FLEET_ZENOH_CONNECT"], "apitest", secrets=run_dir / "secrets") as fleet:
+        vehicles = fleet.vehicles(8)
+        assert sorted(vehicles) == [f"cf{i}" for i in range(1, 9)]
+        cf8 = vehicles["cf8"]
+        assert abs(cf8.x - 2.53) < 0.05 and abs(cf8.y - 1.55) < 0.05 and cf8.mode == "idle"  # on EP8, no plan yet
+        assert cf8.battery_v is not None and cf8.battery_v > 3.7 and not cf8.busy
+
+        plan = fleet.plan("town", {"cf7": ("WP9", "WP2")})
+        assert plan.paths["cf7"][0].node == "WP9" and plan.paths["cf7"][-1].node == "WP2"
+        with pytest.raises(PlanningError) as bad:
+            fleet.plan("town", {"cf7": ("WP9", "nowhere")})
+        assert bad.value.vehicle == "cf7" and "nowhere" in bad.value.reason
+
+        events: list[MissionEvent] = []
+        mission = fleet.start_mission("town", {"cf8": ("EP8", "EP3")}, on_event=events.append)
+        for event in mission.events():
+            if event.kind == "progress" and event.step >= 2:
+                break
+        with pytest.raises(VehicleBusy) as busy:  # the single-vehicle command, refused
+            fleet.go_to("cf8", "EP2")
+        assert busy.value.vehicle == "cf8" and busy.value.mission == mission.id
+        assert fleet.vehicle("cf8").busy
+        with pytest.raises(VehicleBusy):
+            fleet.run_mission("town", {"cf8": ("EP8", "EP2")})
+        result = mission.abort("the test aborts")
+        assert not result.ok and not result.vehicles["cf8"].arrived
+        kinds = [e.kind for e in events]
+        for kind in ("planned", "started", "mode", "progress", "aborted", "ended"):
+            assert kind in kinds, f"no {kind!r} event: {kinds}"
+        assert fleet.vehicle("cf8").mode in ("done", "parked", "holding")  # came to rest
+        assert not fleet.vehicle("cf8").busy
+    assert service_warnings(run_dir / "logs").count("ERROR") == 0, service_warnings(run_dir / "logs")
+
+
+def run_example(name: str, *args: str, env: dict[str, str] | None = None, timeout: float = 150) -> str:
+    proc = subprocess.run([sys.executable, f"examples/{name}", *args], cwd=REPO, capture_output=True, text=True,
+                          timeout=timeout, env={**os.environ, **(env or {})})
+    assert proc.returncode == 0, f"{name} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    return proc.stdout
+
+
+@pytest.mark.timeout(300)
+def test_the_examples_plan_fly_one_vehicle_fly_a_mission_and_read_its_recording(fleet_up, tmp_path: Path) -> None:
+    run_dir, env = fleet_up
+    out = run_example("plan_and_plot.py", "--out", str(tmp_path / "plan.png"), env=env)
+    assert "sipp on town: 8 vehicles" in out and (tmp_path / "plan.png").stat().st_size > 20_000
+
+    # take off, fly over the gap and land (the first leg drives from WP9 to WP10)
+    out = run_example("figure_eight.py", "--vehicle", "cf7", "--legs", "2", env=env)
+    assert "-> WP10: drove" in out and "-> EP7: flew" in out, out
+
+    out = run_example("town_mission.py", "--only", "cf3,cf4", env=env)
+    assert "OK (every vehicle arrived)" in out and "contacts: 0" in out, out
+    recording = max((run_dir / "recordings").glob("*.rrd"), key=lambda p: p.stat().st_mtime)
+    out = run_example("read_recording.py", str(recording))
+    assert "2 vehicles" in out and "flying" in out.split("cf3", 1)[1], out
+
+
+@pytest.mark.timeout(200)
+def test_the_team_example_runs_a_ground_air_mission(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FLEET_")}
+    proc = subprocess.run([sys.executable, str(REPO / "examples" / "team_mission.py")], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=180, env=env)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "team plan:" in proc.stdout and "team mission" in proc.stdout and ": OK (" in proc.stdout, proc.stdout
