@@ -137,6 +137,8 @@ class SimService(Service):
                 "radio_congested": sum(r.congested for r in self.radios.values()),
                 "radio_delivered": sum(r.delivered for r in self.radios.values()),
                 "touchdown_max_mps": max((cf.hardest_touchdown for cf in cfs), default=0.0),
+                "attitude_setpoints": sum(cf.flight_setpoints for cf in cfs),
+                "ext_poses_fused": sum(cf.firmware.estimator.ext_count for cf in cfs),
                 **{f"touchdown_mps:{vid}": cf.hardest_touchdown for vid, cf in self.vehicles.items()}}
 
     def _on_event(self, vid: str, kind: str, detail: str) -> None:
