@@ -89,6 +89,8 @@ class SoakLog:
     missions: list[MissionResult] = field(default_factory=list)
     idle_from: float | None = None
     """s into the soak when a mission failed: from then on the fleet runs on without missions."""
+    flights: int = 0
+    """Vehicle trips whose plan takes to the air."""
     load: list[float] = field(default_factory=list)
     """The machine's 1-minute load average at each process sample (other work shares the cores)."""
 
@@ -133,6 +135,9 @@ async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], sec
             result = runner.result
             assert result is not None
             log.missions.append(result)
+            if runner.plan is not None:
+                log.flights += sum(any(runner.plan.graph.nodes[e.node].kind == "air" for e in path)
+                                   for path in runner.plan.paths.values())
             print(f"[{time.time() - log.started:6.0f} s] {result.summary().splitlines()[0]}; "
                   f"{sum(r.arrived for r in result.vehicles.values())}/{len(tasks)} arrived, "
                   f"contacts {result.contacts}", flush=True)
@@ -168,7 +173,7 @@ def report(log: SoakLog, seconds: float) -> str:
     flights = sum(len(m.vehicles) for m in log.missions)
     gap = min((m.min_gap for m in log.missions), default=float("inf"))
     lines = [f"soak: {elapsed / 60:.1f} min (asked {seconds / 60:.1f}), missions {ok}/{len(log.missions)} OK, "
-             f"{arrived}/{flights} vehicle trips arrived, contacts {sum(m.contacts for m in log.missions)}, "
+             f"{arrived}/{flights} vehicle trips arrived ({log.flights} with flights), contacts {sum(m.contacts for m in log.missions)}, "
              f"closest bodies {100 * gap:.1f} cm; machine load average {min(log.load, default=0):.1f}-"
              f"{max(log.load, default=0):.1f} on {os.cpu_count()} cores"]
     for m in log.missions:
@@ -208,8 +213,13 @@ def report(log: SoakLog, seconds: float) -> str:
 
 def summary(log: SoakLog) -> dict:
     """What a test checks: each mission's verdict and each process's memory growth (MB/min)."""
+    executors = [st.figures for st in log.stats.values() if st.service == "executor"]
     return {"missions": [{"mission": m.mission, "ok": m.ok, "reason": m.reason, "contacts": m.contacts}
                          for m in log.missions],
+            "flights": log.flights,
+            "ticks": sum(f.get("ticks", 0.0) for f in executors),
+            "missed": sum(f.get("missed", 0.0) for f in executors),
+            "pose_to_cmd_p99_ms": max((f.get("pose_to_cmd_p99_ms", 0.0) for f in executors), default=0.0),
             "growth_mb_per_min": {name: mb_per_min(points) for name, points in log.series.items()},
             "drops": {name: st.drops for name, st in log.stats.items()}}
 

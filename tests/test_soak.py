@@ -1,8 +1,9 @@
-"""The soak (issue 8; `make soak`, excluded from `make test`): 80 simulated vehicles through back to
-back missions on city934 for FLEET_SOAK_MINUTES (default 5) minutes, run as `python -m bench.soak`,
-which prints the tables (dropped messages, missed control deadlines, pose-to-command latency,
-memory per process) and saves out/soak.png. It passes when every mission arrived without contact
-and no process grew more than 5 MB a minute after the first third of the run."""
+"""The soak, run as `python -m bench.soak`, which prints the tables (dropped messages, missed control
+deadlines, pose-to-command latency, memory per process) and saves out/soak.png:
+- the gate (issue 15, in `make test`): 32 simulated vehicles through back-to-back missions on city934
+  for one minute, with flights: every mission arrives without contact;
+- the long one (issue 8; `make soak`): 80 vehicles for FLEET_SOAK_MINUTES (default 5) minutes; it
+  also passes only when no process grew more than 5 MB a minute after the first third of the run."""
 
 from __future__ import annotations
 
@@ -18,16 +19,28 @@ MAX_GROWTH_MB_PER_MIN = 5.0
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.mark.soak
-@pytest.mark.timeout(0)
-def test_soak(tmp_path) -> None:
-    minutes = os.environ.get("FLEET_SOAK_MINUTES", "5")
-    vehicles = os.environ.get("FLEET_SOAK_VEHICLES", "80")
+def soak(tmp_path: Path, minutes: str, vehicles: str) -> dict:
+    """Run the soak; its summary (JSON)."""
     out = tmp_path / "summary.json"
     subprocess.run([sys.executable, "-m", "bench.soak", "--minutes", minutes, "--vehicles", vehicles,
-                    "--run-dir", str(tmp_path / "run"), "--summary", str(out)], cwd=ROOT, check=True)
+                    "--run-dir", str(tmp_path / "run"), "--out", str(tmp_path), "--summary", str(out)],
+                   cwd=ROOT, check=True)
     summary = json.loads(out.read_text())
     failed = [m["reason"] for m in summary["missions"] if not m["ok"]]
     assert summary["missions"] and not failed, failed
+    assert all(m["contacts"] == 0 for m in summary["missions"])
+    return summary
+
+
+@pytest.mark.timeout(420)
+def test_the_short_soak_flies_32_vehicles_for_a_minute_without_contact(tmp_path) -> None:
+    summary = soak(tmp_path, "1", "32")
+    assert summary["flights"] >= 1, "no mission took to the air"
+
+
+@pytest.mark.soak
+@pytest.mark.timeout(0)
+def test_soak(tmp_path) -> None:
+    summary = soak(tmp_path, os.environ.get("FLEET_SOAK_MINUTES", "5"), os.environ.get("FLEET_SOAK_VEHICLES", "80"))
     growth = summary["growth_mb_per_min"]
     assert all(g < MAX_GROWTH_MB_PER_MIN for g in growth.values()), growth

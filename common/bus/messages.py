@@ -312,9 +312,9 @@ class TeamTask(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 
 class Sweep(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """A body that left its plan (issue 16): it moves from `p0` to `p1` (m) linearly over mission
-    time [t0, t1] (s) and, if `rest`, stays at `p1` for ever after (a vehicle landing after a fault,
-    as its executor does it)."""
+    """A body that left its plan (issue 16): somewhere on the segment `p0` -> `p1` (m) over mission
+    time [t0, t1] (s), or from t0 for ever if `rest` (a vehicle landing or coming to rest after a
+    fault, as its executor does it); `reach` (m) widens it (a body that may wander off the segment)."""
 
     vid: str
     p0: Vec3
@@ -322,6 +322,7 @@ class Sweep(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     t0: float
     t1: float
     rest: bool = False
+    reach: float = 0.0
 
 
 class Replan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

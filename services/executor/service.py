@@ -226,6 +226,10 @@ class ExecutorService(Service):
             self.plans[plan.vid] = plan
             return
         ctl = self.controllers.get(plan.vid)
+        if ctl is not None and known is not None and known.mission == plan.mission and ctl.t0 is not None:
+            if ctl.replan(plan, time.time()):  # the running mission planned on (issue 16)
+                self.plans[plan.vid] = plan
+            return
         if ctl is not None:
             if ctl.load(plan):  # refused while airborne: the old plan stays until it has landed
                 self.plans[plan.vid] = plan

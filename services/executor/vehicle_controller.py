@@ -60,6 +60,11 @@ class ControlParams:
     wheels: WheelBase = field(default_factory=WheelBase)
 
 
+REPLAN_TOLERANCE = 0.01
+"""m: how far a new plan's reference may be from the old one's at the switch (the corner blend at
+the switch node; `TrajectoryParams.max_deviation` is 5 mm)."""
+
+
 class VehicleController:
     """`load` a plan, `start` it (or load one with `t0`), feed `on_pose` / `on_telemetry`, and
     `tick(now)` at `params.dt` for the setpoint and state."""
@@ -116,6 +121,33 @@ class VehicleController:
         self.t0 = plan.t0 or None
         self._reset_mission()
         self.machine.request(Mode.PARKED, self.estimator.t or 0.0, "plan loaded")
+        return True
+
+    def replan(self, plan: VehiclePlan, now: float) -> bool:
+        """Switch to a new plan of the running mission without stopping (issue 16: the planner
+        keeps every path up to the first node at or after the switch time, so the reference is the
+        same until then). A vehicle at rest after its mission takes it as a new plan (`load`).
+        Refused (False, logged) when the vehicle does not follow its plan any more (fault landing,
+        held, aborted, landing) or the new plan's reference differs from the old one now."""
+        if plan.vid != self.vid:
+            raise ValueError(f"plan for {plan.vid!r} given to the controller of {self.vid!r}")
+        old = self.trajectory
+        if self.mode == Mode.DONE or old is None or self.t0 is None:
+            return self.load(plan)
+        why = ("it is off its plan" if self._fault_landing or self._active is not old else
+               "it is held" if self.held else "the mission is aborted" if self._abort else
+               f"it is {self.mode}" if self.mode in (Mode.LANDING, Mode.EMERGENCY_LANDING) else "")
+        new = Trajectory(plan.steps, self.params.trajectory, yaw0=old.sample(old.start_time).yaw)
+        rel = now - self.t0
+        a, b = old.sample(rel), new.sample(rel)
+        gap = math.dist((a.x, a.y, a.z), (b.x, b.y, b.z))
+        if not why and gap > REPLAN_TOLERANCE:
+            why = f"its reference would jump {gap:.3f} m"
+        if why:
+            log.warning("%s: new plan of %r refused: %s", self.vid, plan.mission, why)
+            return False
+        self.plan, self.trajectory, self._active = plan, new, new
+        log.info("%s: switched to a new plan of %r at %.2f s", self.vid, plan.mission, rel)
         return True
 
     def take_over(self, state: VehicleState, now: float, pose: Pose | None = None) -> None:

@@ -12,8 +12,9 @@ The skeleton, one short-lived service (`alive/mission/<id>`):
 4. publish `MissionStart(t0)` `start_lead_s` ahead; plans and start are re-sent every `RESEND_S`
    while the mission runs (zenoh keeps no history: late joiners and take-overs need them);
 5. every `TICK_S` ask the variant whether the mission is over; a fault ends it too, unless the
-   mission keeps going on faults: a fault event (`FAULT_EVENTS`), a vehicle in emergency landing,
-   or no state from a vehicle for `contact_timeout_s` (its executor or the router is gone);
+   variant handles it (`on_fault`: a flying-car mission plans the others on around the vehicle) or
+   the mission keeps going on faults: a fault event (`FAULT_EVENTS`), a vehicle in emergency
+   landing, or no state from a vehicle for `contact_timeout_s` (its executor or the router is gone);
 6. on failure or SIGINT/SIGTERM publish `MissionAbort` and wait (up to `LAND_WAIT_S`) until every
    vehicle has come to rest.
 """
@@ -124,6 +125,11 @@ class MissionClient(Service, Generic[R]):
     def progress_line(self, now: float) -> str:
         return ""
 
+    def on_fault(self, vid: str, kind: str, text: str, node: str) -> bool:
+        """A fault of one vehicle (`kind`: its event, `node`: where its executor lands it, if it
+        said); whether the variant handles it (the mission goes on) instead of ending the mission."""
+        return False
+
     def on_state(self, state: VehicleState) -> None:
         """A state of one of the mission's vehicles (already kept in `states`)."""
 
@@ -223,7 +229,9 @@ class MissionClient(Service, Generic[R]):
         self.states[state.vid] = state
         self.heard[state.vid] = time.time()
         if state.mission == self.mission and state.mode == "emergency_landing":  # its event may be lost
-            self.fault = self.fault or f"{state.vid}: in emergency landing"
+            text = f"{state.vid}: in emergency landing"
+            if not self.on_fault(state.vid, "emergency_landing", text, ""):
+                self.fault = self.fault or text
         self.on_state(state)
 
     def _check_contact(self, now: float) -> None:
@@ -239,7 +247,7 @@ class MissionClient(Service, Generic[R]):
         text = f"{event.vid}: {event.kind} {event.detail}".strip()
         self.events.append(text)
         log.warning("vehicle event: %s", text)
-        if event.kind in FAULT_EVENTS:
+        if event.kind in FAULT_EVENTS and not self.on_fault(event.vid, event.kind, text, event.node):
             self.fault = self.fault or text
 
     def elapsed(self) -> float:

@@ -1,21 +1,41 @@
 """`fleet mission run`: a mission of flying cars (paper 000) on the skeleton of `client.py`: plan
 the tasks on a map, hand each vehicle its `VehiclePlan`, start them together, and end with a
 summary (arrived, time, energy per vehicle, largest tracking error, smallest separation between
-bodies in ground truth). Over when every vehicle arrived, at the plan's makespan plus `slack_s`, or
-on a fault (`client.FAULT_EVENTS`), landing every vehicle.
+bodies in ground truth). Over when every vehicle arrived, or at the plan's makespan plus `slack_s`.
+
+A fault of one vehicle (issue 16; `on_fault="replan"`, the default) does not end the mission: the
+vehicle leaves it (its executor lands or stops it), and the planner plans the others on from
+`REPLAN_LEAD_S` ahead around where it comes to rest (`Replan`); the executors switch to the new
+paths without stopping. The mission then ends when every other vehicle arrived (not a success:
+a vehicle left). A fault the others cannot be planned around (the planner finds no plan, or does
+not answer in time), a fault of a kind that is not one vehicle's own (`tracking_hold`: a slow
+control loop, maybe the whole executor's; `crash`, a controller that failed) or `on_fault="abort"`
+ends it, landing every vehicle (`client.FAULT_EVENTS`).
 """
 
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 import uuid
 from dataclasses import dataclass, field
+from typing import Literal
 
 import msgspec
 import zenoh
 
-from common.bus.messages import PlanReply, PlanRequest, SimTruth, Telemetry, VehiclePlan, VehicleState
+from common.bus.messages import (
+    PlanReply,
+    PlanRequest,
+    Replan,
+    SimTruth,
+    Sweep,
+    Telemetry,
+    VehiclePlan,
+    VehicleState,
+)
+from common.bus.pubsub import QueryError, QueryTimeout, query
 from common.bus.vehicle_plans import vehicle_plans
 from common.domain.battery import charge_used_ah
 from common.domain.planfile import Plan, Task
@@ -34,6 +54,7 @@ class MissionSpec:
     mission: str = field(default_factory=lambda: f"m{uuid.uuid4().hex[:8]}")
     slack_s: float = 20.0
     timing: MissionTiming = MissionTiming()
+    on_fault: Literal["replan", "abort"] = "replan"
 
 
 @dataclass
@@ -58,6 +79,19 @@ class VehicleReport:
 
 
 ARRIVED = "every vehicle arrived"
+REPLAN_KINDS = frozenset({"low_battery", "link_lost", "emergency_landing", "stale_cmd_landing", "tracking_hold"})
+"""Faults of one vehicle that the others are planned around (it lands, stops or hovers on its own)."""
+SWEEP_REACH = 0.1
+"""m: how far a vehicle that left may wander from where it is assumed to go (a held vehicle on a
+slow control loop oscillates by up to 10 cm, `tests/test_tracking_guard.py`)."""
+REPLAN_LEAD_S = 1.0
+"""s: the switch time of a replan is this far ahead of the fault (planning + handing the plans out)."""
+REPLAN_TIME_LIMIT_S = 0.6
+"""s: the planner's time limit for a replan (SIPP, paper 000 §V-D)."""
+LEVEL_S_PER_M, DESCENT_S_PER_M, REST_S = 1.5 / 0.5, 1.5 / 0.2, 1.0
+"""How long a vehicle that left is assumed to take to fly a metre level and descend a metre (its
+fault landing: the fly and land speeds with 50 % slack, the emergency descent's 0.25 m/s too), and
+the margin added to each."""
 CAPABILITIES_WAIT_S = 1.0
 """How long a mission waits for its vehicles' telemetry (their capabilities, 5 Hz) before planning."""
 
@@ -75,7 +109,12 @@ class MissionResult:
     contacts: int
     duration_s: float
     plan: Plan | None = None
+    """The plan the mission started with."""
     events: list[str] = field(default_factory=list)
+    final_plan: Plan | None = None
+    """The plan of the vehicles that stayed, after the last replan (None: never replanned)."""
+    replans: list[float] = field(default_factory=list)
+    """Planning time of each replan (s)."""
 
     def summary(self) -> str:
         lines = [f"mission {self.mission}: {'OK' if self.ok else 'FAILED'} ({self.reason}) in {self.duration_s:.1f} s"]
@@ -106,6 +145,13 @@ class MissionRunner(MissionClient[MissionResult]):
         self.voltage = 3.7
         self.sep: SeparationMonitor | None = None
         self._plans = None
+        self.left: dict[str, str] = {}
+        """Vehicles that left the mission on a fault -> why."""
+        self.sweeps: list[Sweep] = []
+        """Where the vehicles that left go and rest (mission time), for every replan."""
+        self.replans: list[float] = []
+        """Planning time of each replan (s)."""
+        self._replanning: asyncio.Task | None = None
 
     async def prepare(self) -> None:
         """Each vehicle is what its gateway says (`Telemetry`): its capabilities (from the radios
@@ -141,7 +187,7 @@ class MissionRunner(MissionClient[MissionResult]):
     def accept(self, reply: PlanReply) -> str | None:
         if reply.plan is None:
             return "planning failed: the planner's reply carries no plan"
-        self.plan = plan = reply.plan
+        self.plan = self.first_plan = plan = reply.plan
         self.voltage = plan.model.voltage
         for vid, path in plan.paths.items():
             self.reports[vid].planned_s = path[-1].t
@@ -159,11 +205,86 @@ class MissionRunner(MissionClient[MissionResult]):
         if self.sep is not None:
             self.sep.sample()
 
+    def on_fault(self, vid: str, kind: str, text: str, node: str) -> bool:
+        if vid in self.left:
+            if text not in self.left[vid]:
+                self.left[vid] += f"; {text}"
+            if node and kind in REPLAN_KINDS and self.t0 is not None:  # it now lands there: plan around that too
+                self.sweeps += self._sweeps(vid, node)
+                self.events.append(f"{vid} ({kind}) lands at {node}: replanning the others")
+                self._replanning = asyncio.get_running_loop().create_task(self._replan(self._replanning))
+            return True
+        if (self.spec.on_fault != "replan" or kind not in REPLAN_KINDS or self.plan is None or self.t0 is None
+                or vid not in self.first_paths() or self.states.get(vid) is None):
+            return False
+        self.left[vid] = text
+        self.sweeps += self._sweeps(vid, node)
+        self.events.append(f"{vid} left the mission ({kind}): replanning the others")
+        previous = self._replanning
+        self._replanning = asyncio.get_running_loop().create_task(self._replan(previous))
+        return True
+
+    def first_paths(self) -> dict:
+        return self.first_plan.paths if self.first_plan is not None else {}
+
+    def _sweeps(self, vid: str, node: str) -> list[Sweep]:
+        """Where `vid` may be from its latest state on: the column below it for ever (it hovers,
+        is held, or comes straight down: an emergency descent, a fall), and with `node` also level
+        to above it and down onto it (a fault landing)."""
+        assert self.plan is not None and self.t0 is not None
+        state = self.states[vid]
+        t = time.time() - self.t0
+        p = (state.x, state.y, state.z)
+        nodes = self.plan.graph.nodes
+        ground = min(n.pos[2] for n in nodes.values() if n.kind != "air")
+        out = [Sweep(vid, p, (p[0], p[1], min(ground, p[2])), t, t, rest=True, reach=SWEEP_REACH)]
+        if node in nodes and p[2] - nodes[node].pos[2] >= 0.05:
+            target = nodes[node].pos
+            above = (target[0], target[1], p[2])
+            t1 = t + LEVEL_S_PER_M * math.dist(p, above) + REST_S
+            t2 = t1 + DESCENT_S_PER_M * (p[2] - target[2]) + REST_S
+            out += [Sweep(vid, p, above, t, t1, reach=SWEEP_REACH),
+                    Sweep(vid, above, target, t1, t2, rest=True, reach=SWEEP_REACH)]
+        return out
+
+    async def _replan(self, previous: asyncio.Task | None) -> None:
+        """Plan the remaining vehicles on around those that left and hand the new plans out; a
+        failure is the mission's fault (it ends, landing everyone)."""
+        if previous is not None:
+            await asyncio.gather(previous, return_exceptions=True)
+        assert self.plan is not None and self.t0 is not None
+        at = time.time() - self.t0 + REPLAN_LEAD_S
+        left = [v for v in self.left if v in self.plan.paths]  # those that left since the last replan
+        req = PlanRequest(map=self.spec.map, tasks={}, planner="sipp", mu=self.spec.mu, time_limit=REPLAN_TIME_LIMIT_S,
+                          replan=Replan(base=self.plan, at=at, left=left, sweeps=self.sweeps))
+        started = time.perf_counter()
+        try:
+            reply = await query(self.session, self.keys.planner_plan, req, PlanReply, timeout=REPLAN_LEAD_S)
+        except (QueryTimeout, QueryError) as exc:
+            self.fault = self.fault or f"{', '.join(left)} left the mission and the planner did not replan: {exc}"
+            return
+        took = time.perf_counter() - started
+        if not reply.ok or reply.plan is None:
+            self.fault = self.fault or f"{', '.join(left)} left the mission; replanning failed: {reply.error}"
+            return
+        if time.time() - self.t0 > at:
+            self.fault = self.fault or f"{', '.join(left)} left the mission; the replan came too late ({took:.2f} s)"
+            return
+        self.replans.append(took)
+        self.plan = reply.plan
+        for vid, path in self.plan.paths.items():
+            self.reports[vid].planned_s = path[-1].t
+        self.hand_out(self.t0)
+        self.events.append(f"replanned {len(self.plan.paths)} vehicles around {', '.join(self.left)} in {took:.2f} s "
+                           f"(switch at {at:.1f} s)")
+
     def end_reason(self, now: float) -> str | None:
+        if self.left and all(r.arrived for v, r in self.reports.items() if v not in self.left):
+            return f"every other vehicle arrived; left: {'; '.join(self.left.values())}"
         if all(r.arrived for r in self.reports.values()):
             return ARRIVED
         assert self.t0 is not None
-        if now > self.t0 + max(r.planned_s for r in self.reports.values()) + self.spec.slack_s:
+        if now > self.t0 + max(r.planned_s for v, r in self.reports.items() if v not in self.left) + self.spec.slack_s:
             return "time limit: not every vehicle arrived"
         return None
 
@@ -176,7 +297,8 @@ class MissionRunner(MissionClient[MissionResult]):
         if contacts:
             ok, reason = False, f"{reason}; bodies came into contact {contacts} times"
         self.result = MissionResult(self.mission, ok, reason, self.reports, float("inf"), ("", ""), contacts,
-                                    self.elapsed(), self.plan, self.events)
+                                    self.elapsed(), self.first_plan, self.events,
+                                    self.plan if self.replans else None, list(self.replans))
         if sep is not None:
             self.result.min_gap, self.result.min_pair = sep.min_gap, sep.min_pair
         return self.result

@@ -7,10 +7,10 @@ node it reaches at or after `at` (its *prefix*: the executors fly it unchanged, 
 no stop) and is planned from that node and time to its goal with prioritized SIPP (paper 000 §V-D),
 against:
 - the paths of the vehicles that already rest at their goals (for ever) and every prefix;
-- the bodies that left the plan (`Sweep`s: a segment swept over a time window, then a rest for
-  ever), as closures of every node whose body could touch the segment and every edge whose
-  traversal could, over the window (conservative: the segment is sampled at a quarter of a body's
-  radius and the sampling step is added to the contact distance);
+- the bodies that left the plan (`Sweep`s: somewhere on a segment over a time window, or from its
+  start for ever), as closures of every node whose body could touch the segment and every edge
+  whose traversal could, over the window (conservative: the segment is sampled at a quarter of a
+  body's radius and the sampling step and the sweep's `reach` are added to the contact distance);
 - each vehicle's battery: what its task's budget (`Task.usable_ah`) leaves after its prefix.
 
 Priority: the vehicles that must move first (earliest switch node) first; a vehicle that cannot be
@@ -174,7 +174,7 @@ def _reserve_entries(res: Reservations, graph: FleetGraph, entries: list[PathEnt
 def block_sweep(res: Reservations, graph: FleetGraph, sweep: Sweep) -> None:
     """Close, over the sweep's window (and for ever after it when it rests), every node a body at
     which could touch the swept body, and the departures on every edge whose traversal could."""
-    nodes, edges = touched_by_segment(graph, sweep.p0, sweep.p1)
+    nodes, edges = touched_by_segment(graph, sweep.p0, sweep.p1, sweep.reach)
     end = INF if sweep.rest else sweep.t1
     d = graph.duration
     for n in nodes.tolist():
@@ -183,20 +183,20 @@ def block_sweep(res: Reservations, graph: FleetGraph, sweep: Sweep) -> None:
         carve(res.edge_start[e], res.edge_end[e], sweep.t0 - float(d[e]), end)
 
 
-def touched_by_segment(graph: FleetGraph, p0: tuple[float, float, float],
-                       p1: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+def touched_by_segment(graph: FleetGraph, p0: tuple[float, float, float], p1: tuple[float, float, float],
+                       extra: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the nodes and edges whose bodies (cylinders of the graph's envelope) could touch a
-    body anywhere on the segment p0 -> p1."""
+    body anywhere on the segment p0 -> p1, or within `extra` m of it."""
     r, h = graph.model.radius, graph.model.height
     step = r / 4
     a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
     k = max(2, int(np.ceil(np.linalg.norm(b - a) / step)) + 1)
     seg = a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)  # (K, 3)
-    reach = 2 * r + step
+    reach = 2 * r + step + extra
 
     def touch(points: np.ndarray) -> np.ndarray:  # (..., 3) -> (...,) whether any sample touches
         d = points[..., None, :] - seg
-        return ((np.hypot(d[..., 0], d[..., 1]) < reach) & (np.abs(d[..., 2]) < h + step)).any(axis=-1)
+        return ((np.hypot(d[..., 0], d[..., 1]) < reach) & (np.abs(d[..., 2]) < h + step + extra)).any(axis=-1)
 
     pos = np.asarray(graph.pos, dtype=float)
     nodes = np.flatnonzero(touch(pos))
