@@ -19,7 +19,8 @@ def read(path: Path) -> dict[str, dict[str, list]]:
     """vehicle -> {"body": [(t_ns, x, y, z)], "mode": [(t_ns, mode)], "battery_v": [(t_ns, volts)]}."""
     out: dict[str, dict[str, list]] = {}
     columns = {"body": "Cylinders3D:centers", "mode": "StateChange:state", "battery_v": "Scalars:scalars"}
-    for chunk in RrdReader(str(path)).store().stream():
+    # eagerly: the recorder keeps a mission's file open (no footer yet) until the next mission begins
+    for chunk in RrdReader(str(path)).stream().collect().stream():
         parts = chunk.entity_path.strip("/").split("/")
         if len(parts) != 3 or parts[0] != "vehicles" or parts[2] not in columns:
             continue
