@@ -19,7 +19,7 @@ from typing import Literal, get_args
 
 VehicleTopic = Literal["pose", "state", "cmd", "telemetry", "plan", "event", "team_plan", "action", "action_status"]
 VEHICLE_TOPICS: tuple[VehicleTopic, ...] = get_args(VehicleTopic)
-MissionTopic = Literal["start", "abort", "status"]
+MissionTopic = Literal["start", "abort", "status", "add"]
 
 DEFAULT_FLEET = "default"
 _CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")

@@ -430,6 +430,22 @@ class MissionStart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     vehicles: list[str]
 
 
+class TaskAdd(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Query payload of `mission/<id>/add` (issue 16): give `vid`, a vehicle of the running mission
+    (arrived, or still on its way), the new goal node `goal`; planned against the others' paths."""
+
+    vid: str
+    goal: str
+
+
+class TaskAddReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """`ok` with the mission time (s) the vehicle is planned to reach its new goal, or the error."""
+
+    ok: bool
+    error: str = ""
+    arrival_s: float = 0.0
+
+
 class MissionAbort(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """`mission/<id>/abort`: every vehicle lands (flying) or stops (driving)."""
 

@@ -82,7 +82,8 @@ ROLES: dict[str, Role] = {
     # the operator: runs missions, watches everything, injects simulator faults; never commands a vehicle
     "mission": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan", "mission/*/start", "mission/*/abort",
                              "sim/fault/*", "estop"),
-                    subscribe=("**",), query=("planner/plan", "planner/graph"), watch=("alive/**",)),
+                    subscribe=("**",), serve=("mission/*/add",), query=("planner/plan", "planner/graph", "mission/*/add"),
+                    watch=("alive/**",)),
 }
 
 

@@ -36,6 +36,7 @@ class PursuitParams:
     k_turn: float = 3.0
     max_turn_rate: float = 3.0
     turn_angle: float = math.radians(60.0)
+    aligned_angle: float = math.radians(5.0)
     hold_radius: float = 0.03
 
 
@@ -75,6 +76,14 @@ class PurePursuit:
         bx, by = gx * c + gy * s, -gx * s + gy * c
         kappa = 2.0 * by / max(d2, p.min_lookahead**2) if bx > 0.0 and v > 0.0 else 0.0
         return self._wheels(v, kappa * v)
+
+    def turn_towards(self, est: Estimate, heading: float) -> WheelSetpoint | None:
+        """Turn in place towards `heading` (rad) before driving off (None: facing it already)."""
+        p = self.params
+        err = math.remainder(heading - est.yaw, math.tau)
+        if abs(err) < p.aligned_angle:
+            return None
+        return self._wheels(0.0, min(max(p.k_turn * err, -p.max_turn_rate), p.max_turn_rate))
 
     def _wheels(self, v: float, omega: float) -> WheelSetpoint:
         """Unicycle (v, omega) -> wheel rim speeds, both scaled down if one exceeds the limit."""

@@ -60,6 +60,8 @@ class ControlParams:
     wheels: WheelBase = field(default_factory=WheelBase)
 
 
+PRE_TURN_S = 2.0
+"""s: a parked vehicle turns in place towards a drive starting this soon (`_turn_before_driving`)."""
 REPLAN_TOLERANCE = 0.01
 """m: how far a new plan's reference may be from the old one's at the switch (the corner blend at
 the switch node; `TrajectoryParams.max_deviation` is 5 mm)."""
@@ -374,7 +376,24 @@ class VehicleController:
             assert self._active is not None
             goal = self._active.sample(ref.t + self.pursuit.lookahead(ref))
             return self.pursuit.command(est, ref, goal)
+        if mode == Mode.PARKED and ref is not None and not est.stale and self._active is not None:
+            turn = self._turn_before_driving(est, ref)
+            if turn is not None:
+                return turn
         return StopSetpoint()
+
+    def _turn_before_driving(self, est: Estimate, ref: RefSample) -> WheelSetpoint | None:
+        """Parked, with a drive starting within `PRE_TURN_S`: turn in place to face it (a vehicle
+        parked facing the way it came would otherwise turn on the plan's time and fall behind)."""
+        traj = self._active
+        assert traj is not None
+        ahead = traj.sample(ref.t + PRE_TURN_S)
+        if traj.modes[traj.segment(ref.t + PRE_TURN_S)] != Mode.DRIVING:
+            return None
+        dx, dy = ahead.x - ref.x, ahead.y - ref.y
+        if math.hypot(dx, dy) < 0.01:
+            return None
+        return self.pursuit.turn_towards(est, math.atan2(dy, dx))
 
     def _touched_down(self, est: Estimate, ref: RefSample) -> bool:
         h = self.params.touchdown_height

@@ -27,8 +27,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--time-limit", type=float, default=30.0, help="planning time limit (s)")
     p.add_argument("--id", help="mission id (default: random)")
     p.add_argument("--keep-going", action="store_true", help="do not abort the mission on a vehicle fault")
+    p.add_argument("--on-fault", choices=["replan", "abort"], default="replan",
+                   help="one vehicle's fault: plan the others on around it (default), or abort the mission")
+    p.add_argument("--lifelong", action="store_true",
+                   help="keep giving every vehicle that arrives a random free parking spot for --minutes")
+    p.add_argument("--minutes", type=float, default=5.0, help="with --lifelong: how long to keep adding tasks")
+    p.add_argument("--seed", type=int, default=0, help="with --lifelong: the random goals' seed")
     add_zenoh_args(p, default_instance="mission")
     p.set_defaults(handler=cmd_mission_run)
+    p = msub.add_parser("add", help="give a vehicle of a running mission a new goal (planned against the others)")
+    p.add_argument("mission", help="the running mission's id (printed when it starts; `--id` of mission run)")
+    p.add_argument("vid", help="the vehicle")
+    p.add_argument("goal", help="its new goal node")
+    p.add_argument("--timeout", type=float, default=5.0, help="s to wait for the mission's answer")
+    add_zenoh_args(p, default_instance="operator")
+    p.set_defaults(handler=cmd_mission_add)
     _register_team(msub)
     _register_demo(sub)
     p = sub.add_parser("estop", help="emergency stop: every gateway cuts every vehicle's motors (operator role)")
@@ -88,8 +101,40 @@ def spec_from_args(args: argparse.Namespace):
     if not map_name:
         raise InputError(args.scenario, "map", "the scenario names no map: give --map")
     extra = {"mission": args.id} if args.id else {}
+    if args.lifelong and args.minutes <= 0:
+        raise InputError("fleet mission run", "--minutes", f"{args.minutes:g}: must be positive")
     return MissionSpec(map=map_name, tasks=dict(scen.tasks), planner=args.planner, mu=args.mu,
-                       time_limit=args.time_limit, timing=MissionTiming(abort_on_fault=not args.keep_going), **extra)
+                       time_limit=args.time_limit, timing=MissionTiming(abort_on_fault=not args.keep_going),
+                       on_fault=args.on_fault, lifelong_s=60.0 * args.minutes if args.lifelong else 0.0,
+                       seed=args.seed, **extra)
+
+
+def cmd_mission_add(args: argparse.Namespace) -> int:
+    """`fleet mission add MISSION VID GOAL`: the mission's answer; exit 1 if refused or unanswered."""
+    from common.bus.messages import TaskAdd, TaskAddReply
+    from common.bus.pubsub import QueryError, QueryTimeout, query
+    from common.bus.session import open_session
+
+    keys = keys_from_args(args)
+    key = keys.mission(args.mission, "add")
+
+    async def ask() -> TaskAddReply:
+        session = open_session(zconfig_from_args(args))
+        try:
+            return await query(session, key, TaskAdd(vid=args.vid, goal=args.goal), TaskAddReply, timeout=args.timeout)
+        finally:
+            session.close()
+
+    try:
+        reply = asyncio.run(ask())
+    except (QueryTimeout, QueryError) as exc:
+        print(f"fleet mission add: mission {args.mission} did not answer ({exc}): is it running?", file=sys.stderr)
+        return 1
+    if not reply.ok:
+        print(f"fleet mission add: refused: {reply.error}", file=sys.stderr)
+        return 1
+    print(f"{args.vid} -> {args.goal}: planned, arriving {reply.arrival_s:.1f} s into mission {args.mission}")
+    return 0
 
 
 def cmd_mission_run(args: argparse.Namespace) -> int:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import random
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -31,6 +32,8 @@ from common.bus.messages import (
     Replan,
     SimTruth,
     Sweep,
+    TaskAdd,
+    TaskAddReply,
     Telemetry,
     VehiclePlan,
     VehicleState,
@@ -55,6 +58,10 @@ class MissionSpec:
     slack_s: float = 20.0
     timing: MissionTiming = MissionTiming()
     on_fault: Literal["replan", "abort"] = "replan"
+    lifelong_s: float = 0.0
+    """Lifelong operation (issue 16): for this long, every vehicle that arrives gets a random new goal
+    (a free parking spot), planned against the others' paths; then the last tasks are flown out."""
+    seed: int = 0
 
 
 @dataclass
@@ -84,6 +91,9 @@ REPLAN_KINDS = frozenset({"low_battery", "link_lost", "emergency_landing", "stal
 SWEEP_REACH = 0.1
 """m: how far a vehicle that left may wander from where it is assumed to go (a held vehicle on a
 slow control loop oscillates by up to 10 cm, `tests/test_tracking_guard.py`)."""
+ARRIVAL_SLACK_S = 0.5
+"""s: an executor's `arrived` counts from this long before its current plan's end on (an arrival at
+a goal before a new goal's plan reached the executor is the old one's)."""
 REPLAN_LEAD_S = 1.0
 """s: the switch time of a replan is this far ahead of the fault (planning + handing the plans out)."""
 REPLAN_TIME_LIMIT_S = 0.6
@@ -115,6 +125,9 @@ class MissionResult:
     """The plan of the vehicles that stayed, after the last replan (None: never replanned)."""
     replans: list[float] = field(default_factory=list)
     """Planning time of each replan (s)."""
+    tasks_done: int = 0
+    """Arrivals at a goal (the first tasks and every added one)."""
+    tasks_added: int = 0
 
     def summary(self) -> str:
         lines = [f"mission {self.mission}: {'OK' if self.ok else 'FAILED'} ({self.reason}) in {self.duration_s:.1f} s"]
@@ -126,6 +139,11 @@ class MissionResult:
                          f"{r.max_tracking_error:>9.3f} {r.rms_error('ground'):>10.3f} {r.rms_error('air'):>8.3f}  {r.mode}")
         gap = "none closer than 1 m" if self.min_gap == float("inf") else f"{self.min_gap * 100:.1f} cm ({self.min_pair[0]}-{self.min_pair[1]})"
         lines.append(f"smallest separation between bodies (ground truth, beyond contact): {gap}; contacts: {self.contacts}")
+        if self.replans or self.tasks_added:
+            ms = sorted(1e3 * t for t in self.replans)
+            lines.append(f"tasks: {self.tasks_done} done ({self.tasks_added} added while flying) in "
+                         f"{self.duration_s / 60:.1f} min: {self.tasks_done / max(self.duration_s / 60, 1e-9):.1f} per minute; "
+                         f"replans: {len(ms)}, median {ms[len(ms) // 2] if ms else 0:.0f} ms, max {ms[-1] if ms else 0:.0f} ms")
         lines.extend(f"event: {e}" for e in self.events[:20])
         return "\n".join(lines)
 
@@ -152,6 +170,13 @@ class MissionRunner(MissionClient[MissionResult]):
         self.replans: list[float] = []
         """Planning time of each replan (s)."""
         self._replanning: asyncio.Task | None = None
+        self.tasks_done = 0
+        """Tasks finished: arrivals at a goal, the first ones and every added one."""
+        self.tasks_added = 0
+        self._pending: set[str] = set()
+        """Vehicles with a new goal being planned."""
+        self._rng = random.Random(spec.seed)
+        self._lifelong_task: asyncio.Task | None = None
 
     async def prepare(self) -> None:
         """Each vehicle is what its gateway says (`Telemetry`): its capabilities (from the radios
@@ -195,6 +220,7 @@ class MissionRunner(MissionClient[MissionResult]):
         self.subscribe(self.keys.all_sim_truth, SimTruth, lambda t, _k: sep.update(t))
         self._plans = self.publishers(lambda vid: self.keys.vehicle(vid, "plan"), VehiclePlan,
                                       congestion_control=zenoh.CongestionControl.BLOCK)
+        self.serve(self.keys.mission(self.mission, "add"), TaskAdd, TaskAddReply, self.add_task)
         return None
 
     def hand_out(self, t0: float) -> None:
@@ -202,6 +228,8 @@ class MissionRunner(MissionClient[MissionResult]):
         self._plans.put_all(vehicle_plans(self.plan, self.mission, t0))
 
     def sample(self) -> None:
+        if self.spec.lifelong_s > 0 and self._lifelong_task is None and self.t0 is not None:
+            self._lifelong_task = asyncio.get_running_loop().create_task(self._lifelong())
         if self.sep is not None:
             self.sep.sample()
 
@@ -250,35 +278,98 @@ class MissionRunner(MissionClient[MissionResult]):
     async def _replan(self, previous: asyncio.Task | None) -> None:
         """Plan the remaining vehicles on around those that left and hand the new plans out; a
         failure is the mission's fault (it ends, landing everyone)."""
+        error = await self._plan_on(previous)
+        if error:
+            self.fault = self.fault or f"{', '.join(self.left)} left the mission; {error}"
+
+    async def _plan_on(self, previous: asyncio.Task | None, goals: dict[str, str] | None = None) -> str | None:
+        """After `previous` (replans run one at a time): plan the running mission on from
+        `REPLAN_LEAD_S` ahead (`Replan`: around the vehicles that left, with new `goals`) and hand
+        the new plans out; why it could not, or None."""
         if previous is not None:
             await asyncio.gather(previous, return_exceptions=True)
-        assert self.plan is not None and self.t0 is not None
+        if self.plan is None or self.t0 is None:
+            return "the mission has not started"
         at = time.time() - self.t0 + REPLAN_LEAD_S
         left = [v for v in self.left if v in self.plan.paths]  # those that left since the last replan
         req = PlanRequest(map=self.spec.map, tasks={}, planner="sipp", mu=self.spec.mu, time_limit=REPLAN_TIME_LIMIT_S,
-                          replan=Replan(base=self.plan, at=at, left=left, sweeps=self.sweeps))
+                          replan=Replan(base=self.plan, at=at, left=left, sweeps=self.sweeps, goals=goals or {}))
         started = time.perf_counter()
         try:
             reply = await query(self.session, self.keys.planner_plan, req, PlanReply, timeout=REPLAN_LEAD_S)
         except (QueryTimeout, QueryError) as exc:
-            self.fault = self.fault or f"{', '.join(left)} left the mission and the planner did not replan: {exc}"
-            return
+            return f"the planner did not replan: {exc}"
         took = time.perf_counter() - started
         if not reply.ok or reply.plan is None:
-            self.fault = self.fault or f"{', '.join(left)} left the mission; replanning failed: {reply.error}"
-            return
+            return f"replanning failed: {reply.error}"
         if time.time() - self.t0 > at:
-            self.fault = self.fault or f"{', '.join(left)} left the mission; the replan came too late ({took:.2f} s)"
-            return
+            return f"the replan came too late ({took:.2f} s)"
         self.replans.append(took)
         self.plan = reply.plan
         for vid, path in self.plan.paths.items():
             self.reports[vid].planned_s = path[-1].t
+        for vid in goals or {}:
+            self.reports[vid].arrived = False
         self.hand_out(self.t0)
-        self.events.append(f"replanned {len(self.plan.paths)} vehicles around {', '.join(self.left)} in {took:.2f} s "
-                           f"(switch at {at:.1f} s)")
+        why = f"around {', '.join(self.left)}" if left else f"for {', '.join(goals or {})}" if goals else "again"
+        self.events.append(f"replanned {len(self.plan.paths)} vehicles {why} in {took:.2f} s (switch at {at:.1f} s)")
+        return None
+
+    async def add_task(self, req: TaskAdd) -> TaskAddReply:
+        """`mission/<id>/add`: a new goal for one of the mission's vehicles, planned against the
+        others' paths (it continues from its goal, or from its path if it is still on its way)."""
+        plan = self.plan
+        if plan is None or self.t0 is None:
+            return TaskAddReply(ok=False, error=f"mission {self.mission} has not started")
+        if req.vid not in plan.paths:
+            why = f"left the mission ({self.left[req.vid]})" if req.vid in self.left else "is not in the mission"
+            return TaskAddReply(ok=False, error=f"{req.vid} {why}")
+        if req.goal not in plan.graph.nodes:
+            return TaskAddReply(ok=False, error=f"no node {req.goal!r} on map {self.spec.map!r}")
+        taken = {t.goal: v for v, t in plan.tasks.items() if v != req.vid}
+        if req.goal in taken:
+            return TaskAddReply(ok=False, error=f"{req.goal} is the goal of {taken[req.goal]}")
+        if req.vid in self._pending:
+            return TaskAddReply(ok=False, error=f"{req.vid}: a new goal is being planned already")
+        self._pending.add(req.vid)
+        try:
+            previous = self._replanning
+            task = self._replanning = asyncio.get_running_loop().create_task(
+                self._plan_on(previous, {req.vid: req.goal}))
+            error = await task
+        finally:
+            self._pending.discard(req.vid)
+        if error:
+            return TaskAddReply(ok=False, error=f"{req.vid} -> {req.goal}: {error}")
+        self.tasks_added += 1
+        return TaskAddReply(ok=True, arrival_s=self.reports[req.vid].planned_s)
+
+    async def _lifelong(self) -> None:
+        """Give every vehicle that arrived a random free parking spot as its next goal, for
+        `spec.lifelong_s` (issue 16: lifelong operation)."""
+        assert self.t0 is not None
+        while time.time() - self.t0 < self.spec.lifelong_s:
+            await asyncio.sleep(0.5)
+            plan = self.plan
+            if plan is None or self.fault:
+                return
+            for vid, r in self.reports.items():
+                if r.arrived and vid in plan.paths and vid not in self._pending:
+                    goals = {t.goal for t in plan.tasks.values()}
+                    rests = {v: p[-1].node for v, p in (self.first_paths() or {}).items() if v in self.left}
+                    free = sorted(n for n, node in plan.graph.nodes.items()
+                                  if node.kind == "parking" and n not in goals and n not in rests.values())
+                    if free:
+                        reply = await self.add_task(TaskAdd(vid=vid, goal=self._rng.choice(free)))
+                        if not reply.ok:
+                            self.events.append(f"lifelong: {reply.error}")
+                        break  # one at a time: the plan changed
 
     def end_reason(self, now: float) -> str | None:
+        if self.t0 is not None and now - self.t0 < self.spec.lifelong_s:
+            return None
+        if self._pending:
+            return None
         if self.left and all(r.arrived for v, r in self.reports.items() if v not in self.left):
             return f"every other vehicle arrived; left: {'; '.join(self.left.values())}"
         if all(r.arrived for r in self.reports.values()):
@@ -298,7 +389,8 @@ class MissionRunner(MissionClient[MissionResult]):
             ok, reason = False, f"{reason}; bodies came into contact {contacts} times"
         self.result = MissionResult(self.mission, ok, reason, self.reports, float("inf"), ("", ""), contacts,
                                     self.elapsed(), self.first_plan, self.events,
-                                    self.plan if self.replans else None, list(self.replans))
+                                    self.plan if self.replans else None, list(self.replans),
+                                    self.tasks_done, self.tasks_added)
         if sep is not None:
             self.result.min_gap, self.result.min_pair = sep.min_gap, sep.min_pair
         return self.result
@@ -314,8 +406,9 @@ class MissionRunner(MissionClient[MissionResult]):
             where = "air" if state.mode in AIRBORNE_MODES else "ground"
             r.sq_error[where] += state.tracking_error**2
             r.samples[where] += 1
-        if state.arrived and not r.arrived:
+        if state.arrived and not r.arrived and state.t >= self.t0 + r.planned_s - ARRIVAL_SLACK_S:
             r.arrived, r.arrival_s = True, state.t - self.t0
+            self.tasks_done += 1
 
     def progress_line(self, now: float) -> str:
         t = now - (self.t0 or now)

@@ -39,6 +39,10 @@ from services.planner.sipp.safe_intervals import Reservations, carve
 from services.planner.sipp.search import SearchGraph, SearchTimeout, TimedPath, sipp
 
 INF = math.inf
+TURN_ALLOWANCE_S = 2.0
+"""s: a vehicle at rest on its goal leaves for a new goal this long after the switch time, time to
+turn in place towards its first edge (it parked facing the way it came: 180 deg at the pursuit's
+3 rad/s turn rate, `services/executor/pure_pursuit.py`)."""
 
 
 @dataclass(frozen=True)
@@ -79,7 +83,9 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
             paths = {**fixed}
             for leg in legs:
                 suffix = outcome[leg.vid]
-                paths[leg.vid] = leg.prefix[:-1] + path_entries(graph, suffix)
+                # the suffix starts where the prefix ends: at its last entry, or later (a vehicle at rest)
+                kept = leg.prefix[:-1] if leg.prefix[-1].t >= leg.depart else leg.prefix
+                paths[leg.vid] = kept + path_entries(graph, suffix)
             cost = sum(p.cost for p in outcome.values())
             return PlanResult(ok=True, paths={v: paths[v] for v in replan.base.paths if v in paths}, cost=cost,
                               planning_time_s=time.perf_counter() - t0, stats={"orders": tried},
@@ -106,7 +112,7 @@ def _split(graph: FleetGraph, replan: Replan) -> tuple[dict[str, list[PathEntry]
             if goal == path[-1].node:
                 fixed[vid] = path
                 continue
-            prefix, depart = path, at
+            prefix, depart = path, at + TURN_ALLOWANCE_S
         else:
             k = next(i for i, e in enumerate(path) if e.t >= at)
             prefix, depart = path[:k + 1], path[k].t
