@@ -38,7 +38,9 @@ class FaultParams:
     (issue 15): a plan is collision-free only while every vehicle stays within the margin it was
     planned with (`VehicleModel.margin`), so a vehicle whose estimated distance from its reference
     exceeds `guard_factor` x margin for `guard_s`, or `guard_burst` x margin at once, is held
-    (hovering or stopped where it is) and reported (`tracking_hold`); `guard` False disables it."""
+    (hovering or stopped where it is) and reported (`tracking_hold`); `guard` False disables it.
+    After a take-over the guard waits until the vehicle is back within the margin, for at most
+    `guard_rejoin_s` (it drifted, or its gateway landed it, while it had no owner)."""
 
     vbat_low: float = 3.3
     vbat_low_s: float = 1.0
@@ -54,6 +56,7 @@ class FaultParams:
     guard_factor: float = 1.0
     guard_burst: float = 2.0
     guard_s: float = 0.2
+    guard_rejoin_s: float = 5.0
 
     def descent_accel_cmd(self, vz: float) -> float:
         """Vertical acceleration (m/s^2) steering the dead-reckoned vertical speed to -descent_speed."""

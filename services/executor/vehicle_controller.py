@@ -100,6 +100,7 @@ class VehicleController:
         self._abort: str | None = None
         self._last_tick: float | None = None
         self._guard_since: float | None = None  # since when the tracking error is past the margin
+        self._guard_from = 0.0  # the guard sleeps until then, or until the error is back in the margin
         self.held: str | None = None
         """Why the tracking guard holds the vehicle (None: it does not)."""
         self._hover_ref: RefSample | None = None  # where a held vehicle hovers
@@ -166,6 +167,9 @@ class VehicleController:
             log.warning("%s: unknown mode %r at take-over; assuming parked", self.vid, state.mode)
             mode = Mode.PARKED
         self.charge_used_ah = state.charge_used_ah
+        # the vehicle drifted (or its gateway landed it) while it had no owner: the guard waits
+        # until it is back within the margin, for at most `guard_rejoin_s`
+        self._guard_from = now + self.params.faults.guard_rejoin_s
         self.estimator.reset(pose if pose is not None and pose.t > state.t else
                              Pose(vid=self.vid, t=state.t, x=state.x, y=state.y, z=state.z, yaw=state.yaw,
                                   source="take-over"))
@@ -287,6 +291,9 @@ class VehicleController:
         limit = f.guard_factor * margin
         if error <= limit:
             self._guard_since = None
+            self._guard_from = 0.0
+            return False
+        if now < self._guard_from:  # taken over off its reference: let it get back first
             return False
         since = self._guard_since = self._guard_since if self._guard_since is not None else now
         if error <= f.guard_burst * margin and now - since < f.guard_s:

@@ -160,6 +160,8 @@ class MissionRunner(MissionClient[MissionResult]):
         self.model = VehicleModel()
         """The battery model a vehicle's resting voltage is read with (the planner's map may say
         otherwise for the plan itself)."""
+        self.first_plan: Plan | None = None
+        """The plan the mission started with."""
         self.voltage = 3.7
         self.sep: SeparationMonitor | None = None
         self._plans = None
