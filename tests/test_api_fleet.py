@@ -6,15 +6,18 @@ where the one before left them."""
 
 from __future__ import annotations
 
+import math
 import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
 from common.bus.session import free_tcp_endpoint
-from services.api import Fleet, MissionEvent, PlanningError, VehicleBusy
+from services.api import CommandRefused, Fleet, MissionEvent, PlanningError, VehicleBusy
 from tests.support.service_logs import service_warnings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -111,3 +114,59 @@ def test_the_team_example_runs_a_ground_air_mission(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=180, env=env)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "team plan:" in proc.stdout and "team mission" in proc.stdout and ": OK (" in proc.stdout, proc.stdout
+
+
+@pytest.mark.timeout(150)
+def test_take_off_go_to_and_land_as_separate_calls_refused_while_a_mission_owns_the_vehicle(fleet_up) -> None:
+    run_dir, env = fleet_up
+    connect = (env["FLEET_ZENOH_CONNECT"], "apitest")
+    with Fleet.connect(*connect, secrets=run_dir / "secrets") as fleet, \
+            Fleet.connect(*connect, secrets=run_dir / "secrets") as other:
+        start = fleet.vehicles(["cf8"])["cf8"]  # on EP8, untouched by the tests before
+        air = fleet.takeoff("cf8")
+        up = fleet.vehicle("cf8")
+        assert up.mode == "flying" and up.z > 0.3 and up.busy, up
+        with pytest.raises(VehicleBusy) as busy:  # another client's commands, refused: our mission owns it
+            other.takeoff("cf8")
+        assert busy.value.vehicle == "cf8" and busy.value.mission == up.mission
+        with pytest.raises(VehicleBusy):
+            other.go_to("cf8", "EP5")
+        with pytest.raises(VehicleBusy):
+            other.land("cf8")
+        with pytest.raises(CommandRefused) as refused:  # a spot another vehicle stands on: cf5's
+            fleet.land("cf8", "EP6")
+        assert refused.value.vehicle == "cf8" and "taken by cf5" in refused.value.reason
+
+        point = (up.x + 0.35, up.y, up.z)
+        assert fleet.go_to("cf8", point) is None  # to the air node nearest the point (0.25 m grid), hovering there
+        moved = fleet.vehicle("cf8")
+        assert moved.mode == "flying" and moved.x - up.x > 0.2 and math.dist((moved.x, moved.y, moved.z), point) < 0.2, \
+            (air, up, moved)
+        result = fleet.land("cf8")  # back on EP8: the mission ends
+        assert result.ok and result.vehicles["cf8"].arrived, result.summary
+        down = fleet.vehicle("cf8")
+        assert down.mode == "done" and not down.busy and down.z < 0.05
+        assert math.hypot(down.x - start.x, down.y - start.y) < 0.08, (start, down)
+        with pytest.raises(CommandRefused):
+            fleet.land("cf8")  # not in the air
+
+
+@pytest.mark.timeout(200)
+def test_the_lifelong_example_keeps_giving_random_tasks(tmp_path: Path) -> None:
+    """On a fleet of its own with two vehicles (the town fleet's parked vehicles would sit on free spots)."""
+    radios = yaml.safe_load((REPO / "deploy" / "radios-town.yaml").read_text())
+    radios["radios"] = {"radio0": radios["radios"]["radio0"]}  # cf1 on WP1, cf2 on WP5
+    for vehicle in radios["radios"]["radio0"]["vehicles"].values():  # not the ports of this module's fleet
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as free:
+            free.bind(("127.0.0.1", 0))
+            vehicle["uri"] = f"udp://${{SIM_HOST:-sim}}:{free.getsockname()[1]}"
+    (tmp_path / "radios.yaml").write_text(yaml.safe_dump(radios))
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FLEET_")}
+    proc = subprocess.run([sys.executable, str(REPO / "examples" / "lifelong.py"), "--minutes", "0.4", "--radios", str(tmp_path / "radios.yaml")],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=180, env=env)
+    out = proc.stdout
+    assert proc.returncode == 0, out[-3000:] + proc.stderr[-3000:]
+    assert "sent cf1 home to WP1" in out or "redirect refused: cf1: " in out, out
+    done = int(out.split(" tasks done in ")[0].rsplit("\n", 1)[-1])
+    assert done >= 4, out  # the first two goals, cf1's home or random goals
+    assert "minute 1: " in out and "OK (every vehicle arrived)" in out and "contacts: 0" in out, out

@@ -23,11 +23,23 @@ import zenoh
 from common.bus.args import credentials
 from common.bus.keys import DEFAULT_FLEET, Keys
 from common.bus.liveliness import AliveSet, watch_alive
-from common.bus.messages import MissionAbort, PlanReply, PlanRequest, Pose, TeamTask, Telemetry, VehicleState
+from common.bus.messages import (
+    GraphReply,
+    GraphRequest,
+    MissionAbort,
+    PlanReply,
+    PlanRequest,
+    Pose,
+    TaskAdd,
+    TaskAddReply,
+    TeamTask,
+    Telemetry,
+    VehicleState,
+)
 from common.bus.pubsub import Publisher, QueryError, Subscription, query, subscribe
 from common.bus.session import ZenohConfig, open_session
 from common.domain.mapfile import load_map, spot_pose
-from common.domain.planfile import Plan, Task
+from common.domain.planfile import Plan, PlanGraph, Task
 from common.domain.team_plan import TeamPlan
 from common.errors import InputError
 from services.api._errors import (
@@ -57,14 +69,23 @@ PLAN_WAIT_S = 30.0
 PLANNER_MARGIN_S = 10.0
 """The planner's answer may come this much later than the planning time limit."""
 AT_REST_ON_GROUND = frozenset({"idle", "parked", "done", "holding"})
+HOVER_M = 0.1
+"""A vehicle this close to an air node, flying, after its planned arrival, hovers there."""
+HOVER_MARGIN_S = 15.0
+"""How much later than planned a vehicle may reach the air node it was sent to."""
+ADD_WAIT_S = 5.0
+"""How long `add_task` waits for the running mission's answer."""
 IDLE = "idle"
 """The mode of a vehicle no executor controls yet (no plan since the fleet started): it sits where
 its motion-capture pose says."""
 
 
 
-def _tasks(tasks: Mapping[str, Task | tuple[str, str]]) -> dict[str, Task]:
-    return {vid: t if isinstance(t, Task) else Task(start=t[0], goal=t[1]) for vid, t in tasks.items()}
+class _Flight:
+    """A vehicle in the air after `takeoff`: its hover mission and the spot it took off from."""
+
+    def __init__(self, mission: Mission, map: str, start: str) -> None:
+        self.mission, self.map, self.start = mission, map, start
 
 
 class AsyncFleet:
@@ -86,6 +107,11 @@ class AsyncFleet:
         self._poses: dict[str, Pose] = {}
         self._missions: AliveSet | None = None
         self._running: dict[str, Mission] = {}
+        self._maps: dict[str, str] = {}
+        """Mission id -> map, for the missions started here."""
+        self._flights: dict[str, _Flight] = {}
+        """Vehicles in the air after `takeoff`, by id."""
+        self._graphs: dict[str, PlanGraph] = {}
         self._tmp = tempfile.TemporaryDirectory(prefix="fleet-api-")
 
     # ---- making one ---------------------------------------------------------------------------
@@ -253,11 +279,13 @@ class AsyncFleet:
         return self._telemetry.get(vid)
 
     # ---- planning ------------------------------------------------------------------------------
-    async def plan(self, map: str, tasks: Mapping[str, Task | tuple[str, str]], *, planner: str = "sipp", mu: float = 0.5,
-                   time_limit: float = 30.0) -> Plan:
-        """Plan `tasks` (vehicle -> Task or (start, goal)) on `map` with the fleet's planner ("sipp",
-        "ilp"); the validated plan. Nothing moves. `PlanningError` says why it failed."""
-        request = PlanRequest(map=map, tasks=_tasks(tasks), planner=planner, mu=mu, time_limit=time_limit)
+    async def plan(self, map: str, tasks: Mapping[str, Task | tuple[str, str] | str], *, planner: str = "sipp",
+                   mu: float = 0.5, time_limit: float = 30.0) -> Plan:
+        """Plan `tasks` (vehicle -> Task, (start, goal), or a goal from the spot the vehicle stands
+        on) on `map` with the fleet's planner ("sipp", "ilp"); the validated plan. Nothing moves.
+        `PlanningError` says why it failed."""
+        request = PlanRequest(map=map, tasks=await self._tasks(map, tasks), planner=planner, mu=mu,
+                              time_limit=time_limit)
         reply = await self._ask_planner(request, time_limit)
         if reply.plan is None:
             raise PlanningError("the planner's reply carries no plan")
@@ -271,6 +299,30 @@ class AsyncFleet:
             raise PlanningError("the planner's reply carries no team plan")
         return reply.team_plan
 
+    async def _tasks(self, map: str, tasks: Mapping[str, Task | tuple[str, str] | str]) -> dict[str, Task]:
+        """Tasks as the planner takes them; a goal alone starts from the spot the vehicle stands on."""
+        out = {}
+        for vid, t in tasks.items():
+            if isinstance(t, str):
+                await self.vehicles([vid], timeout=STALE_S)
+                info = self.vehicle(vid)
+                t = Task(start=self._spot_of(info, map), goal=t, capabilities=info.capabilities)  # type: ignore[arg-type]
+            out[vid] = t if isinstance(t, Task) else Task(start=t[0], goal=t[1])
+        return out
+
+    async def _graph(self, map: str) -> PlanGraph:
+        """The planner's graph of `map` (`planner/graph`), asked once."""
+        if map not in self._graphs:
+            try:
+                reply = await query(self.session, self.keys.planner_graph, GraphRequest(map=map), GraphReply,
+                                    timeout=PLANNER_MARGIN_S)
+            except QueryError as exc:
+                raise PlanningError(f"the planner is unreachable or failed: {exc}") from None
+            if not reply.ok or reply.graph is None:
+                raise PlanningError(reply.error or "the planner's reply carries no graph")
+            self._graphs[map] = reply.graph
+        return self._graphs[map]
+
     async def _ask_planner(self, request: PlanRequest, time_limit: float) -> PlanReply:
         try:
             reply = await query(self.session, self.keys.planner_plan, request, PlanReply,
@@ -282,21 +334,35 @@ class AsyncFleet:
         return reply
 
     # ---- missions ------------------------------------------------------------------------------
-    async def start_mission(self, map: str, tasks: Mapping[str, Task | tuple[str, str]], *, planner: str = "sipp",
+    async def start_mission(self, map: str, tasks: Mapping[str, Task | tuple[str, str] | str], *, planner: str = "sipp",
                             mu: float = 0.5, time_limit: float = 30.0, keep_going: bool = False,
+                            lifelong_minutes: float = 0.0,
                             on_event: Callable[[MissionEvent], None] | None = None) -> Mission:
-        """Start a mission of flying cars: the fleet's mission runner plans `tasks` on `map`, hands
-        the plans out, starts every vehicle together and watches (a vehicle fault aborts it unless
-        `keep_going`). Returns at once; `on_event` is called with each `MissionEvent` (on the event loop).
+        """Start a mission of flying cars: the fleet's mission runner plans `tasks` (as in `plan`)
+        on `map`, hands the plans out, starts every vehicle together and watches (one vehicle's
+        fault: the others are planned on around it; a fault they cannot be planned around aborts
+        it, unless `keep_going`).
+        `lifelong_minutes`: for that long, every vehicle that arrives gets a random free parking spot
+        as its next goal (then the last tasks are flown out); `add_task` gives one a goal of yours.
+        Returns at once; `on_event` is called with each `MissionEvent` (on the event loop).
         `VehicleBusy` if another running mission owns one of the vehicles."""
-        tasks = _tasks(tasks)
+        if lifelong_minutes < 0:
+            raise ValueError(f"lifelong_minutes must not be negative, got {lifelong_minutes}")
+        extra = ["--lifelong", "--minutes", repr(lifelong_minutes)] if lifelong_minutes else []
+        return await self._start(map, tasks, planner, mu, time_limit, keep_going, on_event, extra)
+
+    async def _start(self, map: str, tasks: Mapping[str, Task | tuple[str, str] | str], planner: str, mu: float,
+                     time_limit: float, keep_going: bool, on_event: Callable[[MissionEvent], None] | None,
+                     extra: list[str]) -> Mission:
         for vid in tasks:
             self._check_free(vid)
+        tasks = await self._tasks(map, tasks)
         mission = f"api-{uuid.uuid4().hex[:8]}"
         scenario = Path(self._tmp.name) / f"{mission}.yaml"
         scenario.write_text(yaml.safe_dump({"map": map, "tasks": msgspec.to_builtins(tasks)}))
         args = ["run", str(scenario), "--id", mission, "--planner", planner, "--mu", repr(mu),
-                "--time-limit", repr(time_limit), *(["--keep-going"] if keep_going else [])]
+                "--time-limit", repr(time_limit), *(["--keep-going"] if keep_going else []), *extra]
+        self._maps[mission] = map
         return await self._launch(mission, list(tasks), args, on_event)
 
     async def start_team_mission(self, map: str, team: TeamTask, *, time_limit: float = 30.0,
@@ -325,13 +391,15 @@ class AsyncFleet:
         await run._launch()
         return run
 
-    async def run_mission(self, map: str, tasks: Mapping[str, Task | tuple[str, str]], *, planner: str = "sipp",
+    async def run_mission(self, map: str, tasks: Mapping[str, Task | tuple[str, str] | str], *, planner: str = "sipp",
                           mu: float = 0.5, time_limit: float = 30.0, keep_going: bool = False,
-                          on_event: Callable[[MissionEvent], None] | None = None, check: bool = True) -> MissionResult:
+                          lifelong_minutes: float = 0.0, on_event: Callable[[MissionEvent], None] | None = None,
+                          check: bool = True) -> MissionResult:
         """`start_mission` and wait for its result; `MissionFailed` (with the result) if not every
         vehicle arrived without contact, unless `check` is False."""
         mission = await self.start_mission(map, tasks, planner=planner, mu=mu, time_limit=time_limit,
-                                           keep_going=keep_going, on_event=on_event)
+                                           keep_going=keep_going, lifelong_minutes=lifelong_minutes,
+                                           on_event=on_event)
         return self._checked(await mission.wait(), check)
 
     async def run_team_mission(self, map: str, team: TeamTask, *, time_limit: float = 30.0,
@@ -356,7 +424,34 @@ class AsyncFleet:
         await asyncio.sleep(0.1)
         pub.close()
 
+    async def add_task(self, mission: str, vid: str, goal: str, *, timeout: float = ADD_WAIT_S) -> float:
+        """Give `vid`, a vehicle of the running mission `mission` (its id, `Mission.id`), the new
+        goal node `goal`, planned against the others' paths (it leaves its goal, or turns off its
+        way); the mission time (s after its start) it is planned to arrive. `CommandRefused` names
+        the vehicle and why: the mission's refusal (not in the mission, the goal is another's, no
+        plan, ...), a goal where another vehicle stands, or no answer (the mission is not running)."""
+        if mission in self._maps:
+            graph = await self._graph(self._maps[mission])
+            node = graph.nodes.get(goal)
+            if node is not None:
+                self._check_clear(vid, goal, node.pos[0], node.pos[1], node.pos[2])
+        try:
+            reply = await query(self.session, self.keys.mission(mission, "add"), TaskAdd(vid=vid, goal=goal),
+                                TaskAddReply, timeout=timeout)
+        except QueryError as exc:
+            raise CommandRefused(vid, f"mission {mission} did not answer ({exc}): is it running?") from None
+        if not reply.ok:
+            raise CommandRefused(vid, reply.error)
+        return reply.arrival_s
+
     # ---- single-vehicle commands -----------------------------------------------------------------
+    def _check_clear(self, vid: str, goal: str, x: float, y: float, z: float) -> None:
+        """CommandRefused when another vehicle stands (or hovers) on `goal`."""
+        for other in self._live() - {vid}:
+            o = self._info(other)
+            if math.hypot(o.x - x, o.y - y) < GOAL_CLEAR_M and abs(o.z - z) < 2 * GOAL_CLEAR_M:
+                raise CommandRefused(vid, f"{goal} is taken by {other}")
+
     def _check_free(self, vid: str) -> None:
         owner = self._owner_mission(vid)
         if owner is not None:
@@ -381,14 +476,22 @@ class AsyncFleet:
                                            f"{dist:.2f} m away): move it there first")
         return best
 
-    async def go_to(self, vid: str, spot: str, *, map: str | None = None, via: Literal["any", "drive", "fly"] = "any",
-                    time_limit: float = 10.0, on_event: Callable[[MissionEvent], None] | None = None) -> MissionResult:
+    async def go_to(self, vid: str, spot: str | tuple[float, float, float], *, map: str | None = None,
+                    via: Literal["any", "drive", "fly"] = "any", time_limit: float = 10.0,
+                    on_event: Callable[[MissionEvent], None] | None = None) -> MissionResult | None:
         """Take one vehicle from the spot it stands on to `spot` (a parking spot or helipad): a
         one-vehicle plan from the planner, flown through the executors as a mission (the same
         safety checks: faults abort and land it). `via="drive"` refuses a plan that takes off,
-        `via="fly"` one that does not. Refused (`VehicleBusy`) while a running mission owns the
-        vehicle; `CommandRefused` when it is not at rest on a spot or `spot` is taken;
-        `MissionFailed` if it did not get there."""
+        `via="fly"` one that does not. While the vehicle hovers after `takeoff`: to an air node, or
+        the air node nearest a point (x, y, z), where it then hovers (returns None once it is
+        there); to a ground spot, it lands there (as `land`). Refused (`VehicleBusy`) while a
+        running mission owns the vehicle; `CommandRefused` when it is not at rest on a spot or
+        hovering, or `spot` is taken or unknown; `MissionFailed` if it did not get there."""
+        flight = self._flights.get(vid)
+        if flight is not None and not flight.mission.done:
+            return await self._fly(vid, flight, spot)
+        if not isinstance(spot, str):
+            raise CommandRefused(vid, f"a point {spot} is in the air: take off first")
         map = map or self.map
         await self.vehicles([vid], timeout=STALE_S)
         info = self.vehicle(vid)
@@ -399,13 +502,10 @@ class AsyncFleet:
         if spot == start:
             raise CommandRefused(vid, f"already on {spot}")
         try:
-            x, y, _, _ = spot_pose(load_map(map), spot)
+            x, y, z, _ = spot_pose(load_map(map), spot)
         except InputError as exc:
             raise CommandRefused(vid, str(exc)) from None
-        for other in self._live() - {vid}:
-            o = self._info(other)
-            if math.hypot(o.x - x, o.y - y) < GOAL_CLEAR_M:
-                raise CommandRefused(vid, f"{spot} is taken by {other}")
+        self._check_clear(vid, spot, x, y, z)
         mu = {"any": 0.5, "drive": 1.0, "fly": 0.0}[via]  # all energy: it drives if it can; all time: it flies
         task = Task(start=start, goal=spot, capabilities=info.capabilities)  # type: ignore[arg-type]
         mission = await self.start_mission(map, {vid: task}, mu=mu, time_limit=time_limit, on_event=on_event)
@@ -429,3 +529,100 @@ class AsyncFleet:
         """Take off, fly and land at `spot` (`go_to` whose plan must take off)."""
         return await self.go_to(vid, spot, via="fly", **options)
 
+
+    async def takeoff(self, vid: str, to: str | None = None, *, map: str | None = None, time_limit: float = 10.0,
+                      on_event: Callable[[MissionEvent], None] | None = None) -> str:
+        """Take off and hover: a one-vehicle mission from the spot the vehicle stands on to the air
+        node `to` (default: the one above the nearest take-off point; a flying car drives there
+        first), flown through the executors with the missions' safety checks; returns the air node
+        once the vehicle hovers there. The mission stays open: `go_to` moves the vehicle in the air,
+        `land` (or `go_to` a ground spot) ends it; closing the connection lands it. Refused
+        (`VehicleBusy`) while a running mission owns the vehicle; `CommandRefused` when it is not at
+        rest on a spot, cannot fly, or `to` is no air node; `MissionFailed` if it did not get up."""
+        map = map or self.map
+        await self.vehicles([vid], timeout=STALE_S)
+        info = self.vehicle(vid)
+        self._check_free(vid)
+        if info.mode not in AT_REST_ON_GROUND:
+            raise CommandRefused(vid, f"is {info.mode}: a take-off starts from rest on the ground")
+        if info.capabilities == "drive":
+            raise CommandRefused(vid, "only drives")
+        start = self._spot_of(info, map)
+        graph = await self._graph(map)
+        goal = to or self._above(graph, info)
+        if goal not in graph.nodes or graph.nodes[goal].kind != "air":
+            raise CommandRefused(vid, f"{goal!r} is no air node of map {map!r}")
+        self._check_clear(vid, goal, *graph.nodes[goal].pos)
+        task = Task(start=start, goal=goal, capabilities=info.capabilities)  # type: ignore[arg-type]
+        mission = await self._start(map, {vid: task}, "sipp", 0.5, time_limit, False, on_event, ["--hover"])
+        plan = await mission.plan_of(vid, PLAN_WAIT_S)
+        if plan is None:
+            result = await mission.abort(f"{vid}: no plan to take off")
+            raise MissionFailed(mission.id, f"{vid} did not take off: {result.reason}", result)
+        self._flights[vid] = _Flight(mission, map, start)
+        await self._hover_at(vid, mission, goal, plan.steps[-1].pos, plan.steps[-1].t)
+        return goal
+
+    async def land(self, vid: str, spot: str | None = None) -> MissionResult:
+        """Land a vehicle that hovers after `takeoff` at `spot` (a parking spot or helipad; default:
+        the spot it took off from) and end its mission once it is there: its result. Refused
+        (`VehicleBusy`) while another mission owns the vehicle, `CommandRefused` when it is not
+        flying after a `takeoff` of this connection or `spot` is taken; `MissionFailed` if it did
+        not land there."""
+        flight = self._flights.get(vid)
+        if flight is None or flight.mission.done:
+            self._check_free(vid)
+            raise CommandRefused(vid, "is not in the air after a takeoff of this connection")
+        return await self._fly(vid, flight, spot or flight.start)  # type: ignore[return-value]
+
+    async def _fly(self, vid: str, flight: _Flight, spot: str | tuple[float, float, float]) -> MissionResult | None:
+        """Move a hovering vehicle to an air node (it hovers there: None) or a ground spot (it
+        lands and its mission ends: the result)."""
+        graph = await self._graph(flight.map)
+        if isinstance(spot, str):
+            node = spot
+            if node not in graph.nodes:
+                raise CommandRefused(vid, f"no node {node!r} on map {flight.map!r}")
+        else:
+            node = min((n for n, g in graph.nodes.items() if g.kind == "air"), key=lambda n: math.dist(graph.nodes[n].pos, spot))
+        pos = graph.nodes[node].pos
+        mission = flight.mission
+        arrival_s = await self.add_task(mission.id, vid, node)
+        if graph.nodes[node].kind == "air":
+            await self._hover_at(vid, mission, node, pos, arrival_s)
+            return None
+        result = await mission.wait()
+        self._flights.pop(vid, None)
+        if not result.ok:
+            raise MissionFailed(result.mission, f"{vid} did not land on {node}: {result.reason}", result)
+        return result
+
+    def _above(self, graph: PlanGraph, info: VehicleInfo) -> str:
+        """The air node above the take-off point nearest the vehicle (CommandRefused if none)."""
+        ups = [(u, a) for u, a, kind in graph.edges if kind == "takeoff"]
+        if not ups:
+            raise CommandRefused(info.vid, "the map has no take-off point")
+        _, air = min(ups, key=lambda e: math.dist(graph.nodes[e[0]].pos, (info.x, info.y, info.z)))
+        return air
+
+    async def _hover_at(self, vid: str, mission: Mission, node: str, pos: tuple[float, float, float],
+                        arrival_s: float) -> None:
+        """Wait until `vid` hovers at `node` (flying, within `HOVER_M`, after its planned arrival);
+        MissionFailed if its mission ends first or it is `HOVER_MARGIN_S` late."""
+        deadline = time.monotonic() + PLAN_WAIT_S
+        while True:
+            if mission.done:
+                result = await mission.wait()
+                self._flights.pop(vid, None)
+                raise MissionFailed(mission.id, f"{vid} did not reach {node}: {result.reason}", result)
+            t0, s = mission._t0, self._states.get(vid)
+            if t0 is not None:
+                now = time.time()
+                if (now >= t0 + arrival_s and s is not None and s.mission == mission.id and s.mode == "flying"
+                        and math.dist((s.x, s.y, s.z), pos) < HOVER_M):
+                    return
+                deadline = time.monotonic() + (t0 + arrival_s + HOVER_MARGIN_S - now)
+            if time.monotonic() > deadline:
+                where = f"{s.mode} at ({s.x:.2f}, {s.y:.2f}, {s.z:.2f})" if s is not None else "unheard"
+                raise MissionFailed(mission.id, f"{vid} is not hovering at {node} in time ({where})")
+            await asyncio.sleep(0.05)

@@ -30,7 +30,7 @@ class Mission:
         self.id = mission
         self.vehicles = list(vehicles)
         self.plans: dict[str, VehiclePlan] = {}
-        """Each vehicle's plan as the mission handed it out."""
+        """Each vehicle's latest plan as the mission handed it out."""
         self._argv, self._env = argv, env
         self._on_event = on_event
         self._events: list[MissionEvent] = []
@@ -113,7 +113,10 @@ class Mission:
             self._emit("aborted", detail=abort.reason)
 
     def _on_plan(self, plan: VehiclePlan, _key: str) -> None:
-        if plan.mission == self.id and plan.vid in self._outcome and plan.vid not in self.plans:
+        if plan.mission != self.id or plan.vid not in self._outcome:
+            return
+        before = self.plans.get(plan.vid)
+        if before is None or before.steps != plan.steps:  # plans are re-sent every second: a new one is news
             self.plans[plan.vid] = plan
             self._emit("planned", vid=plan.vid, steps=len(plan.steps))
 
@@ -139,8 +142,8 @@ class Mission:
             self._emit("mode", **fields)
         if before is not None and before.step != state.step:
             self._emit("progress", **fields)
-        if state.arrived and noted["arrival_s"] is None and self._t0 is not None:
-            noted["arrival_s"] = state.t - self._t0
+        if state.arrived and not (before is not None and before.arrived) and self._t0 is not None:
+            noted["arrival_s"] = state.t - self._t0  # the latest arrival (a lifelong mission's vehicles arrive again)
             self._emit("arrived", **fields)
 
     # ---- the user's side ---------------------------------------------------------------------

@@ -150,7 +150,10 @@ class Fleet:
     run_mission = _blocking(AsyncFleet.run_mission)
     run_team_mission = _blocking(AsyncFleet.run_team_mission)
     abort = _blocking(AsyncFleet.abort)
+    add_task = _blocking(AsyncFleet.add_task)
+    takeoff = _blocking(AsyncFleet.takeoff)
     go_to = _blocking(AsyncFleet.go_to)
+    land = _blocking(AsyncFleet.land)
     drive_to = _blocking(AsyncFleet.drive_to)
     fly_to = _blocking(AsyncFleet.fly_to)
 

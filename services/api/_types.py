@@ -32,9 +32,10 @@ class VehicleInfo(msgspec.Struct, frozen=True):
 
 
 class MissionEvent(msgspec.Struct, frozen=True):
-    """One thing that happened in a mission. `kind`: "planned" (a vehicle's plan was handed out),
-    "started" (the common start time is set), "progress" (a vehicle reached path entry `step` of
-    `steps`), "mode" (a vehicle's mode changed), "arrived", "vehicle_event" (a fault or other event
+    """One thing that happened in a mission. `kind`: "planned" (a vehicle's plan was handed out:
+    again for each new goal or replan), "started" (the common start time is set), "progress" (a
+    vehicle reached path entry `step` of `steps`), "mode" (a vehicle's mode changed), "arrived" (at
+    its goal: again at each new goal), "vehicle_event" (a fault or other event
     of the vehicle: `detail`), "aborted" (an abort was published: `detail` is why), "ended" (the
     mission is over: `detail` is its reason)."""
 
@@ -49,8 +50,9 @@ class MissionEvent(msgspec.Struct, frozen=True):
 
 
 class VehicleOutcome(msgspec.Struct, frozen=True):
-    """How one vehicle did in a mission, from its executor's states: arrival time after the start
-    (None if it did not arrive), energy used (J), largest tracking error (m), last mode and position."""
+    """How one vehicle did in a mission, from its executor's states: its latest arrival at a goal,
+    after the start (None if it never arrived), energy used (J), largest tracking error (m), last
+    mode and position."""
 
     vid: str
     arrived: bool

@@ -33,6 +33,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="keep giving every vehicle that arrives a random free parking spot for --minutes")
     p.add_argument("--minutes", type=float, default=5.0, help="with --lifelong: how long to keep adding tasks")
     p.add_argument("--seed", type=int, default=0, help="with --lifelong: the random goals' seed")
+    p.add_argument("--hover", action="store_true",
+                   help="goals may be air nodes: a vehicle hovers there until `fleet mission add` gives it "
+                        "another goal; the mission ends once every vehicle has landed at its goal")
     add_zenoh_args(p, default_instance="mission")
     p.set_defaults(handler=cmd_mission_run)
     p = msub.add_parser("add", help="give a vehicle of a running mission a new goal (planned against the others)")
@@ -106,7 +109,7 @@ def spec_from_args(args: argparse.Namespace):
     return MissionSpec(map=map_name, tasks=dict(scen.tasks), planner=args.planner, mu=args.mu,
                        time_limit=args.time_limit, timing=MissionTiming(abort_on_fault=not args.keep_going),
                        on_fault=args.on_fault, lifelong_s=60.0 * args.minutes if args.lifelong else 0.0,
-                       seed=args.seed, **extra)
+                       seed=args.seed, hover=args.hover, **extra)
 
 
 def cmd_mission_add(args: argparse.Namespace) -> int:

@@ -29,6 +29,7 @@ import zenoh
 from common.bus.messages import (
     PlanReply,
     PlanRequest,
+    PoseFrame,
     Replan,
     SimTruth,
     Sweep,
@@ -62,6 +63,10 @@ class MissionSpec:
     """Lifelong operation (issue 16): for this long, every vehicle that arrives gets a random new goal
     (a free parking spot), planned against the others' paths; then the last tasks are flown out."""
     seed: int = 0
+    hover: bool = False
+    """A task may end at an air node (issue 19: single-vehicle take-off, go to, land): the vehicle
+    hovers there until given another goal (`add_task`), and the mission has no time limit while a
+    vehicle's goal is in the air; it ends when every vehicle has arrived on the ground (or on abort)."""
 
 
 @dataclass
@@ -91,6 +96,9 @@ REPLAN_KINDS = frozenset({"low_battery", "link_lost", "emergency_landing", "stal
 SWEEP_REACH = 0.1
 """m: how far a vehicle that left may wander from where it is assumed to go (a held vehicle on a
 slow control loop oscillates by up to 10 cm, `tests/test_tracking_guard.py`)."""
+BYSTANDER_CLEARANCE = 0.5
+"""m: a lifelong goal is no parking spot this close to where a vehicle of the fleet outside the
+mission stands (its motion-capture pose; issue 19: a lifelong mission of a few of the fleet's vehicles)."""
 ARRIVAL_SLACK_S = 0.5
 """s: an executor's `arrived` counts from this long before its current plan's end on (an arrival at
 a goal before a new goal's plan reached the executor is the old one's)."""
@@ -179,6 +187,8 @@ class MissionRunner(MissionClient[MissionResult]):
         """Vehicles with a new goal being planned."""
         self._rng = random.Random(spec.seed)
         self._lifelong_task: asyncio.Task | None = None
+        self.bystanders: dict[str, tuple[float, float]] = {}
+        """Where the fleet's vehicles outside the mission stand (lifelong missions: not a free spot)."""
 
     async def prepare(self) -> None:
         """Each vehicle is what its gateway says (`Telemetry`): its capabilities (from the radios
@@ -188,6 +198,8 @@ class MissionRunner(MissionClient[MissionResult]):
         `CAPABILITIES_WAIT_S` for every vehicle's telemetry; a silent one keeps its task's."""
         seen: dict[str, Telemetry] = {}
         self.subscribe(self.keys.all_vehicles("telemetry"), Telemetry, lambda tel, _k: seen.__setitem__(tel.vid, tel))
+        if self.spec.lifelong_s > 0:
+            self.subscribe(self.keys.mocap_frame, PoseFrame, self._on_frame)
         deadline = time.monotonic() + CAPABILITIES_WAIT_S
         while not set(self.tasks) <= set(seen) and time.monotonic() < deadline:
             await asyncio.sleep(0.05)
@@ -203,6 +215,11 @@ class MissionRunner(MissionClient[MissionResult]):
                                                voltage=round(tel.vbat, 3))
             self.tasks[vid] = task
 
+    def _on_frame(self, frame: PoseFrame, _key: str) -> None:
+        for p in frame.poses:
+            if p.vid not in self.tasks:
+                self.bystanders[p.vid] = (p.x, p.y)
+
     def plan_request(self) -> PlanRequest:
         s = self.spec
         return PlanRequest(map=s.map, tasks=self.tasks, planner=s.planner, mu=s.mu, time_limit=s.time_limit,
@@ -214,6 +231,9 @@ class MissionRunner(MissionClient[MissionResult]):
     def accept(self, reply: PlanReply) -> str | None:
         if reply.plan is None:
             return "planning failed: the planner's reply carries no plan"
+        aloft = sorted(v for v, t in reply.plan.tasks.items() if self._in_air(reply.plan, t.goal))
+        if aloft and not self.spec.hover:
+            return f"{', '.join(aloft)}: a goal in the air needs a hover mission (--hover)"
         self.plan = self.first_plan = plan = reply.plan
         self.voltage = plan.model.voltage
         for vid, path in plan.paths.items():
@@ -328,6 +348,8 @@ class MissionRunner(MissionClient[MissionResult]):
             return TaskAddReply(ok=False, error=f"{req.vid} {why}")
         if req.goal not in plan.graph.nodes:
             return TaskAddReply(ok=False, error=f"no node {req.goal!r} on map {self.spec.map!r}")
+        if self._in_air(plan, req.goal) and not self.spec.hover:
+            return TaskAddReply(ok=False, error=f"{req.goal} is an air node: only a hover mission (--hover) ends a task there")
         taken = {t.goal: v for v, t in plan.tasks.items() if v != req.vid}
         if req.goal in taken:
             return TaskAddReply(ok=False, error=f"{req.goal} is the goal of {taken[req.goal]}")
@@ -361,11 +383,19 @@ class MissionRunner(MissionClient[MissionResult]):
                     rests = {v: p[-1].node for v, p in (self.first_paths() or {}).items() if v in self.left}
                     free = sorted(n for n, node in plan.graph.nodes.items()
                                   if node.kind == "parking" and n not in goals and n not in rests.values())
+                    free = [n for n in free if self._clear_of_bystanders(plan, n)]
                     if free:
                         reply = await self.add_task(TaskAdd(vid=vid, goal=self._rng.choice(free)))
                         if not reply.ok:
                             self.events.append(f"lifelong: {reply.error}")
                         break  # one at a time: the plan changed
+
+    def _clear_of_bystanders(self, plan: Plan, node: str) -> bool:
+        return all(math.dist(plan.graph.nodes[node].pos[:2], p) > BYSTANDER_CLEARANCE for p in self.bystanders.values())
+
+    @staticmethod
+    def _in_air(plan: Plan, node: str) -> bool:
+        return node in plan.graph.nodes and plan.graph.nodes[node].kind == "air"
 
     def end_reason(self, now: float) -> str | None:
         if self.t0 is not None and now - self.t0 < self.spec.lifelong_s:
@@ -376,6 +406,9 @@ class MissionRunner(MissionClient[MissionResult]):
             return f"every other vehicle arrived; left: {'; '.join(self.left.values())}"
         if all(r.arrived for r in self.reports.values()):
             return ARRIVED
+        plan = self.plan
+        if plan is not None and any(self._in_air(plan, t.goal) for v, t in plan.tasks.items() if v not in self.left):
+            return None  # a hover mission: open until told where to land
         assert self.t0 is not None
         if now > self.t0 + max(r.planned_s for v, r in self.reports.items() if v not in self.left) + self.spec.slack_s:
             return "time limit: not every vehicle arrived"

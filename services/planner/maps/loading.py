@@ -59,7 +59,9 @@ def load_problem(args: argparse.Namespace) -> GraphProblem:
 
 
 def problem_from_request(map_name: str, tasks: dict[str, Task], planner: str) -> GraphProblem:
-    """The planner service's path: a map name and tasks from a zenoh request."""
+    """The planner service's path: a map name and tasks from a zenoh request. A flying vehicle's
+    goal may be an air node (it hovers there: a single-vehicle take-off, issue 19; the mission
+    runner flies such tasks only in a `hover` mission)."""
     graph = load_graph(map_name, uniform=planner == "ilp")
-    check_tasks(tasks, graph, "plan request")
+    check_tasks(tasks, graph, "plan request", air_goals=True)
     return GraphProblem(graph, map_name, tasks)

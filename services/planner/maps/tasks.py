@@ -2,7 +2,9 @@
 seeded random draw.
 
 Well-formed (§V-D): every start and goal is a parking spot or helipad (any node on maps with open
-endpoints, such as MovingAI grids), starts are unique and goals are unique.
+endpoints, such as MovingAI grids), starts are unique and goals are unique. A plan request may also
+end a flying vehicle's task at an air node (`air_goals`: it hovers there until given another goal,
+issue 19's single-vehicle take-off; SIPP's goal rests there for ever, as on the ground).
 """
 
 from __future__ import annotations
@@ -23,11 +25,14 @@ def load_scenario(path: str | Path, graph: FleetGraph) -> dict[str, Task]:
     return dict(spec.tasks)
 
 
-def check_tasks(tasks: dict[str, Task], graph: FleetGraph, source: str) -> None:
-    """Raise InputError naming the task field when a scenario is not well-formed on `graph`."""
+def check_tasks(tasks: dict[str, Task], graph: FleetGraph, source: str, air_goals: bool = False) -> None:
+    """Raise InputError naming the task field when a scenario is not well-formed on `graph`;
+    `air_goals`: a vehicle that flies may also end at an air node (see the module doc)."""
     if not tasks:
         raise InputError(source, "tasks", "no vehicles")
     allowed = {caps: set(graph.endpoints(caps)) for caps in ("fly+drive", "fly", "drive")}
+    air = {n for n, k in zip(graph.ids, graph.kinds, strict=True) if k == "air"} if air_goals else set()
+    goal_allowed = {caps: nodes | air if caps != "drive" else nodes for caps, nodes in allowed.items()}
     spots = {"fly+drive": "a parking spot or helipad", "fly": "a helipad or road node (it only flies)",
              "drive": "a parking spot (it only drives)"}
     starts: dict[str, str] = {}
@@ -37,11 +42,11 @@ def check_tasks(tasks: dict[str, Task], graph: FleetGraph, source: str) -> None:
             check_chunk(vid, "vehicle id")
         except ValueError as exc:
             raise InputError(source, f"tasks.{vid}", str(exc)) from None
-        for field, node, seen in (("start", task.start, starts), ("goal", task.goal, goals)):
+        for field, node, seen, ok in (("start", task.start, starts, allowed), ("goal", task.goal, goals, goal_allowed)):
             where = f"tasks.{vid}.{field}"
             if node not in graph.index:
                 raise InputError(source, where, f"unknown node {node!r} on map {graph.name!r}")
-            if node not in allowed[task.capabilities]:
+            if node not in ok[task.capabilities]:
                 raise InputError(source, where, f"{node!r} is a {graph.kinds[graph.index[node]]} node, "
                                                 f"not {spots[task.capabilities]}")
             if node in seen:
