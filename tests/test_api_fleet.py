@@ -162,7 +162,7 @@ def test_the_lifelong_example_keeps_giving_random_tasks(tmp_path: Path) -> None:
             vehicle["uri"] = f"udp://${{SIM_HOST:-sim}}:{free.getsockname()[1]}"
     (tmp_path / "radios.yaml").write_text(yaml.safe_dump(radios))
     env = {k: v for k, v in os.environ.items() if not k.startswith("FLEET_")}
-    proc = subprocess.run([sys.executable, str(REPO / "examples" / "lifelong.py"), "--minutes", "0.4", "--radios", str(tmp_path / "radios.yaml")],
+    proc = subprocess.run([sys.executable, str(REPO / "examples" / "lifelong.py"), "--minutes", "0.25", "--radios", str(tmp_path / "radios.yaml")],
                           cwd=tmp_path, capture_output=True, text=True, timeout=180, env=env)
     out = proc.stdout
     assert proc.returncode == 0, out[-3000:] + proc.stderr[-3000:]
