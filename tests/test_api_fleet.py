@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -92,10 +93,15 @@ def test_the_examples_plan_fly_one_vehicle_fly_a_mission_and_read_its_recording(
     out = run_example("plan_and_plot.py", "--out", str(tmp_path / "plan.png"), env=env)
     assert "sipp on town: 8 vehicles" in out and (tmp_path / "plan.png").stat().st_size > 20_000
 
-    # one leg: take off, fly over the gap, land. A second leg would start from a spot cf7 drove into,
-    # facing away from its road: the executor does not turn it in place first, the tracking guard holds it
-    out = run_example("figure_eight.py", "--vehicle", "cf7", "--spots", "EP7", env=env)
-    assert "-> EP7: flew" in out, out
+    # take off from WP9, the first half of the eight in the air (points 0.25 m apart), land on WP9
+    out = run_example("figure_eight.py", "--vehicle", "cf7", "--legs", "4", env=env)
+    assert "took off: hovering at " in out, out
+    legs = re.findall(r"-> \(([\d.]+), ([\d.]+)\): at \(([\d.]+), ([\d.]+), ([\d.]+)\)", out)
+    assert len(legs) == 4, out
+    for px, py, x, y, z in (map(float, leg) for leg in legs):
+        assert math.dist((px, py, 0.4), (x, y, z)) < 0.1, out  # the eight's points are air nodes of the corridor
+    landed = re.search(r"landed at \(([\d.]+), ([\d.]+)\)", out)
+    assert landed and math.dist(tuple(map(float, landed.groups())), (1.67, 0.55)) < 0.05, out  # back on WP9
 
     out = run_example("town_mission.py", "--only", "cf2,cf4", env=env)
     assert "OK (every vehicle arrived)" in out and "contacts: 0" in out, out
@@ -124,8 +130,9 @@ def test_take_off_go_to_and_land_as_separate_calls_refused_while_a_mission_owns_
             Fleet.connect(*connect, secrets=run_dir / "secrets") as other:
         start = fleet.vehicles(["cf8"])["cf8"]  # on EP8, untouched by the tests before
         air = fleet.takeoff("cf8")
-        up = fleet.vehicle("cf8")
-        assert up.mode == "flying" and up.z > 0.3 and up.busy, up
+        up = fleet.vehicle("cf8")  # hovering above El4, the take-off point nearest EP8
+        assert air == "i_El4" and up.mode == "flying" and math.dist((up.x, up.y, up.z), (2.7, 1.3, 0.4)) < 0.1, up
+        assert up.busy
         with pytest.raises(VehicleBusy) as busy:  # another client's commands, refused: our mission owns it
             other.takeoff("cf8")
         assert busy.value.vehicle == "cf8" and busy.value.mission == up.mission
@@ -137,12 +144,7 @@ def test_take_off_go_to_and_land_as_separate_calls_refused_while_a_mission_owns_
             fleet.land("cf8", "EP6")
         assert refused.value.vehicle == "cf8" and "taken by cf5" in refused.value.reason
 
-        point = (up.x + 0.35, up.y, up.z)
-        assert fleet.go_to("cf8", point) is None  # to the air node nearest the point (0.25 m grid), hovering there
-        moved = fleet.vehicle("cf8")
-        assert moved.mode == "flying" and moved.x - up.x > 0.2 and math.dist((moved.x, moved.y, moved.z), point) < 0.2, \
-            (air, up, moved)
-        result = fleet.land("cf8")  # back on EP8: the mission ends
+        result = fleet.land("cf8")  # back on EP8: the mission ends (go_to in the air: the figure-eight example)
         assert result.ok and result.vehicles["cf8"].arrived, result.summary
         down = fleet.vehicle("cf8")
         assert down.mode == "done" and not down.busy and down.z < 0.05
