@@ -143,6 +143,8 @@ def test_take_off_go_to_and_land_as_separate_calls_refused_while_a_mission_owns_
         with pytest.raises(CommandRefused) as refused:  # a spot another vehicle stands on: cf5's
             fleet.land("cf8", "EP6")
         assert refused.value.vehicle == "cf8" and "taken by cf5" in refused.value.reason
+        with pytest.raises(CommandRefused, match="El4 is a land node"):  # a road: a flying car parks on spots
+            fleet.land("cf8", "El4")
 
         result = fleet.land("cf8")  # back on EP8: the mission ends (go_to in the air: the figure-eight example)
         assert result.ok and result.vehicles["cf8"].arrived, result.summary

@@ -585,10 +585,13 @@ class AsyncFleet:
                 raise CommandRefused(vid, f"no node {node!r} on map {flight.map!r}")
         else:
             node = min((n for n, g in graph.nodes.items() if g.kind == "air"), key=lambda n: math.dist(graph.nodes[n].pos, spot))
-        pos = graph.nodes[node].pos
+        pos, kind = graph.nodes[node].pos, graph.nodes[node].kind
+        spots = ("parking", "helipad", "land") if self._info(vid).capabilities == "fly" else ("parking", "helipad")
+        if kind != "air" and kind not in spots:
+            raise CommandRefused(vid, f"{node} is a {kind} node: it lands on {' or '.join(spots)} nodes")
         mission = flight.mission
         arrival_s = await self.add_task(mission.id, vid, node)
-        if graph.nodes[node].kind == "air":
+        if kind == "air":
             await self._hover_at(vid, mission, node, pos, arrival_s)
             return None
         result = await mission.wait()
