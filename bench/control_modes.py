@@ -26,7 +26,7 @@ from common.bus.messages import SimTruth
 from common.bus.pubsub import subscribe
 from common.bus.session import open_session
 from common.bus.vehicle_plans import vehicle_plans
-from common.deploy.radios import LinkModel
+from common.deploy.radios import GatewayParams, LinkModel
 from common.domain.scenario import read_scenario
 from services.executor.trajectory import Trajectory
 from services.mission.demo import DEMO_SCENARIO, local_fleet
@@ -34,6 +34,9 @@ from services.mission.runner import MissionRunner, MissionSpec
 
 LINKS = {"default": LinkModel(), "latency": LinkModel(latency_s=0.052), "loss": LinkModel(loss=0.10)}
 """The default model; 50 ms more one-way latency (2 + 50 ms); 10 % of the packets lost each way."""
+GATEWAYS = {"latency": GatewayParams(connect_timeout_s=60.0)}
+"""cflib's connection (TOCs, parameters, log blocks) is hundreds of round trips: over 104 ms each it
+takes longer than the default 10 s connect timeout."""
 
 
 @dataclass
@@ -73,7 +76,7 @@ def fly(mode: str, link: str, run_dir: Path) -> Run:
     truth: list[SimTruth] = []
     spec = MissionSpec(map=map_name, tasks=tasks, time_limit=20.0)
     with local_fleet(map_name, tasks, run_dir, executors=2, fleet=f"cm{mode[:2]}{link[:2]}", link=LINKS[link],
-                     control=mode) as fleet:  # type: ignore[arg-type]
+                     control=mode, gateway=GATEWAYS.get(link)) as fleet:  # type: ignore[arg-type]
         runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
 
         async def listen_and_fly() -> None:

@@ -133,6 +133,8 @@ class ExecutorService(Service):
         """Every owned vehicle's pose filter, for fusing a frame in one step."""
         self.stats = LoopStats()
         self._last_mode: dict[str, str] = {}
+        self._told_aborted: list[str] = []
+        """Vehicles whose mission this executor aborted while the router was lost: told once it is back."""
         self._executors: AliveSet | None = None
         self._router_lost_at: float | None = None
         self._router_back_at: float | None = None
@@ -183,12 +185,17 @@ class ExecutorService(Service):
                     if ctl.t0 is not None:  # started (or due to start): its timing is gone
                         self.aborts.setdefault(self.plans[vid].mission, "the executor lost its router")
                         ctl.abort("the executor lost its router")
+                        self._told_aborted.append(vid)
             return
         if self._router_lost_at is None:
             return
         if self._router_back_at is None:
             self._router_back_at = now
             log.warning("%s: the router is back after %.1f s", self.instance, now - self._router_lost_at)
+            for vid in self._told_aborted:  # the mission must know: nobody flies its plan on
+                self._event.put(vid, VehicleEvent(vid=vid, t=now, kind="aborted",
+                                                  detail="the executor lost its router: mission aborted"))
+            self._told_aborted.clear()
         elif now - self._router_back_at >= ROUTER_SETTLE_S:
             self._router_lost_at = self._router_back_at = None
             assert self._executors is not None

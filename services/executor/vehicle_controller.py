@@ -100,10 +100,11 @@ class VehicleController:
         self._abort: str | None = None
         self._last_tick: float | None = None
         self._guard_since: float | None = None  # since when the tracking error is past the margin
-        self._guard_from = 0.0  # the guard sleeps until then, or until the error is back in the margin
+        self._guard_from = 0.0  # the guard sleeps until then (after a take-over)
         self.held: str | None = None
         """Why the tracking guard holds the vehicle (None: it does not)."""
         self._hover_ref: RefSample | None = None  # where a held vehicle hovers
+        self._turn_first = False  # a new plan after a mission: turn in place towards its first drive
 
     # ---- inputs ---------------------------------------------------------------------------
 
@@ -135,8 +136,13 @@ class VehicleController:
         if plan.vid != self.vid:
             raise ValueError(f"plan for {plan.vid!r} given to the controller of {self.vid!r}")
         old = self.trajectory
+        if self._abort:
+            log.warning("%s: new plan of %r refused: the mission is aborted (%s)", self.vid, plan.mission, self._abort)
+            return False
         if self.mode == Mode.DONE or old is None or self.t0 is None:
-            return self.load(plan)
+            loaded = self.load(plan)
+            self._turn_first = loaded  # it parked facing the way it came: turn before driving off
+            return loaded
         why = ("it is off its plan" if self._fault_landing or self._active is not old else
                "it is held" if self.held else "the mission is aborted" if self._abort else
                f"it is {self.mode}" if self.mode in (Mode.LANDING, Mode.EMERGENCY_LANDING) else "")
@@ -168,7 +174,7 @@ class VehicleController:
             mode = Mode.PARKED
         self.charge_used_ah = state.charge_used_ah
         # the vehicle drifted (or its gateway landed it) while it had no owner: the guard waits
-        # until it is back within the margin, for at most `guard_rejoin_s`
+        # `guard_rejoin_s` for it to get back onto its reference
         self._guard_from = now + self.params.faults.guard_rejoin_s
         self.estimator.reset(pose if pose is not None and pose.t > state.t else
                              Pose(vid=self.vid, t=state.t, x=state.x, y=state.y, z=state.z, yaw=state.yaw,
@@ -289,12 +295,12 @@ class VehicleController:
             return False
         error = math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z))
         limit = f.guard_factor * margin
-        if error <= limit:
+        if error <= limit or now < self._guard_from:  # (taken over off its reference: it gets back first)
             self._guard_since = None
-            self._guard_from = 0.0
             return False
-        if now < self._guard_from:  # taken over off its reference: let it get back first
-            return False
+        last = self.machine.history[-1] if self.machine.history else None
+        if last is not None and last.dst == Mode.DRIVING and now - last.t < f.guard_drive_start_s:
+            return False  # turning in place on its spot towards its first edge (pure pursuit)
         since = self._guard_since = self._guard_since if self._guard_since is not None else now
         if error <= f.guard_burst * margin and now - since < f.guard_s:
             return False
@@ -383,15 +389,18 @@ class VehicleController:
             assert self._active is not None
             goal = self._active.sample(ref.t + self.pursuit.lookahead(ref))
             return self.pursuit.command(est, ref, goal)
-        if mode == Mode.PARKED and ref is not None and not est.stale and self._active is not None:
+        if mode == Mode.PARKED and self._turn_first and ref is not None and not est.stale and self._active is not None:
             turn = self._turn_before_driving(est, ref)
             if turn is not None:
                 return turn
         return StopSetpoint()
 
     def _turn_before_driving(self, est: Estimate, ref: RefSample) -> WheelSetpoint | None:
-        """Parked, with a drive starting within `PRE_TURN_S`: turn in place to face it (a vehicle
-        parked facing the way it came would otherwise turn on the plan's time and fall behind)."""
+        """Parked after a mission, with a new plan whose drive starts within `PRE_TURN_S`: turn in
+        place to face it (it parked facing the way it came, and would otherwise turn on the plan's
+        time and fall behind). Only then: the planner allows the turn's time there
+        (`replan.TURN_ALLOWANCE_S`), and a whole fleet turning at a mission's start would crowd the
+        radios' serialised wheel commands."""
         traj = self._active
         assert traj is not None
         ahead = traj.sample(ref.t + PRE_TURN_S)

@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 R = TypeVar("R")
 
 FAULT_EVENTS = frozenset({"emergency_landing", "low_battery", "link_lost", "crash", "stale_cmd_landing",
-                          "controller_failed", "action_failed", "tracking_hold"})
+                          "controller_failed", "action_failed", "tracking_hold", "aborted"})
 """Events that end a mission (unless it keeps going). A motion-capture dropout (`mocap_lost`) is not
 one by itself: the executor predicts through short dropouts and reports what it does about long
 ones (an emergency landing, or holding on the ground)."""

@@ -20,7 +20,7 @@ import msgspec
 from common.bus.messages import ControlMode
 from common.deploy.compose import Process
 from common.deploy.local import LocalFleet, bring_up
-from common.deploy.radios import LinkModel, RadiosFile, dump_radios, simulated_radios
+from common.deploy.radios import GatewayParams, LinkModel, RadiosFile, dump_radios, simulated_radios
 from common.domain.mapfile import MAPS_DIR, load_map, spot_pose
 from common.domain.planfile import Task
 from common.domain.scenario import read_scenario
@@ -32,12 +32,12 @@ FLY_SCENARIO = MAPS_DIR / "scenarios" / "town_fly.yaml"
 
 
 def demo_radios(map_name: str, tasks: dict[str, Task], per_radio: int = 2, link: LinkModel | None = None,
-                source: str = "", control: ControlMode = "offboard") -> RadiosFile:
+                source: str = "", control: ControlMode = "offboard", gateway: GatewayParams | None = None) -> RadiosFile:
     """Simulated Crazyflies parked on their start spots, `per_radio` to a radio (the paper found 2
     reliable), radios named radio0, radio1, ..., flying in control mode `control`."""
     spec = load_map(map_name)
     poses = {vid: spot_pose(spec, task.start, source) for vid, task in tasks.items()}
-    radios = simulated_radios({vid: p[:3] for vid, p in poses.items()}, per_radio, link,
+    radios = simulated_radios({vid: p[:3] for vid, p in poses.items()}, per_radio, link, gateway,
                               yaws={vid: p[3] for vid, p in poses.items()}, prefix="radio", control=control)
     return msgspec.structs.replace(radios, radios={  # each vehicle is what its task says (wheels or not)
         name: msgspec.structs.replace(radio, vehicles={
@@ -68,12 +68,13 @@ def with_args(procs: list[Process], extra: Mapping[str, list[str]]) -> list[Proc
 @contextmanager
 def local_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int = 2, per_radio: int = 2,
                 fleet: str = "demo", link: LinkModel | None = None, extra_args: Mapping[str, list[str]] | None = None,
-                without: Iterable[str] = (), control: ControlMode = "offboard") -> Iterator[LocalFleet]:
+                without: Iterable[str] = (), control: ControlMode = "offboard",
+                gateway: GatewayParams | None = None) -> Iterator[LocalFleet]:
     """compose.yaml's fleet with simulated Crazyflies for `tasks`, up and serving; stopped on exit.
     `extra_args`: more arguments per service; `without`: services not to start; `control`: every
-    vehicle's control mode."""
+    vehicle's control mode; `gateway`: the gateways' parameters (default: the radios file's)."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    radios = demo_radios(map_name, tasks, per_radio, link, control=control)
+    radios = demo_radios(map_name, tasks, per_radio, link, control=control, gateway=gateway)
     radios_path = run_dir / "radios.yaml"
     radios_path.write_text(dump_radios(radios))
     overrides = {"FLEET_NAME": fleet, "FLEET_RADIOS": str(radios_path), "FLEET_EXECUTORS": str(executors),

@@ -8,9 +8,9 @@ vehicle leaves it (its executor lands or stops it), and the planner plans the ot
 `REPLAN_LEAD_S` ahead around where it comes to rest (`Replan`); the executors switch to the new
 paths without stopping. The mission then ends when every other vehicle arrived (not a success:
 a vehicle left). A fault the others cannot be planned around (the planner finds no plan, or does
-not answer in time), a fault of a kind that is not one vehicle's own (`tracking_hold`: a slow
-control loop, maybe the whole executor's; `crash`, a controller that failed) or `on_fault="abort"`
-ends it, landing every vehicle (`client.FAULT_EVENTS`).
+not answer in time), a fault that is not one vehicle's own (`stale_cmd_landing`, an executor's
+`aborted` after losing its router; a crash, a controller that failed) or `on_fault="abort"` ends
+it, landing every vehicle (`client.FAULT_EVENTS`).
 """
 
 from __future__ import annotations
@@ -91,11 +91,15 @@ class VehicleReport:
 
 
 ARRIVED = "every vehicle arrived"
-REPLAN_KINDS = frozenset({"low_battery", "link_lost", "emergency_landing", "stale_cmd_landing", "tracking_hold"})
-"""Faults of one vehicle that the others are planned around (it lands, stops or hovers on its own)."""
+REPLAN_KINDS = frozenset({"low_battery", "link_lost", "emergency_landing", "tracking_hold"})
+"""Faults of one vehicle that the others are planned around (it lands, stops or hovers on its own).
+Not these: `stale_cmd_landing` (its gateway hears no executor: the bus, not the vehicle, failed),
+`aborted` (an executor that lost its router aborted its vehicles' plans), a crash, a failed controller."""
 SWEEP_REACH = 0.1
 """m: how far a vehicle that left may wander from where it is assumed to go (a held vehicle on a
 slow control loop oscillates by up to 10 cm, `tests/test_tracking_guard.py`)."""
+LEFT_CLEARANCE = 0.5
+"""m: a lifelong goal is no parking spot this close to where a vehicle that left rests."""
 BYSTANDER_CLEARANCE = 0.5
 """m: a lifelong goal is no parking spot this close to where a vehicle of the fleet outside the
 mission stands (its motion-capture pose; issue 19: a lifelong mission of a few of the fleet's vehicles)."""
@@ -321,6 +325,8 @@ class MissionRunner(MissionClient[MissionResult]):
             reply = await query(self.session, self.keys.planner_plan, req, PlanReply, timeout=REPLAN_LEAD_S)
         except (QueryTimeout, QueryError) as exc:
             return f"the planner did not replan: {exc}"
+        except RuntimeError:  # the mission ended (its session closed) while this replan waited
+            return "the mission ended"
         took = time.perf_counter() - started
         if not reply.ok or reply.plan is None:
             return f"replanning failed: {reply.error}"
@@ -380,9 +386,10 @@ class MissionRunner(MissionClient[MissionResult]):
             for vid, r in self.reports.items():
                 if r.arrived and vid in plan.paths and vid not in self._pending:
                     goals = {t.goal for t in plan.tasks.values()}
-                    rests = {v: p[-1].node for v, p in (self.first_paths() or {}).items() if v in self.left}
+                    down = [(s.x, s.y) for v, s in self.states.items() if v in self.left]  # where they rest
                     free = sorted(n for n, node in plan.graph.nodes.items()
-                                  if node.kind == "parking" and n not in goals and n not in rests.values())
+                                  if node.kind == "parking" and n not in goals
+                                  and all(math.dist(node.pos[:2], p) > LEFT_CLEARANCE for p in down))
                     free = [n for n in free if self._clear_of_bystanders(plan, n)]
                     if free:
                         reply = await self.add_task(TaskAdd(vid=vid, goal=self._rng.choice(free)))
