@@ -22,8 +22,9 @@ LAND_WAIT_S = 15.0
 
 
 class Mission:
-    """A running mission: `events()` iterates over what happens (from its beginning), `wait()`
-    returns its result, `abort()` lands every vehicle. Made by `AsyncFleet.start_mission`."""
+    """A running mission, `id` its id (for `add_task`): `events()` iterates over what happens (from
+    its beginning), `wait()` returns its result, `abort()` lands every vehicle. Made by
+    `AsyncFleet.start_mission`."""
 
     def __init__(self, fleet_session, keys, mission: str, vehicles: Sequence[str], argv: list[str],
                  env: dict[str, str], on_event: Callable[[MissionEvent], None] | None = None) -> None:

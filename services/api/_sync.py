@@ -47,7 +47,7 @@ def _blocking(method: Callable[..., Awaitable[T]]) -> Callable[..., T]:
 
 
 class SyncMission:
-    """A running mission, blocking flavour: `events()`, `wait()`, `abort()` as in `Mission`."""
+    """A running mission, blocking flavour: `id`, `events()`, `wait()`, `abort()` as in `Mission`."""
 
     def __init__(self, mission: Mission, thread: _LoopThread) -> None:
         self.aio = mission
@@ -57,7 +57,7 @@ class SyncMission:
 
     @property
     def plans(self) -> dict[str, VehiclePlan]:
-        """Each vehicle's plan as the mission handed it out (`VehiclePlan`)."""
+        """Each vehicle's latest plan as the mission handed it out (`VehiclePlan`)."""
         return dict(self.aio.plans)
 
     @property
