@@ -12,6 +12,7 @@ import re
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -70,6 +71,10 @@ def test_the_api_lists_plans_runs_refuses_a_busy_vehicle_and_aborts(fleet_up) ->
         assert fleet.vehicle("cf6").busy
         with pytest.raises(VehicleBusy):
             fleet.run_mission("town", {"cf6": ("EP10", "EP5")})
+        with pytest.raises(CommandRefused, match="cf8: is not in the air"):  # land: only after a takeoff
+            fleet.land("cf8")
+        with pytest.raises(CommandRefused, match="take off first"):  # a point in the air: only while it hovers
+            fleet.go_to("cf8", (2.7, 1.3, 0.4))
         result = mission.abort("the test aborts")
         assert not result.ok and not result.vehicles["cf6"].arrived
         kinds = [e.kind for e in events]
@@ -93,9 +98,26 @@ def test_the_examples_plan_fly_one_vehicle_fly_a_mission_and_read_its_recording(
     out = run_example("plan_and_plot.py", "--out", str(tmp_path / "plan.png"), env=env)
     assert "sipp on town: 8 vehicles" in out and (tmp_path / "plan.png").stat().st_size > 20_000
 
-    # take off from WP9, the first half of the eight in the air (points 0.25 m apart), land on WP9
-    out = run_example("figure_eight.py", "--vehicle", "cf7", "--legs", "4", env=env)
-    assert "took off: hovering at " in out, out
+    # take off from WP9, the first half of the eight in the air (points 0.25 m apart), land on WP9; while
+    # the script's mission owns cf7, another client's take-off, go-to and land are refused
+    script = subprocess.Popen([sys.executable, "examples/figure_eight.py", "--vehicle", "cf7", "--legs", "4"], cwd=REPO,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, **env})
+    try:
+        with Fleet.connect(env["FLEET_ZENOH_CONNECT"], "apitest", secrets=run_dir / "secrets") as fleet:
+            deadline = time.monotonic() + 60.0
+            while not ((cf7 := fleet.vehicles(["cf7"])["cf7"]).mode == "flying" and cf7.busy):
+                assert time.monotonic() < deadline and script.poll() is None, f"cf7 did not take off: {cf7}"
+                time.sleep(0.2)
+            for command in (lambda: fleet.takeoff("cf7"), lambda: fleet.go_to("cf7", (1.8, 1.05, 0.4)),
+                            lambda: fleet.land("cf7")):
+                with pytest.raises(VehicleBusy) as busy:
+                    command()
+                assert busy.value.vehicle == "cf7" and busy.value.mission == cf7.mission
+        out, _ = script.communicate(timeout=120)
+    finally:
+        if script.poll() is None:
+            script.kill()
+    assert script.returncode == 0 and "took off: hovering at " in out, out
     legs = re.findall(r"-> \(([\d.]+), ([\d.]+)\): at \(([\d.]+), ([\d.]+), ([\d.]+)\)", out)
     assert len(legs) == 4, out
     for px, py, x, y, z in (map(float, leg) for leg in legs):
@@ -120,39 +142,6 @@ def test_the_team_example_runs_a_ground_air_mission(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=180, env=env)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "team plan:" in proc.stdout and "team mission" in proc.stdout and ": OK (" in proc.stdout, proc.stdout
-
-
-@pytest.mark.timeout(150)
-def test_take_off_go_to_and_land_as_separate_calls_refused_while_a_mission_owns_the_vehicle(fleet_up) -> None:
-    run_dir, env = fleet_up
-    connect = (env["FLEET_ZENOH_CONNECT"], "apitest")
-    with Fleet.connect(*connect, secrets=run_dir / "secrets") as fleet, \
-            Fleet.connect(*connect, secrets=run_dir / "secrets") as other:
-        start = fleet.vehicles(["cf8"])["cf8"]  # on EP8, untouched by the tests before
-        air = fleet.takeoff("cf8")
-        up = fleet.vehicle("cf8")  # hovering above El4, the take-off point nearest EP8
-        assert air == "i_El4" and up.mode == "flying" and math.dist((up.x, up.y, up.z), (2.7, 1.3, 0.4)) < 0.1, up
-        assert up.busy
-        with pytest.raises(VehicleBusy) as busy:  # another client's commands, refused: our mission owns it
-            other.takeoff("cf8")
-        assert busy.value.vehicle == "cf8" and busy.value.mission == up.mission
-        with pytest.raises(VehicleBusy):
-            other.go_to("cf8", "EP5")
-        with pytest.raises(VehicleBusy):
-            other.land("cf8")
-        with pytest.raises(CommandRefused) as refused:  # a spot another vehicle stands on: cf5's
-            fleet.land("cf8", "EP6")
-        assert refused.value.vehicle == "cf8" and "taken by cf5" in refused.value.reason
-        with pytest.raises(CommandRefused, match="El4 is a land node"):  # a road: a flying car parks on spots
-            fleet.land("cf8", "El4")
-
-        result = fleet.land("cf8")  # back on EP8: the mission ends (go_to in the air: the figure-eight example)
-        assert result.ok and result.vehicles["cf8"].arrived, result.summary
-        down = fleet.vehicle("cf8")
-        assert down.mode == "done" and not down.busy and down.z < 0.05
-        assert math.hypot(down.x - start.x, down.y - start.y) < 0.08, (start, down)
-        with pytest.raises(CommandRefused):
-            fleet.land("cf8")  # not in the air
 
 
 @pytest.mark.timeout(200)

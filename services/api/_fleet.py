@@ -490,12 +490,12 @@ class AsyncFleet:
         flight = self._flights.get(vid)
         if flight is not None and not flight.mission.done:
             return await self._fly(vid, flight, spot)
-        if not isinstance(spot, str):
-            raise CommandRefused(vid, f"a point {spot} is in the air: take off first")
         map = map or self.map
         await self.vehicles([vid], timeout=STALE_S)
         info = self.vehicle(vid)
         self._check_free(vid)
+        if not isinstance(spot, str):
+            raise CommandRefused(vid, f"a point {spot} is in the air: take off first")
         if info.mode not in AT_REST_ON_GROUND:
             raise CommandRefused(vid, f"is {info.mode}: a command starts from rest on the ground")
         start = self._spot_of(info, map)
