@@ -4,7 +4,7 @@ planned against the others' paths while they move). Once, the first vehicle is s
 when it reaches its first goal (`add_task`: it replaces the random goal it may have got). Prints each
 task done and the tasks done per minute.
 
-    python examples/lifelong.py [--vehicles cf1,cf2] [--goals WP3,WP4] [--minutes 2] [--radios FILE]
+    python examples/lifelong.py [--vehicles cf1,cf2] [--goals WP2,WP6] [--minutes 2] [--radios FILE]
 
 A new goal given to a car while it drives may need it to turn round on its road, which the executors
 do not do (the tracking guard holds it): redirect vehicles at rest or in the air.
@@ -22,7 +22,7 @@ from services.api import CommandRefused, Fleet, MissionEvent
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--vehicles", default="cf1,cf2")
-    parser.add_argument("--goals", default="WP3,WP4", help="each vehicle's first goal")
+    parser.add_argument("--goals", default="WP2,WP6", help="each vehicle's first goal")
     parser.add_argument("--minutes", type=float, default=2.0, help="how long to keep giving new tasks")
     parser.add_argument("--radios", help="when no fleet is running here: start one with these vehicles")
     args = parser.parse_args()
