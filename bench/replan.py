@@ -1,6 +1,6 @@
 """Replanning time after one fault (issue 16): N vehicles on city934 with random tasks (as the soak
 draws them) are planned with SIPP; then, at several instants of the plan, one airborne vehicle
-leaves (it comes straight down and rests: the sweep the mission client gives the planner) and the
+leaves (it comes straight down and rests: the sweeps the mission client gives the planner) and the
 planner plans the others on from 1 s later (`Replan`, services/planner/sipp/replan.py). Printed:
 how long each replan took (the whole request: graph, replan, validation of the spliced plan), how
 many vehicles it replanned, and whether it found a plan; `replan.png` plots the times.
@@ -55,12 +55,14 @@ def run(vehicles: int, n_faults: int, seed: int) -> list[dict]:
     rows = []
     for vid, t in faults(base, n_faults, rng):
         here = position(base, vid, t)
-        sweep = Sweep(vid, here, (here[0], here[1], 0.0), t, t, rest=True, reach=0.1)
+        foot = (here[0], here[1], 0.0)  # an emergency descent, as the mission gives it (runner._sweeps)
+        sweeps = [Sweep(vid, here, foot, t, t + here[2] / 0.2 * 1.5 + 1.0, reach=0.03),
+                  Sweep(vid, foot, foot, t, t, rest=True, reach=0.03)]
         at = t + 1.0
         moving = sum(1 for v, p in base.paths.items() if v != vid and p[-1].t > at)
         started = time.perf_counter()
         answer = solve(PlanRequest(map=MAP, tasks={}, time_limit=1.0,
-                                   replan=Replan(base=base, at=at, left=[vid], sweeps=[sweep])))
+                                   replan=Replan(base=base, at=at, left=[vid], sweeps=sweeps)))
         took = time.perf_counter() - started
         rows.append({"vehicles": vehicles, "fault": vid, "t": t, "replanned": moving, "ok": answer.ok,
                      "seconds": took, "error": answer.error})
@@ -86,7 +88,7 @@ def main() -> None:
             if not r["ok"]:
                 print(f"  {r['vehicles']} vehicles, {r['fault']} at {r['t']:.1f} s: {r['error']}")
     fig, (ax,) = new_figure()
-    ax.boxplot([[1e3 * r["seconds"] for r in rows] for rows in results.values()], labels=[str(n) for n in results])
+    ax.boxplot([[1e3 * r["seconds"] for r in rows] for rows in results.values()], tick_labels=[str(n) for n in results])
     ax.set(xlabel="vehicles", ylabel="ms", title=f"replanning after one fault ({MAP})")
     print(f"saved {save_figure(fig, args.out, 'replan')}")
 

@@ -110,6 +110,10 @@ REPLAN_LEAD_S = 1.0
 """s: the switch time of a replan is this far ahead of the fault (planning + handing the plans out)."""
 REPLAN_TIME_LIMIT_S = 0.6
 """s: the planner's time limit for a replan (SIPP, paper 000 §V-D)."""
+REST_REACH = 0.03
+"""m: how far a vehicle landing on its own (its executor's fault landing or emergency descent, on a
+control loop that is not slow) may be from where it is assumed to go; 10 cm there left most replans
+of an 80-vehicle fleet without a plan (the vehicle following the faulted one in its lane is inside)."""
 LEVEL_S_PER_M, DESCENT_S_PER_M, REST_S = 1.5 / 0.5, 1.5 / 0.2, 1.0
 """How long a vehicle that left is assumed to take to fly a metre level and descend a metre (its
 fault landing: the fly and land speeds with 50 % slack, the emergency descent's 0.25 m/s too), and
@@ -264,7 +268,7 @@ class MissionRunner(MissionClient[MissionResult]):
             if text not in self.left[vid]:
                 self.left[vid] += f"; {text}"
             if node and kind in REPLAN_KINDS and self.t0 is not None:  # it now lands there: plan around that too
-                self.sweeps += self._sweeps(vid, node)
+                self.sweeps += self._sweeps(vid, node, kind)
                 self.events.append(f"{vid} ({kind}) lands at {node}: replanning the others")
                 self._replanning = asyncio.get_running_loop().create_task(self._replan(self._replanning))
             return True
@@ -272,7 +276,7 @@ class MissionRunner(MissionClient[MissionResult]):
                 or vid not in self.first_paths() or self.states.get(vid) is None):
             return False
         self.left[vid] = text
-        self.sweeps += self._sweeps(vid, node)
+        self.sweeps += self._sweeps(vid, node, kind)
         self.events.append(f"{vid} left the mission ({kind}): replanning the others")
         previous = self._replanning
         self._replanning = asyncio.get_running_loop().create_task(self._replan(previous))
@@ -281,24 +285,30 @@ class MissionRunner(MissionClient[MissionResult]):
     def first_paths(self) -> dict:
         return self.first_plan.paths if self.first_plan is not None else {}
 
-    def _sweeps(self, vid: str, node: str) -> list[Sweep]:
-        """Where `vid` may be from its latest state on: the column below it for ever (it hovers,
-        is held, or comes straight down: an emergency descent, a fall), and with `node` also level
-        to above it and down onto it (a fault landing)."""
+    def _sweeps(self, vid: str, node: str, kind: str) -> list[Sweep]:
+        """Where `vid` may be from its latest state on: held (`tracking_hold`), anywhere in the
+        column below it for ever (it hovers until the mission ends, or comes down); otherwise the
+        column while it comes straight down (an emergency descent, a fall) and its foot for ever,
+        and with `node` also level to above it and down onto it (a fault landing), resting there."""
         assert self.plan is not None and self.t0 is not None
         state = self.states[vid]
         t = time.time() - self.t0
         p = (state.x, state.y, state.z)
         nodes = self.plan.graph.nodes
         ground = min(n.pos[2] for n in nodes.values() if n.kind != "air")
-        out = [Sweep(vid, p, (p[0], p[1], min(ground, p[2])), t, t, rest=True, reach=SWEEP_REACH)]
+        foot = (p[0], p[1], min(ground, p[2]))
+        if kind == "tracking_hold":
+            return [Sweep(vid, p, foot, t, t, rest=True, reach=SWEEP_REACH)]
+        down = t + DESCENT_S_PER_M * (p[2] - foot[2]) + REST_S
+        out = [Sweep(vid, p, foot, t, down, reach=REST_REACH), Sweep(vid, foot, foot, t, t, rest=True, reach=REST_REACH)]
         if node in nodes and p[2] - nodes[node].pos[2] >= 0.05:
             target = nodes[node].pos
             above = (target[0], target[1], p[2])
             t1 = t + LEVEL_S_PER_M * math.dist(p, above) + REST_S
             t2 = t1 + DESCENT_S_PER_M * (p[2] - target[2]) + REST_S
-            out += [Sweep(vid, p, above, t, t1, reach=SWEEP_REACH),
-                    Sweep(vid, above, target, t1, t2, rest=True, reach=SWEEP_REACH)]
+            out += [Sweep(vid, p, above, t, t1, reach=REST_REACH),
+                    Sweep(vid, above, target, t1, t2, reach=REST_REACH),
+                    Sweep(vid, target, target, t1, t2, rest=True, reach=REST_REACH)]
         return out
 
     async def _replan(self, previous: asyncio.Task | None) -> None:

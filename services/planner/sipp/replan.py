@@ -13,6 +13,11 @@ against:
   body's radius and the sampling step and the sweep's `reach` are added to the contact distance);
 - each vehicle's battery: what its task's budget (`Task.usable_ah`) leaves after its prefix.
 
+A prefix's last step (the traversal or wait into its switch node) is reserved only once its own
+vehicle is placed: against itself it would close the node's exits for as long as two bodies would
+touch (the same body cannot); a vehicle placed earlier may then cross a later one's last step,
+which the validation of the whole spliced plan catches (the replan then fails).
+
 Priority: the vehicles that must move first (earliest switch node) first; a vehicle that cannot be
 placed is promoted to the front and the others follow in their order, until the time limit. Starts
 are not closed for the vehicles planned later (as on open-endpoint maps): a vehicle whose switch node
@@ -138,8 +143,9 @@ def _plan_order(graph: FleetGraph, sweeps: list[Sweep], fixed: dict[str, list[Pa
     res = Reservations(graph)
     for path in fixed.values():
         _reserve_entries(res, graph, path, forever=True)
-    for leg in order:
-        _reserve_entries(res, graph, leg.prefix, forever=False)
+    for leg in order:  # each prefix but its last step: a body does not block itself (see below)
+        if len(leg.prefix) > 1:
+            _reserve_entries(res, graph, leg.prefix[:-1], forever=False)
     for sweep in sweeps:
         block_sweep(res, graph, sweep)
     out: dict[str, TimedPath] = {}
@@ -153,6 +159,8 @@ def _plan_order(graph: FleetGraph, sweeps: list[Sweep], fixed: dict[str, list[Pa
             return leg.vid, f"time limit reached while planning {where}"
         if path is None:
             return leg.vid, f"no collision-free path {where} within the battery ({len(out)} vehicles placed)"
+        if len(leg.prefix) > 1:  # its last step into its switch node, now that it is placed
+            _reserve_entries(res, graph, leg.prefix[-2:], forever=False)
         for i, node in enumerate(path.nodes):
             if path.depart[i] > path.arrive[i]:
                 res.rest(node, path.arrive[i], path.depart[i])
