@@ -9,10 +9,24 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 from rerun.chunk import RrdReader
+
+
+def _chunks(path: Path, tries: int = 5) -> list:
+    """Every chunk of the file, read eagerly; a recording still being written may end in a
+    half-written message: read it again a moment later (the recorder completes it)."""
+    for attempt in range(tries):
+        try:
+            return list(RrdReader(str(path)).stream().collect().stream())
+        except Exception:  # the reader's error for a truncated message
+            if attempt == tries - 1:
+                raise
+            time.sleep(0.5)
+    return []
 
 
 def read(path: Path) -> dict[str, dict[str, list]]:
@@ -20,7 +34,7 @@ def read(path: Path) -> dict[str, dict[str, list]]:
     out: dict[str, dict[str, list]] = {}
     columns = {"body": "Cylinders3D:centers", "mode": "StateChange:state", "battery_v": "Scalars:scalars"}
     # eagerly: the recorder keeps a mission's file open (no footer yet) until the next mission begins
-    for chunk in RrdReader(str(path)).stream().collect().stream():
+    for chunk in _chunks(path):
         parts = chunk.entity_path.strip("/").split("/")
         if len(parts) != 3 or parts[0] != "vehicles" or parts[2] not in columns:
             continue
