@@ -22,17 +22,6 @@ from services.planner.maps.loading import load_graph
 from services.planner.registry import solve
 
 
-def position(plan: Plan, vid: str, t: float) -> tuple[float, float, float]:
-    """Where the plan has `vid` at `t` (linear between entries)."""
-    path, nodes = plan.paths[vid], plan.graph.nodes
-    for a, b in zip(path, path[1:], strict=False):
-        if a.t <= t <= b.t:
-            f = 0.0 if b.t == a.t else (t - a.t) / (b.t - a.t)
-            pa, pb = nodes[a.node].pos, nodes[b.node].pos
-            return (pa[0] + f * (pb[0] - pa[0]), pa[1] + f * (pb[1] - pa[1]), pa[2] + f * (pb[2] - pa[2]))
-    return nodes[path[-1].node].pos
-
-
 def faults(plan: Plan, n: int, rng: random.Random) -> list[tuple[str, float]]:
     """`n` (vehicle, time) pairs at which the vehicle is airborne."""
     nodes = plan.graph.nodes
@@ -54,7 +43,7 @@ def run(vehicles: int, n_faults: int, seed: int) -> list[dict]:
     base = reply.plan
     rows = []
     for vid, t in faults(base, n_faults, rng):
-        here = position(base, vid, t)
+        here = base.position(vid, t)
         foot = (here[0], here[1], 0.0)  # an emergency descent, as the mission gives it (runner._sweeps)
         sweeps = [Sweep(vid, here, foot, t, t + here[2] / 0.2 * 1.5 + 1.0, reach=0.03),
                   Sweep(vid, foot, foot, t, t, rest=True, reach=0.03)]

@@ -30,18 +30,6 @@ def plan_of(planner: str = "sipp", tasks: dict[str, Task] = TASKS) -> Plan:
     return reply.plan
 
 
-def position(plan: Plan, vid: str, t: float) -> tuple[float, float, float]:
-    path, nodes = plan.paths[vid], plan.graph.nodes
-    if t <= path[0].t:
-        return nodes[path[0].node].pos
-    for a, b in zip(path, path[1:], strict=False):
-        if t <= b.t:
-            f = 0.0 if b.t == a.t else (t - a.t) / (b.t - a.t)
-            pa, pb = nodes[a.node].pos, nodes[b.node].pos
-            return tuple(pa[i] + f * (pb[i] - pa[i]) for i in range(3))  # type: ignore[return-value]
-    return nodes[path[-1].node].pos
-
-
 def airborne_at(plan: Plan, vid: str) -> float:
     """A time at which `vid` is in the air (mid-path)."""
     path = plan.paths[vid]
@@ -53,7 +41,7 @@ def airborne_at(plan: Plan, vid: str) -> float:
 def test_the_others_are_planned_on_around_a_vehicle_landing_after_a_fault() -> None:
     base = plan_of()
     at = airborne_at(base, "cf2")
-    here = position(base, "cf2", at)
+    here = base.position("cf2", at)
     below = (here[0], here[1], 0.0)
     sweeps = [Sweep("cf2", here, below, at, at + 4.0, rest=True)]
     t = time.perf_counter()
@@ -73,7 +61,7 @@ def test_the_others_are_planned_on_around_a_vehicle_landing_after_a_fault() -> N
         # never near cf2's body while it comes down and rests (envelopes: 2 x radius apart)
         for k in range(400):
             s = at + 1.0 + k * 0.1
-            p = position(plan, vid, s)
+            p = plan.position(vid, s)
             z_lo = below[2] if s >= at + 4.0 else min(here[2], below[2])
             horizontal = math.hypot(p[0] - here[0], p[1] - here[1])
             if z_lo - plan.model.height < p[2] < here[2] + plan.model.height:
@@ -117,7 +105,7 @@ def test_a_replan_naming_an_unknown_vehicle_or_node_is_refused() -> None:
 def test_a_plan_of_the_ilp_is_replanned_on_its_graph(planner: str) -> None:
     base = plan_of(planner)
     at = airborne_at(base, "cf1")
-    here = position(base, "cf1", at)
+    here = base.position("cf1", at)
     reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, replan=Replan(
         base=base, at=at + 1.0, left=["cf1"], sweeps=[Sweep("cf1", here, (here[0], here[1], 0.0), at, at + 4.0, True)])))
     assert reply.ok and reply.plan is not None, reply.error

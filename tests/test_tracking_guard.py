@@ -22,7 +22,6 @@ import pytest
 
 from common.bus.messages import Pose, Telemetry
 from common.deploy.launcher import status
-from common.domain.planfile import Plan
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
 from services.executor.faults import FaultParams
@@ -154,20 +153,6 @@ def test_a_vehicle_held_in_the_air_hovers_and_lands_safely_on_abort() -> None:
 STOP_S, RUN_S = 0.15, 0.05  # the starved executor runs 50 ms of every 200 ms
 
 
-def plan_position(plan: Plan, vid: str, rel: float) -> tuple[float, float, float]:
-    """Where the plan has `vid` `rel` seconds into the mission (DESIGN.md: linear between entries)."""
-    path = plan.paths[vid]
-    nodes = plan.graph.nodes
-    if rel <= path[0].t:
-        return nodes[path[0].node].pos
-    for a, b in zip(path, path[1:], strict=False):
-        if rel <= b.t:
-            f = 0.0 if b.t == a.t else (rel - a.t) / (b.t - a.t)
-            pa, pb = nodes[a.node].pos, nodes[b.node].pos
-            return (pa[0] + f * (pb[0] - pa[0]), pa[1] + f * (pb[1] - pa[1]), pa[2] + f * (pb[2] - pa[2]))
-    return nodes[path[-1].node].pos
-
-
 def starve(pid: int, stop: threading.Event) -> None:
     """Stop and continue process `pid` in turns until `stop` is set (it is left running)."""
     try:
@@ -215,7 +200,7 @@ def test_a_starved_executor_holds_its_vehicles_and_nothing_touches(tmp_path) -> 
     # judged in ground truth: until it was held (or the starvation ended), cf1 stayed near its plan
     plan, t0 = runners[0].first_plan, runners[0].t0
     assert plan is not None and t0 is not None
-    worst = max(math.dist((s.x, s.y, s.z), plan_position(plan, "cf1", s.t - t0))
+    worst = max(math.dist((s.x, s.y, s.z), plan.position("cf1", s.t - t0))
                 for s in watch.truth_between("cf1", marks["starved"], held or marks["fed"]))
     assert worst < 4.0 * plan.model.margin, f"cf1 {worst:.3f} m from its plan"  # 23 cm unguarded
     assert held is not None, f"the guard did not hold cf1: {watch.kinds('cf1')}"

@@ -55,16 +55,13 @@ class Task(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_default
     """A vehicle's start and goal node; `capabilities` restricts the edge kinds it may use
     (`CAPABLE_EDGES`: a stock Crazyflie only flies, a ground robot only drives). `charge_used_ah`
     and `voltage` are the vehicle's battery as measured (0: full, at the model's voltage): the
-    planner's eq. 6 budget is what is left (`common.domain.battery.usable_ah`). `depart` (s): the
-    vehicle is at `start` from then on and may not leave before (a task added or replanned while
-    others move, issue 16)."""
+    planner's eq. 6 budget is what is left (`common.domain.battery.usable_ah`)."""
 
     start: str
     goal: str
     capabilities: Capabilities = "fly+drive"
     charge_used_ah: float = 0.0
     voltage: float = 0.0
-    depart: float = 0.0
 
     def usable_ah(self, model: VehicleModel) -> float:
         """Eq. 6's budget of this vehicle in the planner's units."""
@@ -89,6 +86,19 @@ class Plan(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_default
     planning_time_s: float
     dt: float | None = None
     mip_gap: float | None = None
+
+    def position(self, vid: str, t: float) -> tuple[float, float, float]:
+        """Where the plan has `vid` at `t` s: at its start before its first entry, linear between
+        entries, at its goal after its last (DESIGN.md, "Plan file")."""
+        path, nodes = self.paths[vid], self.graph.nodes
+        if t <= path[0].t:
+            return nodes[path[0].node].pos
+        for a, b in zip(path, path[1:], strict=False):
+            if t <= b.t:
+                f = 0.0 if b.t == a.t else (t - a.t) / (b.t - a.t)
+                pa, pb = nodes[a.node].pos, nodes[b.node].pos
+                return (pa[0] + f * (pb[0] - pa[0]), pa[1] + f * (pb[1] - pa[1]), pa[2] + f * (pb[2] - pa[2]))
+        return nodes[path[-1].node].pos
 
 
 class PlanFileError(InputError, ValueError):

@@ -273,7 +273,7 @@ class MissionRunner(MissionClient[MissionResult]):
                 self._replanning = asyncio.get_running_loop().create_task(self._replan(self._replanning))
             return True
         if (self.spec.on_fault != "replan" or kind not in REPLAN_KINDS or self.plan is None or self.t0 is None
-                or vid not in self.first_paths() or self.states.get(vid) is None):
+                or self.first_plan is None or vid not in self.first_plan.paths or self.states.get(vid) is None):
             return False
         self.left[vid] = text
         self.sweeps += self._sweeps(vid, node, kind)
@@ -281,9 +281,6 @@ class MissionRunner(MissionClient[MissionResult]):
         previous = self._replanning
         self._replanning = asyncio.get_running_loop().create_task(self._replan(previous))
         return True
-
-    def first_paths(self) -> dict:
-        return self.first_plan.paths if self.first_plan is not None else {}
 
     def _sweeps(self, vid: str, node: str, kind: str) -> list[Sweep]:
         """Where `vid` may be from its latest state on: held (`tracking_hold`), anywhere in the

@@ -124,7 +124,7 @@ def _split(graph: FleetGraph, replan: Replan) -> tuple[dict[str, list[PathEntry]
         usable = task.usable_ah(graph.model) - prefix_charge(graph, prefix)
         legs.append(Leg(vid, list(prefix), graph.index[prefix[-1].node], depart, graph.index[goal], usable,
                         Task(start=prefix[-1].node, goal=goal, capabilities=task.capabilities,
-                             charge_used_ah=task.charge_used_ah, voltage=task.voltage, depart=depart)))
+                             charge_used_ah=task.charge_used_ah, voltage=task.voltage)))
     return fixed, legs
 
 
