@@ -29,6 +29,7 @@ from common.bus.vehicle_plans import vehicle_plans
 from common.deploy.radios import GatewayParams, LinkModel
 from common.domain.scenario import read_scenario
 from services.executor.trajectory import Trajectory
+from services.mission.client import MissionTiming
 from services.mission.demo import DEMO_SCENARIO, local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 
@@ -36,7 +37,7 @@ LINKS = {"default": LinkModel(), "latency": LinkModel(latency_s=0.052), "loss": 
 """The default model; 50 ms more one-way latency (2 + 50 ms); 10 % of the packets lost each way."""
 GATEWAYS = {"latency": GatewayParams(connect_timeout_s=60.0)}
 """cflib's connection (TOCs, parameters, log blocks) is hundreds of round trips: over 104 ms each it
-takes longer than the default 10 s connect timeout."""
+takes longer than the default 10 s connect timeout; the mission waits as long for the links."""
 
 
 @dataclass
@@ -74,7 +75,7 @@ def fly(mode: str, link: str, run_dir: Path) -> Run:
     tasks = dict(scenario.tasks)
     map_name = scenario.map or "town"
     truth: list[SimTruth] = []
-    spec = MissionSpec(map=map_name, tasks=tasks, time_limit=20.0)
+    spec = MissionSpec(map=map_name, tasks=tasks, time_limit=20.0, timing=MissionTiming(link_wait_s=60.0))
     with local_fleet(map_name, tasks, run_dir, executors=2, fleet=f"cm{mode[:2]}{link[:2]}", link=LINKS[link],
                      control=mode, gateway=GATEWAYS.get(link)) as fleet:  # type: ignore[arg-type]
         runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)

@@ -16,6 +16,7 @@ import pytest
 from common.bus.messages import PlanStep, Pose, Telemetry
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import AIRBORNE, Mode
+from services.executor.faults import FaultMonitor
 from services.executor.vehicle_controller import VehicleController
 from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
 from tests.support.closed_loop import Mocap, MocapNoise, Record, plan_for, reference_steps, run
@@ -150,6 +151,22 @@ def test_low_battery_in_the_air_lands_at_the_nearest_ground_node() -> None:
     ground_nodes = [s.pos for s in STEPS if s.kind != "air"]
     assert min(math.dist((sim.x, sim.y, sim.z), p) for p in ground_nodes) < 0.03
     assert not sim.airborne and not sim.truth().motors
+
+
+def test_a_voltage_not_measured_yet_is_not_a_low_battery() -> None:
+    """A gateway still connecting publishes 0 V (no log block yet): unknown, not empty."""
+    monitor = FaultMonitor(MODEL)
+
+    def telemetry(vbat: float, link_ok: bool, now: float) -> None:
+        monitor.on_telemetry(Telemetry(vid="cf1", t=now, gateway="sim", vbat=vbat, link_quality=0.0, sent=0,
+                                       dropped=0, cmd_rate_hz=0.0, link_ok=link_ok), now)
+
+    for k in range(30):
+        telemetry(0.0, False, 0.1 * k)
+    assert not monitor.low_battery(0.0, 3.0)
+    for k in range(30, 45):
+        telemetry(3.1, True, 0.1 * k)
+    assert monitor.low_battery(0.0, 4.4)
 
 
 def test_abort_lands_a_flying_vehicle_and_stops_a_driving_one() -> None:

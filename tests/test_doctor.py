@@ -1,8 +1,9 @@
 """`fleet doctor` (issue 17 item 5) run as a process against a simulated fleet brought up as `fleet
 demo` and the fault tests bring it up (compose.yaml's services as processes, the router in this
 process, the shipped access control): every check passes on the healthy fleet; a vehicle switched
-off (`fleet sim fault ... power_off`) fails its vehicle line; a body hidden from motion capture
-(`mocap_dropout`) fails its mocap line; both exit non-zero. The tests share one fleet, in order."""
+off (`fleet sim fault ... power_off`) fails its vehicle line, and a mission of it is refused before
+planning, naming it; a body hidden from motion capture (`mocap_dropout`) fails its mocap line; both
+exit non-zero. The tests share one fleet, in order."""
 
 from __future__ import annotations
 
@@ -22,8 +23,10 @@ from common.bus.pubsub import subscribe
 from common.bus.session import open_session
 from common.deploy.radios import simulated_radios
 from common.domain.scenario import read_scenario
+from services.mission.client import MissionTiming
 from services.mission.demo import LocalFleet, local_fleet
 from services.mission.doctor import Heard, Limits, Parking, check_clocks, check_mocap, check_vehicle
+from services.mission.runner import MissionRunner, MissionSpec
 
 REPO = Path(__file__).resolve().parents[1]
 VIDS = ("cf1", "cf2", "cf3", "cf4")
@@ -102,6 +105,29 @@ def test_a_switched_off_vehicle_fails_its_line(doctor: Doctor) -> None:
     assert all(checks[f"vehicle {v}"].startswith("PASS") for v in VIDS if v != "cf2"), out.stdout
     assert checks["mocap cf2"].startswith("PASS")  # switched off, it is still there to be seen
     assert "1 failed" in out.stdout
+
+
+@pytest.mark.timeout(60)
+def test_a_mission_of_a_switched_off_vehicle_is_refused_naming_it(doctor: Doctor) -> None:
+    """A vehicle whose gateway has no link knows neither its battery nor its state: the mission
+    waits `link_wait_s` for it, then refuses before planning (before this, its executor took the
+    unknown 0 V for a low battery and the mission failed in flight)."""
+    fleet = doctor.fleet
+    tasks = dict(read_scenario(doctor.scenario).tasks)
+    assert doctor.run("sim", "fault", "cf2", "power_off").returncode == 0
+    try:
+        asyncio.run(_until_link_lost(fleet, "cf2", 10.0))
+        spec = MissionSpec(map="town", tasks=tasks, timing=MissionTiming(link_wait_s=2.0))
+        runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
+        t = time.monotonic()
+        asyncio.run(runner.run())
+        waited = time.monotonic() - t
+    finally:
+        doctor.run("sim", "fault", "cf2", "power_on")
+    result = runner.result
+    assert result is not None and not result.ok and result.plan is None
+    assert result.reason.startswith("no radio link to cf2 (gateway radio0) after 2 s"), result.reason
+    assert 2.0 <= waited < 6.0
 
 
 @pytest.mark.timeout(60)

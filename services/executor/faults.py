@@ -84,7 +84,7 @@ class FaultMonitor:
     def on_telemetry(self, tel: Telemetry, now: float) -> None:
         self.last_telemetry = tel
         self._telemetry_at = now
-        if tel.vbat < self.params.vbat_low:
+        if 0.0 < tel.vbat < self.params.vbat_low:  # 0: not measured yet (no log block came)
             if self._vbat_low_since is None:
                 self._vbat_low_since = now
         else:

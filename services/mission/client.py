@@ -6,7 +6,8 @@ ask for, how to hand the answer out, when every vehicle has it and when the miss
 The skeleton, one short-lived service (`alive/mission/<id>`):
 
 1. fail fast when no executor or no planner is alive;
-2. `prepare` (a flying-car mission learns each vehicle's capabilities from its gateway), then query
+2. `prepare` (a flying-car mission waits for each vehicle's radio link and learns its capabilities
+   and battery from its gateway), then query
    `planner/plan` (the planner also publishes the plans it makes for a mission);
 3. hand the plans out and wait until the executors of every vehicle report them loaded;
 4. publish `MissionStart(t0)` `start_lead_s` ahead; plans and start are re-sent every `RESEND_S`
@@ -56,13 +57,16 @@ LAND_WAIT_S = 10.0
 @dataclass(frozen=True)
 class MissionTiming:
     """Timeouts shared by every mission: the executors' `ready_timeout_s` to report the plans
-    loaded, the planner's answer beyond the planning time limit, the start's lead, silence."""
+    loaded, the planner's answer beyond the planning time limit, the start's lead, silence, and
+    `link_wait_s` for the gateways' links to come up (a gateway still connecting: cflib's
+    connection is hundreds of round trips)."""
 
     start_lead_s: float = 2.0
     ready_timeout_s: float = 20.0
     planner_timeout_s: float = 10.0
     contact_timeout_s: float = 2.0
     abort_on_fault: bool = True
+    link_wait_s: float = 30.0
 
 
 class MissionClient(Service, Generic[R]):
@@ -86,8 +90,10 @@ class MissionClient(Service, Generic[R]):
         self.started = 0.0
 
     # ---- hooks ------------------------------------------------------------------------------------
-    async def prepare(self) -> None:
-        """Before the plan request: learn what the plan needs from the live fleet."""
+    async def prepare(self) -> str | None:
+        """Before the plan request: learn what the plan needs from the live fleet; why the mission
+        cannot start, if it cannot."""
+        return None
 
     def plan_request(self) -> PlanRequest:
         """What to ask the planner for (with this mission's id, so that it publishes the plans)."""
@@ -153,7 +159,9 @@ class MissionClient(Service, Generic[R]):
             return self.conclude(False, "no executor is alive: start executors (fleet executor / fleet up)")
         if not (await self.watch_alive("planner")).instances:
             return self.conclude(False, "no planner is alive: start one (fleet planner / fleet up)")
-        await self.prepare()
+        error = await self.prepare()
+        if error:
+            return self.conclude(False, error)
         wait = self.planner_wait_s()
         try:
             reply = await query(self.session, self.keys.planner_plan, self.plan_request(), PlanReply, timeout=wait)

@@ -198,19 +198,33 @@ class MissionRunner(MissionClient[MissionResult]):
         self.bystanders: dict[str, tuple[float, float]] = {}
         """Where the fleet's vehicles outside the mission stand (lifelong missions: not a free spot)."""
 
-    async def prepare(self) -> None:
+    async def prepare(self) -> str | None:
         """Each vehicle is what its gateway says (`Telemetry`): its capabilities (from the radios
         file: a stock Crazyflie's task is planned on flight edges only, whatever the scenario
         assumed) and its battery (issue 16: the charge used, read from its resting voltage, and the
         voltage go into eq. 4-6 through `Task.charge_used_ah` and `Task.voltage`). Waits up to
-        `CAPABILITIES_WAIT_S` for every vehicle's telemetry; a silent one keeps its task's."""
+        `CAPABILITIES_WAIT_S` for every vehicle's telemetry (a silent one keeps its task's), then up
+        to `MissionTiming.link_wait_s` for the link of each vehicle heard of to be up: before it is,
+        its gateway knows neither its battery nor its state, and the mission is refused."""
         seen: dict[str, Telemetry] = {}
         self.subscribe(self.keys.all_vehicles("telemetry"), Telemetry, lambda tel, _k: seen.__setitem__(tel.vid, tel))
         if self.spec.lifelong_s > 0:
             self.subscribe(self.keys.mocap_frame, PoseFrame, self._on_frame)
-        deadline = time.monotonic() + CAPABILITIES_WAIT_S
-        while not set(self.tasks) <= set(seen) and time.monotonic() < deadline:
+        start = time.monotonic()
+        while not set(self.tasks) <= set(seen) and time.monotonic() < start + CAPABILITIES_WAIT_S:
             await asyncio.sleep(0.05)
+
+        def linkless() -> list[str]:
+            return sorted(v for v in self.tasks if v in seen and not seen[v].link_ok)
+
+        if linkless() and self.print_progress:
+            print(f"waiting up to {self.timing.link_wait_s:.0f} s for the radio links of {', '.join(linkless())}",
+                  flush=True)
+        while linkless() and time.monotonic() < start + self.timing.link_wait_s:
+            await asyncio.sleep(0.1)
+        if down := linkless():
+            return "no radio link to " + ", ".join(f"{v} (gateway {seen[v].gateway})" for v in down) + \
+                f" after {self.timing.link_wait_s:.0f} s: vehicle switched off, out of range or still connecting"
         for vid, task in self.tasks.items():
             tel = seen.get(vid)
             if tel is None:
@@ -222,6 +236,7 @@ class MissionRunner(MissionClient[MissionResult]):
                 task = msgspec.structs.replace(task, charge_used_ah=round(charge_used_ah(tel.vbat, self.model), 6),
                                                voltage=round(tel.vbat, 3))
             self.tasks[vid] = task
+        return None
 
     def _on_frame(self, frame: PoseFrame, _key: str) -> None:
         for p in frame.poses:
