@@ -1,6 +1,7 @@
 """Lifelong operation through faults (issue 16): N simulated vehicles on city934 take random tasks
 for M minutes (`fleet mission run --lifelong`: every vehicle that arrives gets a random free parking
-spot, planned against the others' paths) while a fault is injected every `--fault-every` seconds
+spot, planned against the others' paths; a vehicle whose goal a fault put out of reach stops short
+and gets a new one) while a fault is injected every `--fault-every` seconds
 from another process with `fleet sim fault` (in turn: battery below reserve, a 1.5 s radio blackout,
 a 2 s motion-capture loss), on a vehicle in the air if there is one, else one driving. The fleet
 plans the others on around each faulted vehicle. Printed: tasks done and per minute, the faults
@@ -109,10 +110,11 @@ def main() -> None:
     ms = sorted(1e3 * t for t in result.replans)
     minutes = result.duration_s / 60
     print(format_table(
-        ["vehicles", "minutes", "tasks done", "tasks per minute", "faults", "vehicles left", "others stranded",
-         "replans", "replan ms median", "max", "contacts"],
+        ["vehicles", "minutes", "tasks done", "tasks per minute", "faults", "vehicles left", "stopped short",
+         "others not arrived", "replans", "replan ms median", "max", "contacts"],
         [[args.vehicles, f"{minutes:.1f}", result.tasks_done, f"{result.tasks_done / minutes:.1f}", len(injected),
-          len(left), sum(1 for v, r in result.vehicles.items() if v not in left and not r.arrived), len(ms),
+          len(left), len(runner.stranded), sum(1 for v, r in result.vehicles.items() if v not in left and not r.arrived),
+          len(ms),
           f"{ms[len(ms) // 2] if ms else 0:.0f}", f"{ms[-1] if ms else 0:.0f}", result.contacts]]))
     fig, (ax,) = new_figure()
     ax.plot([t / 60 for t, _ in done], [n for _, n in done])

@@ -83,6 +83,31 @@ def test_an_arrived_vehicle_gets_a_new_goal_while_the_others_move() -> None:
     assert validate_plan(reply.plan).ok
 
 
+def test_a_vehicle_whose_goal_a_fault_closed_stops_short_of_it_when_stranding_is_allowed() -> None:
+    """cf4 comes down on cf1's goal and rests there: cf1 cannot arrive. Without `strand` the replan
+    fails naming cf1; with it cf1 is given the nearest node it can still reach, the others keep
+    their goals, and the spliced plan is valid and keeps clear of the resting body."""
+    base = plan_of()
+    at = 1.0
+    goal = base.graph.nodes["EP8"].pos
+    sweeps = [Sweep("cf4", goal, goal, at, at, rest=True)]
+    failed = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+                               replan=Replan(base=base, at=at, left=["cf4"], sweeps=sweeps)))
+    assert not failed.ok and "could not place cf1" in failed.error, failed.error
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+                              replan=Replan(base=base, at=at, left=["cf4"], sweeps=sweeps, strand=True)))
+    assert reply.ok and reply.plan is not None, reply.error
+    plan = reply.plan
+    assert validate_plan(plan).ok
+    short = plan.tasks["cf1"].goal
+    assert short != "EP8" and plan.paths["cf1"][-1].node == short
+    assert {v: plan.tasks[v].goal for v in ("cf2", "cf3")} == {v: TASKS[v].goal for v in ("cf2", "cf3")}
+    end = plan.paths["cf1"][-1].t
+    for k in range(int((end + 5.0 - at) / 0.1)):
+        p = plan.position("cf1", at + 0.1 * k)
+        assert math.dist(p, goal) >= 2 * plan.model.radius - 1e-6
+
+
 def test_a_replan_the_battery_cannot_serve_names_the_vehicle() -> None:
     base = plan_of()
     # the battery, read again, holds less than it did: all the usable charge is used up

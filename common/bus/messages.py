@@ -330,13 +330,17 @@ class Replan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     `left` keeps its path up to the first node it reaches at or after `at` and is planned on from
     there to its goal (or its new goal in `goals`: a task added while the others move; a vehicle
     that arrived starts again from its goal); the vehicles in `left` are gone from the plan and
-    their bodies are `sweeps`. The answer's paths are whole (prefix + new suffix), in mission time."""
+    their bodies are `sweeps`. The answer's paths are whole (prefix + new suffix), in mission time.
+    With `strand`, a vehicle whose goal is out of reach is given the nearest one it can reach (its
+    switch node when on the ground: it stops there) instead of failing the replan; the answer's
+    tasks carry the goals it was given."""
 
     base: Plan
     at: float
     left: list[str] = []
     sweeps: list[Sweep] = []
     goals: dict[str, str] = {}
+    strand: bool = False
 
 
 class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -6,8 +6,9 @@ bodies in ground truth). Over when every vehicle arrived, or at the plan's makes
 A fault of one vehicle (issue 16; `on_fault="replan"`, the default) does not end the mission: the
 vehicle leaves it (its executor lands or stops it), and the planner plans the others on from
 `REPLAN_LEAD_S` ahead around where it comes to rest (`Replan`); the executors switch to the new
-paths without stopping. The mission then ends when every other vehicle arrived (not a success:
-a vehicle left). A fault the others cannot be planned around (the planner finds no plan, or does
+paths without stopping; a vehicle whose goal the fault put out of reach (a road closed by a
+vehicle that came down on it) stops at the nearest node it can reach (`Replan.strand`). The mission
+then ends when every other vehicle arrived (not a success: a vehicle left or stopped short). A fault the others cannot be planned around (the planner finds no plan, or does
 not answer in time), a fault that is not one vehicle's own (`stale_cmd_landing`, an executor's
 `aborted` after losing its router; a crash, a controller that failed) or `on_fault="abort"` ends
 it, landing every vehicle (`client.FAULT_EVENTS`).
@@ -188,6 +189,8 @@ class MissionRunner(MissionClient[MissionResult]):
         self.replans: list[float] = []
         """Planning time of each replan (s)."""
         self._replanning: asyncio.Task | None = None
+        self.stranded: dict[str, str] = {}
+        """Vehicles a replan gave a goal short of theirs (`Replan.strand`) -> which goal it was."""
         self.tasks_done = 0
         """Tasks finished: arrivals at a goal, the first ones and every added one."""
         self.tasks_added = 0
@@ -341,7 +344,8 @@ class MissionRunner(MissionClient[MissionResult]):
         at = time.time() - self.t0 + REPLAN_LEAD_S
         left = [v for v in self.left if v in self.plan.paths]  # those that left since the last replan
         req = PlanRequest(map=self.spec.map, tasks={}, planner="sipp", mu=self.spec.mu, time_limit=REPLAN_TIME_LIMIT_S,
-                          replan=Replan(base=self.plan, at=at, left=left, sweeps=self.sweeps, goals=goals or {}))
+                          replan=Replan(base=self.plan, at=at, left=left, sweeps=self.sweeps, goals=goals or {},
+                                        strand=True))
         started = time.perf_counter()
         try:
             reply = await query(self.session, self.keys.planner_plan, req, PlanReply, timeout=REPLAN_LEAD_S)
@@ -354,12 +358,21 @@ class MissionRunner(MissionClient[MissionResult]):
             return f"replanning failed: {reply.error}"
         if time.time() - self.t0 > at:
             return f"the replan came too late ({took:.2f} s)"
+        wanted = {v: (goals or {}).get(v, t.goal) for v, t in self.plan.tasks.items()}
+        short = {v: t.goal for v, t in reply.plan.tasks.items() if t.goal != wanted[v]}
+        if refused := sorted(set(short) & set(goals or {})):
+            return f"{', '.join(f'{wanted[v]!r}' for v in refused)} out of reach"
         self.replans.append(took)
         self.plan = reply.plan
+        for vid, node in short.items():
+            self.stranded.setdefault(vid, wanted[vid])
+            self.reports[vid].arrived = False
+            self.events.append(f"{vid}: {wanted[vid]!r} out of reach now: it stops at {node!r}")
         for vid, path in self.plan.paths.items():
             self.reports[vid].planned_s = path[-1].t
         for vid in goals or {}:
             self.reports[vid].arrived = False
+            self.stranded.pop(vid, None)
         self.hand_out(self.t0)
         why = f"around {', '.join(self.left)}" if left else f"for {', '.join(goals or {})}" if goals else "again"
         self.events.append(f"replanned {len(self.plan.paths)} vehicles {why} in {took:.2f} s (switch at {at:.1f} s)")
@@ -431,8 +444,9 @@ class MissionRunner(MissionClient[MissionResult]):
             return None
         if self._pending:
             return None
-        if self.left and all(r.arrived for v, r in self.reports.items() if v not in self.left):
-            return f"every other vehicle arrived; left: {'; '.join(self.left.values())}"
+        if (self.left or self.stranded) and all(r.arrived for v, r in self.reports.items() if v not in self.left):
+            short = "".join(f"; {v} stopped short of {g!r}" for v, g in self.stranded.items())
+            return f"every other vehicle arrived; left: {'; '.join(self.left.values()) or 'none'}{short}"
         if all(r.arrived for r in self.reports.values()):
             return ARRIVED
         plan = self.plan
@@ -472,7 +486,7 @@ class MissionRunner(MissionClient[MissionResult]):
             r.samples[where] += 1
         if state.arrived and not r.arrived and state.t >= self.t0 + r.planned_s - ARRIVAL_SLACK_S:
             r.arrived, r.arrival_s = True, state.t - self.t0
-            self.tasks_done += 1
+            self.tasks_done += state.vid not in self.stranded
 
     def progress_line(self, now: float) -> str:
         t = now - (self.t0 or now)

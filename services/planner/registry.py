@@ -76,7 +76,8 @@ def solve_replan(req: PlanRequest) -> PlanReply:
     result = replan_sipp(problem.graph, rp, base.mu, req.time_limit, req.seed)
     if not result.ok:
         return PlanReply(ok=False, error=f"no plan (could not place {result.failed_vehicle}): {result.error}")
-    tasks = {vid: msgspec.structs.replace(base.tasks[vid], goal=rp.goals.get(vid, base.tasks[vid].goal))
+    tasks = {vid: msgspec.structs.replace(base.tasks[vid], goal=result.paths[vid][-1].node
+                                          if vid in result.stranded else rp.goals.get(vid, base.tasks[vid].goal))
              for vid in result.paths}
     plan = to_plan(problem.graph, base.map, base.planner, base.mu, tasks, result)
     plan = msgspec.structs.replace(plan, cost=validate_plan(plan).cost)  # whole paths, priced by the validator

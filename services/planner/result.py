@@ -23,6 +23,8 @@ class PlanResult:
     mip_gap: float | None = None
     stats: dict[str, float] = field(default_factory=dict)
     priority: list[str] = field(default_factory=list)
+    stranded: dict[str, str] = field(default_factory=dict)
+    """Replanning: vehicles given a goal short of their own, and why theirs was out of reach."""
 
 
 def to_plan(graph: FleetGraph, map_name: str, planner: str, mu: float, tasks: dict[str, Task], result: PlanResult) -> Plan:

@@ -23,6 +23,12 @@ placed is promoted to the front and the others follow in their order, until the 
 are not closed for the vehicles planned later (as on open-endpoint maps): a vehicle whose switch node
 an earlier path crosses must leave it before, or is promoted (an order is never tried twice). The answer is whole paths (prefix +
 new suffix) that the validator checks like any plan.
+
+Stranding (`Replan.strand`): a vehicle whose goal is out of reach even first in the order (a road
+closed for ever by a vehicle that came down on it, its goal under a resting body) is given the
+nearest goal it can still reach instead, its switch node itself when that is on the ground (it
+stops there), and the orders start again; the answer names it (`PlanResult.stranded`). Without
+`strand` the replan fails, naming it.
 """
 
 from __future__ import annotations
@@ -44,6 +50,8 @@ from services.planner.sipp.safe_intervals import Reservations, carve
 from services.planner.sipp.search import SearchGraph, SearchTimeout, TimedPath, sipp
 
 INF = math.inf
+STRAND_CANDIDATES = 8
+"""How many ground nodes near a stranded vehicle are tried as its new goal."""
 TURN_ALLOWANCE_S = 2.0
 """s: a vehicle at rest on its goal leaves for a new goal this long after the switch time, time to
 turn in place towards its first edge (it parked facing the way it came: 180 deg at the pursuit's
@@ -81,12 +89,13 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
     order = sorted(legs, key=lambda leg: (leg.depart, leg.vid))
     seen = {tuple(leg.vid for leg in order)}
     tried = 0
+    stranded: dict[str, str] = {}
     while True:
         tried += 1
         outcome = _plan_order(graph, replan.sweeps, fixed, order, mu, deadline)
         if isinstance(outcome, dict):
             paths = {**fixed}
-            for leg in legs:
+            for leg in order:
                 suffix = outcome[leg.vid]
                 # the suffix starts where the prefix ends: at its last entry, or later (a vehicle at rest)
                 kept = leg.prefix[:-1] if leg.prefix[-1].t >= leg.depart else leg.prefix
@@ -94,13 +103,41 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
             cost = sum(p.cost for p in outcome.values())
             return PlanResult(ok=True, paths={v: paths[v] for v in replan.base.paths if v in paths}, cost=cost,
                               planning_time_s=time.perf_counter() - t0, stats={"orders": tried},
-                              priority=[leg.vid for leg in order])
+                              priority=[leg.vid for leg in order], stranded=stranded)
         vid, reason = outcome
-        order = [next(leg for leg in order if leg.vid == vid)] + [leg for leg in order if leg.vid != vid]
-        key = tuple(leg.vid for leg in order)
+        leg = next(leg for leg in order if leg.vid == vid)
+        key = tuple([vid] + [x.vid for x in order if x.vid != vid])
+        if key in seen and replan.strand and vid not in stranded and time.perf_counter() <= deadline:
+            # its goal is out of its reach even first in the order: it stops short (module doc)
+            taken = {x.goal for x in order} | {graph.index[p[-1].node] for p in fixed.values()}
+            leg = _stranded(graph, leg, mu, taken)
+            if leg is not None:
+                stranded[vid] = reason
+                order = [leg] + [x for x in order if x.vid != vid]
+                seen = {tuple(x.vid for x in order)}
+                continue
+        order = [leg] + [x for x in order if x.vid != vid]
         if key in seen or time.perf_counter() > deadline:
             return _failed(vid, f"{reason} after {tried} priority order{'s' if tried > 1 else ''}", t0)
         seen.add(key)
+
+
+def _stranded(graph: FleetGraph, leg: Leg, mu: float, taken: set[int]) -> Leg | None:
+    """`leg` with the nearest goal short of its own it can still reach (its switch node when that is
+    on the ground, else the ground nodes nearest to it in the horizontal, `STRAND_CANDIDATES` of
+    them), not another vehicle's goal and within its battery; None when there is none."""
+    here = leg.start
+    d = np.hypot(*(graph.pos[:, :2] - graph.pos[here, :2]).T)
+    ground = [n for n in np.argsort(d).tolist() if graph.kinds[n] != "air" and n != leg.goal
+              and (n == here or n not in taken)][:STRAND_CANDIDATES]
+    ctg = CostToGo.of(graph, mu, leg.task.capabilities)
+    ctg.prepare(ground)
+    for n in ground:
+        if ctg.h[n][here] < INF and ctg.q[n][here] <= leg.usable:
+            return Leg(leg.vid, leg.prefix, here, leg.depart, n, leg.usable,
+                       Task(start=leg.task.start, goal=graph.ids[n], capabilities=leg.task.capabilities,
+                            charge_used_ah=leg.task.charge_used_ah, voltage=leg.task.voltage))
+    return None
 
 
 def _split(graph: FleetGraph, replan: Replan) -> tuple[dict[str, list[PathEntry]], list[Leg]]:
