@@ -47,6 +47,7 @@ class Run:
     mode: str
     link: str
     ok: bool = False
+    reason: str = ""
     arrived: int = 0
     vehicles: int = 0
     contacts: int = 0
@@ -95,7 +96,7 @@ def fly(mode: str, link: str, run_dir: Path) -> Run:
     out = Run(mode, link, vehicles=len(tasks))
     if result is None or result.plan is None or runner.t0 is None:
         return out
-    out.ok, out.contacts = result.ok, result.contacts
+    out.ok, out.reason, out.contacts = result.ok, result.reason, result.contacts
     out.arrived = sum(r.arrived for r in result.vehicles.values())
     refs = {p.vid: Trajectory(p.steps) for p in vehicle_plans(result.plan, spec.mission, runner.t0).values()}
     last: dict[str, SimTruth] = {}
@@ -145,6 +146,8 @@ def main() -> None:
             for mode in args.modes.split(","):
                 run = fly(mode, link, Path(tmp) / f"{mode}-{link}" / "run")
                 print(format_table(HEADERS, [run.row()]).splitlines()[-1], flush=True)
+                if not run.ok:
+                    print(f"{mode}/{link}: {run.reason}", flush=True)
                 runs.append(run)
     print(format_table(HEADERS, [r.row() for r in runs]))
     print(f"figure: {figure(runs, args.out)}")

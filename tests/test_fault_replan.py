@@ -20,6 +20,8 @@ FAULTS = {
     "low_battery": SimFault(vid="cf1", kind="battery", charge_used_ah=MODEL.capacity_ah - 0.5 * MODEL.reserve_ah),
     "link_lost": SimFault(vid="cf1", kind="radio_blackout", duration_s=1.5),  # under the watchdog's 2 s cut
     "mocap_lost_2s": SimFault(vid="cf1", kind="mocap_dropout", duration_s=2.0),
+    # pushed off its plan: the tracking guard holds it hovering (issue 15), the others fly on around it
+    "tracking_hold": SimFault(vid="cf1", kind="gust", duration_s=0.5, gust=(5.0, 0.0)),
 }
 
 

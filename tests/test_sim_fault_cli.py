@@ -126,6 +126,21 @@ def test_fault_arguments() -> None:
     assert fault_from_args("cf1", "power_off", None, None).duration_s == 0.0
     assert fault_from_args("cf1", "battery", None, 0.2).charge_used_ah == 0.2
     for args in (("cf1", "battery", None, None), ("cf1", "power_on", 3.0, None), ("cf/1", "power_off", None, None),
-                 ("cf1", "radio_blackout", 0.0, None), ("cf1", "power_off", None, 0.1)):
-        with pytest.raises(Exception, match="VID|--duration|--charge-used"):
+                 ("cf1", "radio_blackout", 0.0, None), ("cf1", "power_off", None, 0.1), ("cf1", "gust", 1.0, None),
+                 ("cf1", "gust", None, None, (3.0, 0.0)), ("cf1", "power_off", 1.0, None, (3.0, 0.0)),
+                 ("cf1", "gust", 1.0, None, (30.0, 0.0))):
+        with pytest.raises(Exception, match="VID|--duration|--charge-used|--gust"):
             fault_from_args(*args)
+    assert fault_from_args("cf1", "gust", 0.5, None, (3.0, -1.0)).gust == (3.0, -1.0)
+
+
+def test_a_gust_pushes_a_flying_body_while_it_lasts_and_not_one_on_the_ground() -> None:
+    flying = SimFlyingCar("cf0", pos=(0.0, 0.0, 1.0), t=0.0)  # motors off: it falls for 0.45 s
+    parked = SimFlyingCar("cf1", t=0.0)
+    for car in (flying, parked):
+        car.push(4.0, 0.0, until=0.2)
+        car.step(0.4)
+    assert flying.airborne
+    assert flying.vx == pytest.approx(4.0 * 0.2, rel=0.1)  # drag takes a little
+    assert flying.x == pytest.approx(0.5 * 4.0 * 0.2**2 + 0.8 * 0.2, rel=0.1)
+    assert parked.x == 0.0

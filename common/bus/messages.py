@@ -265,7 +265,7 @@ class SimTruth(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     charge_used_ah: float = 0.0
 
 
-SimFaultKind = Literal["mocap_dropout", "radio_blackout", "battery", "power_off", "power_on"]
+SimFaultKind = Literal["mocap_dropout", "radio_blackout", "battery", "power_off", "power_on", "gust"]
 
 
 class SimFault(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -275,12 +275,14 @@ class SimFault(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     loses every packet to and from the vehicle for `duration_s`; `battery`: the simulated battery
     has used `charge_used_ah` from now on; `power_off`: the vehicle is switched off (nothing answers
     on the radio, motors off) for `duration_s`, or until a `power_on` if 0, then boots as from a
-    fresh power-on; `power_on`: switched on now (`fleet sim fault`)."""
+    fresh power-on; `power_on`: switched on now; `gust`: wind pushes the body horizontally with
+    `gust` (m/s^2, x and y in the world frame) for `duration_s` while it flies (`fleet sim fault`)."""
 
     vid: str
     kind: SimFaultKind
     duration_s: float = 0.0
     charge_used_ah: float = 0.0
+    gust: tuple[float, float] = (0.0, 0.0)
 
 
 class ServiceStats(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

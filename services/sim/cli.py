@@ -73,10 +73,13 @@ def _register_fault(ssub: argparse._SubParsersAction) -> None:
     p.add_argument("vid", metavar="VID", help="the simulated vehicle")
     p.add_argument("kind", metavar="KIND", choices=FAULT_KINDS,
                    help="mocap_dropout, radio_blackout (--duration S), battery (--charge-used AH), "
-                        "power_off (--duration S, 0 or none: until power_on), power_on")
+                        "power_off (--duration S, 0 or none: until power_on), power_on, "
+                        "gust (--duration S --gust AX AY: wind on the body in the air, m/s^2)")
     amount = p.add_mutually_exclusive_group()
     amount.add_argument("--duration", type=float, metavar="S", help="how long the fault lasts (s)")
     amount.add_argument("--charge-used", type=float, metavar="AH", help="battery: the charge used from now on (Ah)")
+    p.add_argument("--gust", type=float, nargs=2, metavar=("AX", "AY"),
+                   help="gust: the wind's horizontal acceleration on the body (m/s^2, world x and y)")
     p.add_argument("--wait", type=float, default=2.0, help="how long to wait for the simulator (s)")
     add_zenoh_args(p, default_instance="operator")
     p.set_defaults(handler=lazy_handler("services.sim.fault:cmd_fault"))

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import math
 import sys
 import time
 from dataclasses import dataclass
@@ -22,8 +23,10 @@ from common.bus.session import ZenohConfig, open_session
 from common.errors import InputError
 
 KINDS: tuple[SimFaultKind, ...] = get_args(SimFaultKind)
-TIMED = ("mocap_dropout", "radio_blackout")
+TIMED = ("mocap_dropout", "radio_blackout", "gust")
 """Kinds that need a positive `--duration`."""
+MAX_GUST = 9.81
+"""m/s^2: the strongest wind a `gust` may simulate (1 g sideways)."""
 WAIT_S = 2.0
 """How long to wait for the simulator's ground truth and its fault subscription."""
 
@@ -36,7 +39,8 @@ class Sent:
     sent: bool
 
 
-def fault_from_args(vid: str, kind: str, duration: float | None, charge_used: float | None) -> SimFault:
+def fault_from_args(vid: str, kind: str, duration: float | None, charge_used: float | None,
+                    gust: tuple[float, float] | None = None) -> SimFault:
     """The `SimFault` a command line asks for; InputError naming the option on bad input."""
     try:
         check_chunk(vid, "vehicle id")
@@ -58,6 +62,12 @@ def fault_from_args(vid: str, kind: str, duration: float | None, charge_used: fl
         raise InputError("--duration", "", f"{kind} needs a positive duration (s)")
     if kind == "power_on" and duration:
         raise InputError("--duration", "", "power_on takes none (it switches the vehicle on now)")
+    if (kind == "gust") != (gust is not None):
+        raise InputError("--gust", "", "gust needs --gust AX AY (m/s^2)" if kind == "gust" else f"only for gust, not {kind}")
+    if gust is not None:
+        if not all(math.isfinite(a) for a in gust) or math.hypot(*gust) > MAX_GUST:
+            raise InputError("--gust", "", f"{gust[0]:g} {gust[1]:g} m/s^2: at most {MAX_GUST:g} m/s^2, finite")
+        return SimFault(vid=vid, kind="gust", duration_s=duration or 0.0, gust=(gust[0], gust[1]))
     return SimFault(vid=vid, kind=kind, duration_s=duration or 0.0)  # type: ignore[arg-type]  # checked above
 
 
@@ -88,13 +98,15 @@ def describe(fault: SimFault) -> str:
         return f"{fault.vid}: battery at {fault.charge_used_ah:g} Ah used"
     if fault.kind == "power_on":
         return f"{fault.vid}: switched on (it boots)"
+    if fault.kind == "gust":
+        return f"{fault.vid}: gust of {fault.gust[0]:g}, {fault.gust[1]:g} m/s^2 for {fault.duration_s:g} s"
     if fault.kind == "power_off" and fault.duration_s == 0:
         return f"{fault.vid}: switched off until `fleet sim fault {fault.vid} power_on`"
     return f"{fault.vid}: {fault.kind} for {fault.duration_s:g} s"
 
 
 def cmd_fault(args: argparse.Namespace) -> int:
-    fault = fault_from_args(args.vid, args.kind, args.duration, args.charge_used)
+    fault = fault_from_args(args.vid, args.kind, args.duration, args.charge_used, args.gust)
     keys = keys_from_args(args)
     try:
         sent = asyncio.run(inject(zconfig_from_args(args), keys, fault, args.wait))

@@ -93,6 +93,12 @@ class SimFlyingCar:
         self._flight_t = -math.inf
         self._wheels: tuple[float, float] = (0.0, 0.0)
         self._wheels_t = -math.inf
+        self._gust: tuple[float, float, float] = (0.0, 0.0, -math.inf)
+
+    def push(self, ax: float, ay: float, until: float) -> None:
+        """Wind (a `gust` fault): a horizontal acceleration (m/s^2, world frame) on the body in
+        the air until `until` (simulator clock)."""
+        self._gust = (ax, ay, until)
 
     def apply(self, setpoint: Setpoint, now: float | None = None) -> None:
         """Take one setpoint as the Crazyflie would, received at `now` (simulator clock)."""
@@ -158,8 +164,11 @@ class SimFlyingCar:
         a = self.thrust / self.mass
         k = p.drag / self.mass
         # thrust along body z of R = Rz(yaw) Ry(pitch) Rx(roll)
-        self.vx += (a * (cy * sp * cr + sy * sr) - k * self.vx) * h
-        self.vy += (a * (sy * sp * cr - cy * sr) - k * self.vy) * h
+        gx, gy, until = self._gust
+        if self.t >= until:
+            gx = gy = 0.0
+        self.vx += (a * (cy * sp * cr + sy * sr) - k * self.vx + gx) * h
+        self.vy += (a * (sy * sp * cr - cy * sr) - k * self.vy + gy) * h
         self.vz += (a * cp * cr - G - k * self.vz) * h
         self.x += self.vx * h
         self.y += self.vy * h

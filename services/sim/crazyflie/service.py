@@ -126,6 +126,8 @@ class SimService(Service):
             cf.switch_off(time.time() + fault.duration_s if fault.duration_s > 0 else None)
         elif fault.kind == "power_on":
             cf.switch_on()
+        elif fault.kind == "gust":
+            cf.car.push(*fault.gust, time.time() + fault.duration_s)
         else:
             cf.car.charge_used_ah = fault.charge_used_ah
 
