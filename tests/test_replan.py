@@ -108,6 +108,26 @@ def test_a_vehicle_whose_goal_a_fault_closed_stops_short_of_it_when_stranding_is
         assert math.dist(p, goal) >= 2 * plan.model.radius - 1e-6
 
 
+def test_a_vehicle_whose_own_node_a_fault_closed_holds_there() -> None:
+    """cf4 comes down right next to where cf3 is arriving (its goal): cf3 can go nowhere, not even
+    stay by the search's rules (its node is closed). With `strand` it is held there, unplanned, and
+    the others are planned around it; without, the replan fails naming it."""
+    base = plan_of()
+    path = base.paths["cf3"]
+    at = path[-1].t - 0.5  # cf3 is on its last step into its goal
+    goal = base.graph.nodes[path[-1].node].pos
+    sweeps = [Sweep("cf4", goal, goal, at, at, rest=True)]
+    failed = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+                               replan=Replan(base=base, at=at, left=["cf4"], sweeps=sweeps)))
+    assert not failed.ok and "could not place cf3" in failed.error, failed.error
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+                              replan=Replan(base=base, at=at, left=["cf4"], sweeps=sweeps, strand=True)))
+    assert reply.ok and reply.plan is not None, reply.error
+    assert reply.plan.paths["cf3"] == path  # it arrives and stays, as planned
+    assert reply.plan.tasks["cf3"].goal == TASKS["cf3"].goal
+    assert validate_plan(reply.plan).ok
+
+
 def test_a_replan_the_battery_cannot_serve_names_the_vehicle() -> None:
     base = plan_of()
     # the battery, read again, holds less than it did: all the usable charge is used up

@@ -399,7 +399,7 @@ class VehicleController:
         """Parked after a mission, with a new plan whose drive starts within `PRE_TURN_S`: turn in
         place to face it (it parked facing the way it came, and would otherwise turn on the plan's
         time and fall behind). Only then: the planner allows the turn's time there
-        (`replan.TURN_ALLOWANCE_S`), and a whole fleet turning at a mission's start would crowd the
+        (`replanning.TURN_ALLOWANCE_S`), and a whole fleet turning at a mission's start would crowd the
         radios' serialised wheel commands."""
         traj = self._active
         assert traj is not None

@@ -27,22 +27,26 @@ new suffix) that the validator checks like any plan.
 Stranding (`Replan.strand`): a vehicle whose goal is out of reach even first in the order (a road
 closed for ever by a vehicle that came down on it, its goal under a resting body) is given the
 nearest goal it can still reach instead, its switch node itself when that is on the ground (it
-stops there), and the orders start again; the answer names it (`PlanResult.stranded`). Without
-`strand` the replan fails, naming it.
+stops there), and the orders start again; the answer names it (`PlanResult.stranded`). One that
+cannot reach any of those either (its own node is closed: a vehicle came down next to it) and stops
+on the ground is held where it stops, unplanned (`Leg.hold`), and the others are planned around
+it. Without `strand` the replan fails, naming it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
-from dataclasses import dataclass
 from itertools import pairwise
 
+import msgspec
 import numpy as np
 
 from common.bus.messages import Replan, Sweep
 from common.domain.planfile import PathEntry, Task
 from services.planner.graph.fleet_graph import FleetGraph
+from services.planner.replanning import Leg, failed, split, touched_by_segment
 from services.planner.result import PlanResult, battery_shortfall
 from services.planner.sipp.heuristic import CostToGo
 from services.planner.sipp.planner import path_entries
@@ -52,24 +56,6 @@ from services.planner.sipp.search import SearchGraph, SearchTimeout, TimedPath, 
 INF = math.inf
 STRAND_CANDIDATES = 8
 """How many ground nodes near a stranded vehicle are tried as its new goal."""
-TURN_ALLOWANCE_S = 2.0
-"""s: a vehicle at rest on its goal leaves for a new goal this long after the switch time, time to
-turn in place towards its first edge (it parked facing the way it came: 180 deg at the pursuit's
-3 rad/s turn rate, `services/executor/pure_pursuit.py`)."""
-
-
-@dataclass(frozen=True)
-class Leg:
-    """A remaining vehicle to plan: its prefix, the node and time it is planned from, its goal and
-    the charge its battery still allows after the prefix (planner units, eq. 6)."""
-
-    vid: str
-    prefix: list[PathEntry]
-    start: int
-    depart: float
-    goal: int
-    usable: float
-    task: Task
 
 
 def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float, seed: int = 0) -> PlanResult:
@@ -77,19 +63,20 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
     it could not place."""
     t0 = time.perf_counter()
     deadline = t0 + time_limit
-    fixed, legs = _split(graph, replan)
+    fixed, legs = split(graph, replan)
     for caps in {leg.task.capabilities for leg in legs}:  # one batched Dijkstra per kind of vehicle
         CostToGo.of(graph, mu, caps).prepare(leg.goal for leg in legs if leg.task.capabilities == caps)
     for leg in legs:
         ctg = CostToGo.of(graph, mu, leg.task.capabilities)
         if ctg.h[leg.goal][leg.start] == INF:
-            return _failed(leg.vid, f"no route from {leg.task.start!r} to {leg.task.goal!r}", t0)
+            return failed(leg.vid, f"no route from {leg.task.start!r} to {leg.task.goal!r}", t0)
         if ctg.q[leg.goal][leg.start] > leg.usable:
-            return _failed(leg.vid, battery_shortfall(leg.task, ctg.q[leg.goal][leg.start], leg.usable), t0)
+            return failed(leg.vid, battery_shortfall(leg.task, ctg.q[leg.goal][leg.start], leg.usable), t0)
     order = sorted(legs, key=lambda leg: (leg.depart, leg.vid))
     seen = {tuple(leg.vid for leg in order)}
     tried = 0
     stranded: dict[str, str] = {}
+    held: set[str] = set()
     while True:
         tried += 1
         outcome = _plan_order(graph, replan.sweeps, fixed, order, mu, deadline)
@@ -107,18 +94,22 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
         vid, reason = outcome
         leg = next(leg for leg in order if leg.vid == vid)
         key = tuple([vid] + [x.vid for x in order if x.vid != vid])
-        if key in seen and replan.strand and vid not in stranded and time.perf_counter() <= deadline:
+        if key in seen and replan.strand and vid not in held and time.perf_counter() <= deadline:
             # its goal is out of its reach even first in the order: it stops short (module doc)
             taken = {x.goal for x in order} | {graph.index[p[-1].node] for p in fixed.values()}
-            leg = _stranded(graph, leg, mu, taken)
-            if leg is not None:
-                stranded[vid] = reason
-                order = [leg] + [x for x in order if x.vid != vid]
+            short = None if vid in stranded else _stranded(graph, leg, mu, taken)
+            if short is None and graph.kinds[leg.start] != "air":
+                short = dataclasses.replace(leg, goal=leg.start, hold=True,
+                                            task=msgspec.structs.replace(leg.task, goal=leg.task.start))
+                held.add(vid)
+            if short is not None:
+                stranded.setdefault(vid, reason)
+                order = [short] + [x for x in order if x.vid != vid]
                 seen = {tuple(x.vid for x in order)}
                 continue
         order = [leg] + [x for x in order if x.vid != vid]
         if key in seen or time.perf_counter() > deadline:
-            return _failed(vid, f"{reason} after {tried} priority order{'s' if tried > 1 else ''}", t0)
+            return failed(vid, f"{reason} after {tried} priority order{'s' if tried > 1 else ''}", t0)
         seen.add(key)
 
 
@@ -140,41 +131,6 @@ def _stranded(graph: FleetGraph, leg: Leg, mu: float, taken: set[int]) -> Leg | 
     return None
 
 
-def _split(graph: FleetGraph, replan: Replan) -> tuple[dict[str, list[PathEntry]], list[Leg]]:
-    """The vehicles that stay as they are (resting at their goals by `at`) and those planned on."""
-    base, at, left = replan.base, replan.at, set(replan.left)
-    fixed: dict[str, list[PathEntry]] = {}
-    legs: list[Leg] = []
-    for vid, path in base.paths.items():
-        if vid in left:
-            continue
-        task = base.tasks[vid]
-        goal = replan.goals.get(vid, task.goal)
-        if path[-1].t <= at:
-            if goal == path[-1].node:
-                fixed[vid] = path
-                continue
-            prefix, depart = path, at + TURN_ALLOWANCE_S
-        else:
-            k = next(i for i, e in enumerate(path) if e.t >= at)
-            prefix, depart = path[:k + 1], path[k].t
-        usable = task.usable_ah(graph.model) - prefix_charge(graph, prefix)
-        legs.append(Leg(vid, list(prefix), graph.index[prefix[-1].node], depart, graph.index[goal], usable,
-                        Task(start=prefix[-1].node, goal=goal, capabilities=task.capabilities,
-                             charge_used_ah=task.charge_used_ah, voltage=task.voltage)))
-    return fixed, legs
-
-
-def prefix_charge(graph: FleetGraph, entries: list[PathEntry]) -> float:
-    """Eq. 4-5 over a path's entries: each traversal's charge and each wait at its node's rate."""
-    rate = graph.wait_charge_rate()
-    total = 0.0
-    for a, b in pairwise(entries):
-        u, v = graph.index[a.node], graph.index[b.node]
-        total += float(rate[u]) * (b.t - a.t) if u == v else float(graph.charge[graph.edge_index[(u, v)]])
-    return total
-
-
 def _plan_order(graph: FleetGraph, sweeps: list[Sweep], fixed: dict[str, list[PathEntry]], order: list[Leg],
                 mu: float, deadline: float) -> dict[str, TimedPath] | tuple[str, str]:
     res = Reservations(graph)
@@ -189,11 +145,15 @@ def _plan_order(graph: FleetGraph, sweeps: list[Sweep], fixed: dict[str, list[Pa
     for leg in order:
         ctg = CostToGo.of(graph, mu, leg.task.capabilities)
         where = f"{graph.ids[leg.start]!r} at {leg.depart:.1f} s -> {graph.ids[leg.goal]!r}"
-        try:
-            path = sipp(SearchGraph.of(graph, mu, leg.task.capabilities), res, leg.start, leg.goal, ctg.h[leg.goal],
-                        ctg.q[leg.goal], leg.usable, deadline, t_start=leg.depart)
-        except SearchTimeout:
-            return leg.vid, f"time limit reached while planning {where}"
+        path: TimedPath | None
+        if leg.hold:  # it stays where it stops, whatever closed that node
+            path = TimedPath([leg.start], [leg.depart], [INF], [], 0.0, 0.0)
+        else:
+            try:
+                path = sipp(SearchGraph.of(graph, mu, leg.task.capabilities), res, leg.start, leg.goal,
+                            ctg.h[leg.goal], ctg.q[leg.goal], leg.usable, deadline, t_start=leg.depart)
+            except SearchTimeout:
+                return leg.vid, f"time limit reached while planning {where}"
         if path is None:
             return leg.vid, f"no collision-free path {where} within the battery ({len(out)} vehicles placed)"
         if len(leg.prefix) > 1:  # its last step into its switch node, now that it is placed
@@ -234,34 +194,3 @@ def block_sweep(res: Reservations, graph: FleetGraph, sweep: Sweep) -> None:
         carve(res.edge_start[e], res.edge_end[e], sweep.t0 - float(d[e]), end)
 
 
-def touched_by_segment(graph: FleetGraph, p0: tuple[float, float, float], p1: tuple[float, float, float],
-                       extra: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of the nodes and edges whose bodies (cylinders of the graph's envelope) could touch a
-    body anywhere on the segment p0 -> p1, or within `extra` m of it."""
-    r, h = graph.model.radius, graph.model.height
-    step = r / 4
-    a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
-    k = max(2, int(np.ceil(np.linalg.norm(b - a) / step)) + 1)
-    seg = a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)  # (K, 3)
-    reach = 2 * r + step + extra
-
-    def touch(points: np.ndarray) -> np.ndarray:  # (..., 3) -> (...,) whether any sample touches
-        d = points[..., None, :] - seg
-        return ((np.hypot(d[..., 0], d[..., 1]) < reach) & (np.abs(d[..., 2]) < h + step + extra)).any(axis=-1)
-
-    pos = np.asarray(graph.pos, dtype=float)
-    nodes = np.flatnonzero(touch(pos))
-    tail, head = pos[graph.edges[:, 0]], pos[graph.edges[:, 1]]
-    length = np.linalg.norm(head - tail, axis=1)
-    m = max(2, int(np.ceil(length.max(initial=0.0) / step)) + 1)
-    f = np.linspace(0.0, 1.0, m)
-    samples = tail[:, None, :] + f[None, :, None] * (head - tail)[:, None, :]  # (E, M, 3)
-    # only edges near the segment's bounding box are sampled finely
-    lo, hi = seg.min(axis=0) - reach - h, seg.max(axis=0) + reach + h
-    near = np.flatnonzero(((np.minimum(tail, head) <= hi) & (np.maximum(tail, head) >= lo)).all(axis=1))
-    edges = near[touch(samples[near]).any(axis=1)] if len(near) else near
-    return nodes, edges
-
-
-def _failed(vid: str, reason: str, t0: float) -> PlanResult:
-    return PlanResult(ok=False, error=f"{vid}: {reason}", failed_vehicle=vid, planning_time_s=time.perf_counter() - t0)

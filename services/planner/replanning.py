@@ -1,0 +1,107 @@
+"""What every replanner shares (issue 16; `Replan`, `services/planner/sipp/replan.py` and
+`services/planner/ilp/replan.py`): which vehicles stay as they are and which are planned on from
+where (their *prefix*: the path up to the first node at or after the switch time, flown unchanged),
+what their batteries still allow after it, and which nodes and edges a body that left could touch.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from itertools import pairwise
+
+import numpy as np
+
+from common.bus.messages import Replan
+from common.domain.planfile import PathEntry, Task
+from services.planner.graph.fleet_graph import FleetGraph
+from services.planner.result import PlanResult
+
+TURN_ALLOWANCE_S = 2.0
+"""s: a vehicle at rest on its goal leaves for a new goal this long after the switch time, time to
+turn in place towards its first edge (it parked facing the way it came: 180 deg at the pursuit's
+3 rad/s turn rate, `services/executor/pure_pursuit.py`)."""
+
+
+@dataclass(frozen=True)
+class Leg:
+    """A remaining vehicle to plan: its prefix, the node and time it is planned from, its goal and
+    the charge its battery still allows after the prefix (planner units, eq. 6); `hold`: it stays
+    at `start` from `depart` on, unplanned (a stranded vehicle with nowhere to go)."""
+
+    vid: str
+    prefix: list[PathEntry]
+    start: int
+    depart: float
+    goal: int
+    usable: float
+    task: Task
+    hold: bool = False
+
+
+def split(graph: FleetGraph, replan: Replan) -> tuple[dict[str, list[PathEntry]], list[Leg]]:
+    """The vehicles that stay as they are (resting at their goals by `at`) and those planned on."""
+    base, at, left = replan.base, replan.at, set(replan.left)
+    fixed: dict[str, list[PathEntry]] = {}
+    legs: list[Leg] = []
+    for vid, path in base.paths.items():
+        if vid in left:
+            continue
+        task = base.tasks[vid]
+        goal = replan.goals.get(vid, task.goal)
+        if path[-1].t <= at:
+            if goal == path[-1].node:
+                fixed[vid] = path
+                continue
+            prefix, depart = path, at + TURN_ALLOWANCE_S
+        else:
+            k = next(i for i, e in enumerate(path) if e.t >= at)
+            prefix, depart = path[:k + 1], path[k].t
+        usable = task.usable_ah(graph.model) - prefix_charge(graph, prefix)
+        legs.append(Leg(vid, list(prefix), graph.index[prefix[-1].node], depart, graph.index[goal], usable,
+                        Task(start=prefix[-1].node, goal=goal, capabilities=task.capabilities,
+                             charge_used_ah=task.charge_used_ah, voltage=task.voltage)))
+    return fixed, legs
+
+
+def prefix_charge(graph: FleetGraph, entries: list[PathEntry]) -> float:
+    """Eq. 4-5 over a path's entries: each traversal's charge and each wait at its node's rate."""
+    rate = graph.wait_charge_rate()
+    total = 0.0
+    for a, b in pairwise(entries):
+        u, v = graph.index[a.node], graph.index[b.node]
+        total += float(rate[u]) * (b.t - a.t) if u == v else float(graph.charge[graph.edge_index[(u, v)]])
+    return total
+
+
+def touched_by_segment(graph: FleetGraph, p0: tuple[float, float, float], p1: tuple[float, float, float],
+                       extra: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the nodes and edges whose bodies (cylinders of the graph's envelope) could touch a
+    body anywhere on the segment p0 -> p1, or within `extra` m of it."""
+    r, h = graph.model.radius, graph.model.height
+    step = r / 4
+    a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
+    k = max(2, int(np.ceil(np.linalg.norm(b - a) / step)) + 1)
+    seg = a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)  # (K, 3)
+    reach = 2 * r + step + extra
+
+    def touch(points: np.ndarray) -> np.ndarray:  # (..., 3) -> (...,) whether any sample touches
+        d = points[..., None, :] - seg
+        return ((np.hypot(d[..., 0], d[..., 1]) < reach) & (np.abs(d[..., 2]) < h + step + extra)).any(axis=-1)
+
+    pos = np.asarray(graph.pos, dtype=float)
+    nodes = np.flatnonzero(touch(pos))
+    tail, head = pos[graph.edges[:, 0]], pos[graph.edges[:, 1]]
+    length = np.linalg.norm(head - tail, axis=1)
+    m = max(2, int(np.ceil(length.max(initial=0.0) / step)) + 1)
+    f = np.linspace(0.0, 1.0, m)
+    samples = tail[:, None, :] + f[None, :, None] * (head - tail)[:, None, :]  # (E, M, 3)
+    # only edges near the segment's bounding box are sampled finely
+    lo, hi = seg.min(axis=0) - reach - h, seg.max(axis=0) + reach + h
+    near = np.flatnonzero(((np.minimum(tail, head) <= hi) & (np.maximum(tail, head) >= lo)).all(axis=1))
+    edges = near[touch(samples[near]).any(axis=1)] if len(near) else near
+    return nodes, edges
+
+
+def failed(vid: str, reason: str, t0: float) -> PlanResult:
+    return PlanResult(ok=False, error=f"{vid}: {reason}", failed_vehicle=vid, planning_time_s=time.perf_counter() - t0)
