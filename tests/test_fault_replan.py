@@ -26,9 +26,10 @@ FAULTS = {
 
 
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize("fault", list(FAULTS))
-def test_one_vehicles_fault_leaves_the_others_flying_to_their_goals(tmp_path, fault: str) -> None:
-    spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
+@pytest.mark.parametrize("fault,planner", [(f, "sipp") for f in FAULTS] + [("low_battery", "ilp")])
+def test_one_vehicles_fault_leaves_the_others_flying_to_their_goals(tmp_path, fault: str, planner: str) -> None:
+    """With SIPP, and once with the ILP planning the mission and planning it on (issue 16)."""
+    spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner=planner, replanner=planner, time_limit=20)
     marks: dict[str, float] = {}
 
     async def scenario(watch: Watch, runner: MissionRunner) -> None:
@@ -37,11 +38,12 @@ def test_one_vehicles_fault_leaves_the_others_flying_to_their_goals(tmp_path, fa
         await asyncio.sleep(1.0)  # cruising: the setpoint the firmware keeps through a blackout is about the hover's
         marks["fault"] = watch.inject(FAULTS[fault])
 
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet=f"replan{fault[:4]}") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet=f"replan{fault[:4]}{planner}") as fleet:
         result, watch = fly(fleet, spec, scenario)
 
     assert "cf1" in result.reason and "every other vehicle arrived" in result.reason, result.reason
     assert result.replans, result.events
+    assert any(e.startswith("replanned") and e.endswith(f"{planner})") for e in result.events), result.events
     # the faulted vehicle came down softly and rests on the ground, motors off
     assert watch.at_rest_on_ground("cf1"), watch.truth["cf1"][-1]
     assert watch.hardest_touchdown("cf1") < 0.7

@@ -38,17 +38,21 @@ def airborne_at(plan: Plan, vid: str) -> float:
     return 0.5 * (air[0] + air[-1])
 
 
-def test_the_others_are_planned_on_around_a_vehicle_landing_after_a_fault() -> None:
-    base = plan_of()
+@pytest.mark.parametrize("planner", ["sipp", "ilp"])
+def test_the_others_are_planned_on_around_a_vehicle_landing_after_a_fault(planner: str) -> None:
+    """Both planners replan from the current state: mid-edge, in the air, waiting (the ILP on its
+    own time steps, from the node each vehicle is at on the first step after the switch time)."""
+    base = plan_of(planner)
     at = airborne_at(base, "cf2")
     here = base.position("cf2", at)
     below = (here[0], here[1], 0.0)
     sweeps = [Sweep("cf2", here, below, at, at + 4.0, rest=True)]
     t = time.perf_counter()
-    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, planner=planner,
                               replan=Replan(base=base, at=at + 1.0, left=["cf2"], sweeps=sweeps)))
     took = time.perf_counter() - t
     assert reply.ok and reply.plan is not None, reply.error
+    assert reply.planner == planner
     plan = reply.plan
     assert set(plan.paths) == {"cf1", "cf3", "cf4"}
     report = validate_plan(plan)
@@ -66,7 +70,12 @@ def test_the_others_are_planned_on_around_a_vehicle_landing_after_a_fault() -> N
             horizontal = math.hypot(p[0] - here[0], p[1] - here[1])
             if z_lo - plan.model.height < p[2] < here[2] + plan.model.height:
                 assert horizontal >= 2 * plan.model.radius - 1e-6, (vid, s, p)
-    print(f"replanned 3 vehicles in {1e3 * took:.0f} ms")
+    print(f"{planner}: replanned 3 vehicles in {1e3 * took:.0f} ms")
+    if planner == "ilp":  # optimal on its network: no dearer than SIPP's replan of the same state
+        sipp = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+                                 replan=Replan(base=base, at=at + 1.0, left=["cf2"], sweeps=sweeps)))
+        assert sipp.ok and sipp.plan is not None and sipp.planner == "sipp"
+        assert validate_plan(plan).cost <= validate_plan(sipp.plan).cost * (1 + 1e-6)
 
 
 def test_an_arrived_vehicle_gets_a_new_goal_while_the_others_move() -> None:
@@ -146,12 +155,31 @@ def test_a_replan_naming_an_unknown_vehicle_or_node_is_refused() -> None:
         assert not reply.ok and what in reply.error, reply.error
 
 
-@pytest.mark.parametrize("planner", ["ilp"])
-def test_a_plan_of_the_ilp_is_replanned_on_its_graph(planner: str) -> None:
-    base = plan_of(planner)
+@pytest.mark.parametrize("replanner", ["sipp", "ilp"])
+def test_a_plan_of_the_ilp_is_replanned_on_its_graph_twice(replanner: str) -> None:
+    """With SIPP, or with the ILP again (its answer stays on its time steps: it can be replanned
+    again by the ILP: a vehicle that arrived gets a new goal while the others move)."""
+    base = plan_of("ilp")
     at = airborne_at(base, "cf1")
     here = base.position("cf1", at)
-    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, replan=Replan(
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, planner=replanner, replan=Replan(
         base=base, at=at + 1.0, left=["cf1"], sweeps=[Sweep("cf1", here, (here[0], here[1], 0.0), at, at + 4.0, True)])))
     assert reply.ok and reply.plan is not None, reply.error
-    assert validate_plan(reply.plan).ok
+    assert validate_plan(reply.plan).ok and reply.planner == replanner
+    first = reply.plan
+    done = first.paths["cf3"][-1].t
+    again = solve(PlanRequest(map="town", tasks={}, time_limit=10, planner=replanner,
+                              replan=Replan(base=first, at=done + 0.3, goals={"cf3": "WP7"})))
+    if replanner == "sipp":
+        assert again.ok, again.error
+    else:  # the ILP plans on its steps only
+        assert again.ok and again.planner == "ilp", again.error
+        assert all(abs(e.t / first.dt - round(e.t / first.dt)) < 1e-6 for p in again.plan.paths.values() for e in p)
+    assert again.plan is not None and again.plan.paths["cf3"][-1].node == "WP7"
+    assert validate_plan(again.plan).ok
+
+
+def test_the_ilp_does_not_replan_a_plan_off_its_time_steps() -> None:
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, planner="ilp",
+                              replan=Replan(base=plan_of(), at=1.0, goals={"cf3": "WP7"})))
+    assert not reply.ok and "replan with sipp" in reply.error, reply.error

@@ -348,7 +348,8 @@ class Replan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Query payload of `planner/plan`. `map` is a shipped map name or a path readable by the planner.
     A team request (planner "collab") gives `team` and no `tasks`; `map` is a collab map. A `replan`
-    request plans a running mission on (its `map` and `planner` must be the base plan's)."""
+    request plans a running mission on (its `map` must be the base plan's; `planner` is the replanner:
+    sipp, or ilp for a plan the ILP made)."""
 
     map: str
     tasks: dict[str, Task]
@@ -362,10 +363,13 @@ class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 
 class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """`planner`: which planner made the plan (a replan's: the ILP, or SIPP after it found none)."""
+
     ok: bool
     error: str = ""
     plan: Plan | None = None
     team_plan: TeamPlan | None = None
+    planner: str = ""
 
 
 class GraphRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -29,6 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--keep-going", action="store_true", help="do not abort the mission on a vehicle fault")
     p.add_argument("--on-fault", choices=["replan", "abort"], default="replan",
                    help="one vehicle's fault: plan the others on around it (default), or abort the mission")
+    p.add_argument("--replanner", choices=["sipp", "ilp"], default="sipp",
+                   help="who plans the others on after a fault or a new task: sipp (fast), or ilp (with "
+                        "--planner ilp; sipp takes over when the ILP finds no plan within the replan's time)")
     p.add_argument("--lifelong", action="store_true",
                    help="keep giving every vehicle that arrives a random free parking spot for --minutes")
     p.add_argument("--minutes", type=float, default=5.0, help="with --lifelong: how long to keep adding tasks")
@@ -106,10 +109,12 @@ def spec_from_args(args: argparse.Namespace):
     extra = {"mission": args.id} if args.id else {}
     if args.lifelong and args.minutes <= 0:
         raise InputError("fleet mission run", "--minutes", f"{args.minutes:g}: must be positive")
+    if args.replanner == "ilp" and args.planner != "ilp":
+        raise InputError("fleet mission run", "--replanner", "ilp replans the ILP's plans: give --planner ilp too")
     return MissionSpec(map=map_name, tasks=dict(scen.tasks), planner=args.planner, mu=args.mu,
                        time_limit=args.time_limit, timing=MissionTiming(abort_on_fault=not args.keep_going),
                        on_fault=args.on_fault, lifelong_s=60.0 * args.minutes if args.lifelong else 0.0,
-                       seed=args.seed, hover=args.hover, **extra)
+                       seed=args.seed, replanner=args.replanner, hover=args.hover, **extra)
 
 
 def cmd_mission_add(args: argparse.Namespace) -> int:

@@ -64,6 +64,9 @@ class MissionSpec:
     """Lifelong operation (issue 16): for this long, every vehicle that arrives gets a random new goal
     (a free parking spot), planned against the others' paths; then the last tasks are flown out."""
     seed: int = 0
+    replanner: Literal["sipp", "ilp"] = "sipp"
+    """Who plans the mission on after a fault or a new task: SIPP (fast), or the ILP where its time
+    limit allows (a mission the ILP planned; SIPP takes over when it finds no plan in time)."""
     hover: bool = False
     """A task may end at an air node (issue 19: single-vehicle take-off, go to, land): the vehicle
     hovers there until given another goal (`add_task`), and the mission has no time limit while a
@@ -343,7 +346,8 @@ class MissionRunner(MissionClient[MissionResult]):
             return "the mission has not started"
         at = time.time() - self.t0 + REPLAN_LEAD_S
         left = [v for v in self.left if v in self.plan.paths]  # those that left since the last replan
-        req = PlanRequest(map=self.spec.map, tasks={}, planner="sipp", mu=self.spec.mu, time_limit=REPLAN_TIME_LIMIT_S,
+        req = PlanRequest(map=self.spec.map, tasks={}, planner=self.spec.replanner, mu=self.spec.mu,
+                          time_limit=REPLAN_TIME_LIMIT_S,
                           replan=Replan(base=self.plan, at=at, left=left, sweeps=self.sweeps, goals=goals or {},
                                         strand=True))
         started = time.perf_counter()
@@ -375,7 +379,8 @@ class MissionRunner(MissionClient[MissionResult]):
             self.stranded.pop(vid, None)
         self.hand_out(self.t0)
         why = f"around {', '.join(self.left)}" if left else f"for {', '.join(goals or {})}" if goals else "again"
-        self.events.append(f"replanned {len(self.plan.paths)} vehicles {why} in {took:.2f} s (switch at {at:.1f} s)")
+        self.events.append(f"replanned {len(self.plan.paths)} vehicles {why} in {took:.2f} s (switch at {at:.1f} s, "
+                           f"{reply.planner})")
         return None
 
     async def add_task(self, req: TaskAdd) -> TaskAddReply:

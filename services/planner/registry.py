@@ -5,6 +5,7 @@ ground-air team (`services/planner/collab/request.py`)."""
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from importlib import import_module
@@ -17,6 +18,8 @@ from common.errors import InputError
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.maps.loading import GraphProblem, problem_from_request
 from services.planner.result import PlanResult, to_plan
+
+log = logging.getLogger(__name__)
 
 Solver = Callable[[PlanRequest], PlanReply]
 GraphPlanner = Callable[[FleetGraph, dict[str, Task], float, float, int], PlanResult]
@@ -54,15 +57,31 @@ def solve(req: PlanRequest) -> PlanReply:
     return solver(req)
 
 
+REPLANNERS: dict[str, str] = {
+    "sipp": "services.planner.sipp.replan:replan_sipp",
+    "ilp": "services.planner.ilp.replan:replan_ilp",
+}
+"""The planners that plan a running mission on (`Replan`), by the name a replan request gives."""
+ILP_SHARE = 0.5
+"""Of a replan's time limit, what the ILP may take; SIPP plans on in the rest if it found no plan."""
+
+
 def solve_replan(req: PlanRequest) -> PlanReply:
-    """Plan a running mission on (`Replan`, issue 16) with SIPP on its base plan's graph; the
-    spliced plan is validated as a whole (prefixes + new suffixes + the vehicles at rest)."""
-    from services.planner.sipp.replan import replan_sipp
+    """Plan a running mission on (`Replan`, issue 16) on its base plan's graph with the planner the
+    request names: SIPP (fast; the default), or the ILP where its time limit allows (on a plan on
+    its time steps; SIPP takes over within the limit if it finds none). The spliced plan is
+    validated as a whole (prefixes + new suffixes + the vehicles at rest)."""
     from services.planner.validate import validate_plan
 
     rp = req.replan
     assert rp is not None
     base = rp.base
+    if req.planner not in REPLANNERS:
+        return PlanReply(ok=False, error=f"replan: planner {req.planner!r} does not replan (choose from "
+                                         f"{', '.join(REPLANNERS)})")
+    if req.planner == "ilp" and base.planner != "ilp":
+        return PlanReply(ok=False, error=f"replan: the ILP replans plans on its time steps (planner ilp), "
+                                         f"not a {base.planner} plan: replan with sipp")
     try:
         problem = problem_from_request(base.map, base.tasks, base.planner)
     except InputError as exc:
@@ -73,7 +92,14 @@ def solve_replan(req: PlanRequest) -> PlanReply:
     missing = sorted(g for g in rp.goals.values() if g not in problem.graph.index)
     if missing:
         return PlanReply(ok=False, error=f"replan: no node {', '.join(map(repr, missing))} on map {base.map!r}")
-    result = replan_sipp(problem.graph, rp, base.mu, req.time_limit, req.seed)
+    deadline = time.perf_counter() + req.time_limit
+    by = req.planner
+    share = ILP_SHARE if by == "ilp" else 1.0
+    result = _load(REPLANNERS[by])(problem.graph, rp, base.mu, share * req.time_limit, req.seed)
+    if not result.ok and by == "ilp":
+        log.info("replan: the ILP found no plan (%s): SIPP plans on", result.error)
+        by = "sipp"
+        result = _load(REPLANNERS[by])(problem.graph, rp, base.mu, max(deadline - time.perf_counter(), 0.05), req.seed)
     if not result.ok:
         return PlanReply(ok=False, error=f"no plan (could not place {result.failed_vehicle}): {result.error}")
     tasks = {vid: msgspec.structs.replace(base.tasks[vid], goal=result.paths[vid][-1].node
@@ -84,7 +110,7 @@ def solve_replan(req: PlanRequest) -> PlanReply:
     report = validate_plan(plan)
     if not report.ok:
         return PlanReply(ok=False, error="replan failed validation: " + "; ".join(report.errors[:5]))
-    return PlanReply(ok=True, plan=plan)
+    return PlanReply(ok=True, plan=plan, planner=by)
 
 
 def solve_on_graph(req: PlanRequest) -> PlanReply:
@@ -102,7 +128,7 @@ def solve_on_graph(req: PlanRequest) -> PlanReply:
     report = validate_plan(plan)
     if not report.ok:
         return PlanReply(ok=False, error="plan failed validation: " + "; ".join(report.errors[:5]))
-    return PlanReply(ok=True, plan=plan)
+    return PlanReply(ok=True, plan=plan, planner=req.planner)
 
 
 def get_planner(name: str) -> GraphPlanner:

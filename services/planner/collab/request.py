@@ -48,4 +48,4 @@ def solve_team(req: PlanRequest) -> PlanReply:
     if out.plan is None:
         why = f"time limit of {req.time_limit:g} s reached" if out.timed_out else "no team plan exists"
         return PlanReply(ok=False, error=f"no team plan: {why} ({out.expansions} expansions)")
-    return PlanReply(ok=True, team_plan=out.plan)
+    return PlanReply(ok=True, team_plan=out.plan, planner="collab")

@@ -35,7 +35,7 @@ from common.domain.planfile import PathEntry, Task
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.ilp.arcs import arc_table
 from services.planner.ilp.network import STAY, Fleet, battery_horizons, time_step
-from services.planner.ilp.solve import MIP_REL_GAP, HorizonResult, relative_gap, solve_horizon
+from services.planner.ilp.solve import MIP_REL_GAP, ColumnFilter, HorizonResult, relative_gap, solve_horizon
 from services.planner.result import PlanResult, battery_shortfall
 
 EXTENSIONS = (1, 2, 4)  # extra steps tried after the first feasible horizon
@@ -97,16 +97,27 @@ def plan_ilp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: f
     t0 = time.perf_counter()
     deadline = t0 + time_limit
     vids = list(tasks)
+    if time_step(graph) is None:
+        return PlanResult(ok=False, planning_time_s=time.perf_counter() - t0,
+                          error=f"the ILP plans on a graph where every edge takes one time step (§V-E); "
+                                f"{graph.name!r} has edges of different durations: use its uniform-time-step graph")
+    fleet = Fleet.of(graph, [tasks[v].start for v in vids], [tasks[v].goal for v in vids], mu,
+                     [tasks[v].capabilities for v in vids], [tasks[v].usable_ah(graph.model) for v in vids])
+    return plan_fleet(graph, fleet, tasks, deadline, seed, t0)
+
+
+def plan_fleet(graph: FleetGraph, fleet: Fleet, tasks: dict[str, Task], deadline: float, seed: int, t0: float,
+               allowed: ColumnFilter | None = None, delays: np.ndarray | None = None, slack_steps: int = 0) -> PlanResult:
+    """The horizon policy above for `fleet` (the vehicles of `tasks`, in order), until `deadline`
+    (perf_counter). For replanning (`ilp/replan.py`): `allowed` masks the columns a plan may use,
+    `delays` (steps, per vehicle) is how long each must wait at its start first, and `slack_steps`
+    widens the horizons tried (a closure in time may need the plan to wait it out)."""
+    vids = list(tasks)
 
     def failure(error: str, vid: str = "") -> PlanResult:
         return PlanResult(ok=False, error=error, failed_vehicle=vid, planning_time_s=time.perf_counter() - t0)
 
-    if time_step(graph) is None:
-        return failure(f"the ILP plans on a graph where every edge takes one time step (§V-E); {graph.name!r} "
-                       "has edges of different durations: use its uniform-time-step graph")
-    fleet = Fleet.of(graph, [tasks[v].start for v in vids], [tasks[v].goal for v in vids], mu,
-                     [tasks[v].capabilities for v in vids], [tasks[v].usable_ah(graph.model) for v in vids])
-
+    wait = np.zeros(len(vids), dtype=np.int64) if delays is None else delays
     fewest, least_charge = battery_horizons(graph, fleet)
     for i in np.flatnonzero(fewest < 0):
         task = tasks[vids[i]]
@@ -117,12 +128,12 @@ def plan_ilp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: f
     lower, cheap_steps = cheapest_routes(graph, fleet)
     bound = float(lower.sum())
     orders = priority_orders(lower, seed)
-    horizon = int(max(fewest.max(), cheap_steps.max()))
-    cap = max(horizon, int(fewest.sum())) + len(vids)
+    horizon = int(max((fewest + wait).max(), (cheap_steps + wait).max()))
+    cap = max(horizon, int(fewest.sum() + wait.max())) + len(vids) + slack_steps
     solves: list[HorizonResult] = []
 
     def run(t: int, limit: float, previous: HorizonResult | None = None) -> HorizonResult:
-        solves.append(solve_horizon(graph, table, fleet, t, limit, seed, orders, previous))
+        solves.append(solve_horizon(graph, table, fleet, t, limit, seed, orders, previous, allowed=allowed))
         return solves[-1]
 
     best = run(horizon, deadline - time.perf_counter())
@@ -135,7 +146,7 @@ def plan_ilp(graph: FleetGraph, tasks: dict[str, Task], mu: float, time_limit: f
         grow *= 2
         best = run(horizon, deadline - time.perf_counter())
     if best.status == "timeout":
-        return failure(f"time limit {time_limit:g} s reached before a feasible plan within {horizon} steps")
+        return failure(f"time limit reached before a feasible plan within {horizon} steps")
 
     budget = max(EXTENSION_MIN_S, EXTENSION_FACTOR * (time.perf_counter() - t0))
     for extra in EXTENSIONS:

@@ -18,6 +18,7 @@ during its setup on models of 10^5 columns, so a call may overrun it by seconds 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -31,6 +32,8 @@ from services.planner.ilp.network import Columns, Fleet, carry_over, least_costs
 from services.planner.ilp.program import ModelSize, build_lp
 
 Status = Literal["optimal", "feasible", "infeasible", "timeout"]
+ColumnFilter = Callable[[Columns], np.ndarray]
+"""The mask of the columns a plan may use (replanning: closures in space-time, waits imposed)."""
 
 MIP_REL_GAP = 1e-4
 
@@ -91,11 +94,15 @@ def first_plan(cols: Columns, table: ArcTable, fleet: Fleet, horizon: int, n_nod
 def solve_horizon(
     graph: FleetGraph, table: ArcTable, fleet: Fleet, horizon: int, time_limit: float, seed: int,
     orders: list[list[int]], previous: HorizonResult | None = None, mip_rel_gap: float = MIP_REL_GAP,
+    allowed: ColumnFilter | None = None,
 ) -> HorizonResult:
     """Best plan within `horizon` steps. `orders`: vehicle orders for prioritized first plans;
-    `previous`: a plan for a shorter horizon, carried over as a first plan."""
+    `previous`: a plan for a shorter horizon, carried over as a first plan; `allowed`: the columns
+    a plan may use (all by default)."""
     t0 = time.perf_counter()
     cols = vehicle_columns(graph, fleet, horizon)
+    if allowed is not None:
+        cols = cols.subset(allowed(cols))
     bound = float(least_costs(graph, fleet, horizon).sum())
     carried = None
     if previous is not None and len(previous.chosen):
