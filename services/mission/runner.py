@@ -47,6 +47,7 @@ from common.domain.planfile import Plan, Task
 from common.domain.vehicle_model import VehicleModel
 from services.mission.client import MissionClient, MissionTiming
 from services.mission.separation import SeparationMonitor
+from services.mission.sweeps import left_vehicle
 
 
 @dataclass(frozen=True)
@@ -99,9 +100,6 @@ REPLAN_KINDS = frozenset({"low_battery", "link_lost", "emergency_landing", "trac
 """Faults of one vehicle that the others are planned around (it lands, stops or hovers on its own).
 Not these: `stale_cmd_landing` (its gateway hears no executor: the bus, not the vehicle, failed),
 `aborted` (an executor that lost its router aborted its vehicles' plans), a crash, a failed controller."""
-SWEEP_REACH = 0.1
-"""m: how far a vehicle that left may wander from where it is assumed to go (a held vehicle on a
-slow control loop oscillates by up to 10 cm, `tests/test_tracking_guard.py`)."""
 LEFT_CLEARANCE = 0.5
 """m: a lifelong goal is no parking spot this close to where a vehicle that left rests."""
 BYSTANDER_CLEARANCE = 0.5
@@ -114,14 +112,6 @@ REPLAN_LEAD_S = 1.0
 """s: the switch time of a replan is this far ahead of the fault (planning + handing the plans out)."""
 REPLAN_TIME_LIMIT_S = 0.6
 """s: the planner's time limit for a replan (SIPP, paper 000 §V-D)."""
-REST_REACH = 0.03
-"""m: how far a vehicle landing on its own (its executor's fault landing or emergency descent, on a
-control loop that is not slow) may be from where it is assumed to go; 10 cm there left most replans
-of an 80-vehicle fleet without a plan (the vehicle following the faulted one in its lane is inside)."""
-LEVEL_S_PER_M, DESCENT_S_PER_M, REST_S = 1.5 / 0.5, 1.5 / 0.2, 1.0
-"""How long a vehicle that left is assumed to take to fly a metre level and descend a metre (its
-fault landing: the fly and land speeds with 50 % slack, the emergency descent's 0.25 m/s too), and
-the margin added to each."""
 CAPABILITIES_WAIT_S = 1.0
 """How long a mission waits for its vehicles' telemetry (their capabilities, 5 Hz) before planning."""
 
@@ -304,30 +294,14 @@ class MissionRunner(MissionClient[MissionResult]):
         return True
 
     def _sweeps(self, vid: str, node: str, kind: str) -> list[Sweep]:
-        """Where `vid` may be from its latest state on: held (`tracking_hold`), anywhere in the
-        column below it for ever (it hovers until the mission ends, or comes down); otherwise the
-        column while it comes straight down (an emergency descent, a fall) and its foot for ever,
-        and with `node` also level to above it and down onto it (a fault landing), resting there."""
+        """Where `vid` may be from its latest state on (`sweeps.left_vehicle`); `node`: where its
+        fault landing goes, if its event named one."""
         assert self.plan is not None and self.t0 is not None
         state = self.states[vid]
-        t = time.time() - self.t0
-        p = (state.x, state.y, state.z)
         nodes = self.plan.graph.nodes
         ground = min(n.pos[2] for n in nodes.values() if n.kind != "air")
-        foot = (p[0], p[1], min(ground, p[2]))
-        if kind == "tracking_hold":
-            return [Sweep(vid, p, foot, t, t, rest=True, reach=SWEEP_REACH)]
-        down = t + DESCENT_S_PER_M * (p[2] - foot[2]) + REST_S
-        out = [Sweep(vid, p, foot, t, down, reach=REST_REACH), Sweep(vid, foot, foot, t, t, rest=True, reach=REST_REACH)]
-        if node in nodes and p[2] - nodes[node].pos[2] >= 0.05:
-            target = nodes[node].pos
-            above = (target[0], target[1], p[2])
-            t1 = t + LEVEL_S_PER_M * math.dist(p, above) + REST_S
-            t2 = t1 + DESCENT_S_PER_M * (p[2] - target[2]) + REST_S
-            out += [Sweep(vid, p, above, t, t1, reach=REST_REACH),
-                    Sweep(vid, above, target, t1, t2, reach=REST_REACH),
-                    Sweep(vid, target, target, t1, t2, rest=True, reach=REST_REACH)]
-        return out
+        return left_vehicle(vid, kind, (state.x, state.y, state.z), time.time() - self.t0, ground,
+                            nodes[node].pos if node in nodes else None)
 
     async def _replan(self, previous: asyncio.Task | None) -> None:
         """Plan the remaining vehicles on around those that left and hand the new plans out; a
