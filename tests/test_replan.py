@@ -5,6 +5,7 @@ a vehicle that arrived gets a new goal while the others move. Judged by the vali
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 
@@ -13,6 +14,7 @@ import pytest
 
 from common.bus.messages import PlanRequest, Replan, Sweep
 from common.domain.planfile import Plan, Task
+from services.mission.sweeps import DESCENT_S_PER_M, REST_S, descent
 from services.planner.registry import solve
 from services.planner.validate import validate_plan
 
@@ -183,3 +185,19 @@ def test_the_ilp_does_not_replan_a_plan_off_its_time_steps() -> None:
     reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, planner="ilp",
                               replan=Replan(base=plan_of(), at=1.0, goals={"cf3": "WP7"})))
     assert not reply.ok and "replan with sipp" in reply.error, reply.error
+
+
+def test_a_descents_column_frees_from_the_top_as_the_body_comes_down() -> None:
+    """`sweeps.descent`: the whole column while the descent may not have begun, then below the
+    highest the body may be (the slowest descent assumed), down to its foot, where it rests."""
+    top, foot = (1.0, 2.0, 1.0), (1.0, 2.0, 0.0)
+    pieces = descent("cf9", top, foot, 10.0)
+    moving, rest = pieces[:-1], pieces[-1]
+    assert rest.rest and rest.p0 == rest.p1 == foot and rest.t0 == 10.0
+    assert moving[0].t0 == 10.0 and moving[-1].t1 == pytest.approx(10.0 + DESCENT_S_PER_M + REST_S)
+    assert all(a.t1 == b.t0 for a, b in itertools.pairwise(moving))  # no gap in time
+    for s in moving:
+        assert s.p1 == foot  # it may fall: always down to the ground
+        highest = 1.0 - max(0.0, s.t0 - 10.0 - REST_S) / DESCENT_S_PER_M
+        assert s.p0[2] == pytest.approx(max(highest, 0.0))
+    assert moving[-1].p0[2] < 0.1 < moving[len(moving) // 2].p0[2] < 1.0
