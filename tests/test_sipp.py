@@ -319,3 +319,31 @@ def test_a_vehicle_with_little_charge_left_is_refused_with_its_shortfall(planner
     needed = float(result.error.split("needs at least ")[1].split(" Ah")[0])
     short = float(result.error.split("short by ")[1].split(" Ah")[0])
     assert short == pytest.approx(needed - (0.001 * 3.5 / model.voltage), abs=2e-4)
+
+
+def test_a_node_closed_for_ever_from_time_zero_is_routed_around() -> None:
+    """A body at rest on a node from time 0 on for ever (a vehicle held there, or parked and never
+    moved) leaves the node and those touching it no safe interval at all: the search goes around
+    them (it once indexed the empty interval list and failed with an IndexError)."""
+    from services.planner.sipp.heuristic import CostToGo
+    from services.planner.sipp.safe_intervals import Reservations
+    from services.planner.sipp.search import SearchGraph, sipp
+
+    graph = load_graph("town")
+    start, goal = graph.index["WP10"], graph.index["EP8"]
+    ctg = CostToGo.of(graph, 0.5)
+    ctg.prepare([goal])
+
+    def route(res: Reservations) -> list[int] | None:
+        path = sipp(SearchGraph.of(graph, 0.5), res, start, goal, ctg.h[goal], ctg.q[goal], math.inf,
+                    float("inf"), t_start=0.0)
+        return None if path is None else path.nodes
+
+    free = route(Reservations(graph))
+    assert free is not None
+    blocked = free[len(free) // 2]
+    res = Reservations(graph)
+    res.rest(blocked, 0.0, math.inf)
+    assert not res.node_start[blocked]  # no safe interval left
+    around = route(res)
+    assert around is None or blocked not in around

@@ -305,7 +305,7 @@ class Queryable(Generic[Req, Rep]):
             raise
         except Exception as exc:
             self.counters.inc(f"query_error:{self.key}")
-            log.warning("query on %s failed: %s: %s", self.key, type(exc).__name__, exc)
+            log.warning("query on %s failed: %s: %s", self.key, type(exc).__name__, exc, exc_info=True)
             _reply_error(query, f"{type(exc).__name__}: {exc}")
             return
         with query:

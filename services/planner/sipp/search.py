@@ -138,10 +138,12 @@ def sipp(
             if hv == INF:
                 continue
             sv, ev = node_s[v], node_e[v]
+            es, ee = edge_s[e], edge_e[e]
+            if not ev or not ee:
+                continue  # closed for ever, from time 0 (a body at rest there all along)
             # first safe interval of v ending at or after the earliest arrival
             j = 0 if ev[0] >= t + d else bisect_left(ev, t + d)
             n_v = len(sv)
-            es, ee = edge_s[e], edge_e[e]
             while j < n_v:
                 tau = sv[j] - d
                 if tau < t:
