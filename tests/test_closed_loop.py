@@ -153,6 +153,28 @@ def test_low_battery_in_the_air_lands_at_the_nearest_ground_node() -> None:
     assert not sim.airborne and not sim.truth().motors
 
 
+def test_a_vehicle_parked_facing_away_turns_to_its_first_drive_before_the_start() -> None:
+    """Parked facing away from its first edge (135 deg off), with the plan in the start's 2 s lead:
+    it turns in place before the start and then drives on its plan's time (turning on the plan's
+    time instead, it fell 6-9 cm behind: held by the tracking guard under load)."""
+    lead, d1 = 2.0, math.hypot(0.15, 0.15) / MODEL.speed.drive
+    steps = [PlanStep(node="p0", t=0.0, pos=(0.0, 0.0, 0.0), kind="parking"),
+             PlanStep(node="r1", t=d1, pos=(0.15, 0.15, 0.0), kind="waypoint", edge="drive"),
+             PlanStep(node="r2", t=d1 + 0.5 / MODEL.speed.drive, pos=(0.65, 0.15, 0.0), kind="waypoint", edge="drive")]
+    sim = SimFlyingCar("cf1", MODEL, PERTURBED, pos=(0.0, 0.0, 0.0), yaw=-0.75 * math.pi)
+    ctrl = VehicleController("cf1", MODEL, owner="test")
+    ctrl.on_pose(Pose(vid="cf1", t=0.0, x=0.0, y=0.0, z=0.0, yaw=sim.yaw))
+    ctrl.load(plan_for("cf1", steps, MODEL, t0=lead))
+    records = run(ctrl, sim, lead + steps[-1].t, Mocap(MocapNoise(pos_std=0.001), seed=3))
+    at_start = next(r for r in records if r.t >= lead)
+    assert abs(math.remainder(at_start.truth.yaw - 0.25 * math.pi, 2 * math.pi)) < math.radians(10)
+    assert math.hypot(at_start.truth.x, at_start.truth.y) < 0.01  # turned in place
+    first_leg = [r for r in records if lead + 0.5 <= r.t <= lead + d1]
+    worst = max(math.dist((r.truth.x, r.truth.y), (0.15 * (r.t - lead) / d1, 0.15 * (r.t - lead) / d1))
+                for r in first_leg)
+    assert worst < 0.03, f"{worst:.3f} m behind its plan"  # the shipped maps' margin
+
+
 def test_a_voltage_not_measured_yet_is_not_a_low_battery() -> None:
     """A gateway still connecting publishes 0 V (no log block yet): unknown, not empty."""
     monitor = FaultMonitor(MODEL)
