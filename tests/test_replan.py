@@ -112,11 +112,17 @@ def test_a_vehicle_whose_goal_a_fault_closed_stops_short_of_it_when_stranding_is
     assert validate_plan(plan).ok
     short = plan.tasks["cf1"].goal
     assert short != "EP8" and plan.paths["cf1"][-1].node == short
+    print(f"cf1 stops short at {short} ({plan.graph.nodes[short].kind})")
     assert {v: plan.tasks[v].goal for v in ("cf2", "cf3")} == {v: TASKS[v].goal for v in ("cf2", "cf3")}
     end = plan.paths["cf1"][-1].t
     for k in range(int((end + 5.0 - at) / 0.1)):
         p = plan.position("cf1", at + 0.1 * k)
         assert math.dist(p, goal) >= 2 * plan.model.radius - 1e-6
+    # the stranded plan is planned on again (its goal for cf1 need not be a parking spot)
+    again = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+                              replan=Replan(base=plan, at=at + 2.0, sweeps=sweeps, strand=True)))
+    assert again.ok and again.plan is not None, again.error
+    assert again.plan.tasks["cf1"].goal == short
 
 
 def test_a_vehicle_whose_own_node_a_fault_closed_holds_there() -> None:

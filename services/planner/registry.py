@@ -16,7 +16,7 @@ from common.bus.messages import PlanReply, PlanRequest
 from common.domain.planfile import Plan, Task
 from common.errors import InputError
 from services.planner.graph.fleet_graph import FleetGraph
-from services.planner.maps.loading import GraphProblem, problem_from_request
+from services.planner.maps.loading import GraphProblem, load_graph, problem_from_request
 from services.planner.result import PlanResult, to_plan
 
 log = logging.getLogger(__name__)
@@ -82,30 +82,30 @@ def solve_replan(req: PlanRequest) -> PlanReply:
     if req.planner == "ilp" and base.planner != "ilp":
         return PlanReply(ok=False, error=f"replan: the ILP replans plans on its time steps (planner ilp), "
                                          f"not a {base.planner} plan: replan with sipp")
-    try:
-        problem = problem_from_request(base.map, base.tasks, base.planner)
+    try:  # the base's tasks are not checked again: a stranded vehicle's goal may be a road node
+        graph = load_graph(base.map, uniform=base.planner == "ilp")
     except InputError as exc:
         return PlanReply(ok=False, error=str(exc))
     unknown = sorted((set(rp.left) | set(rp.goals)) - set(base.paths))
     if unknown:
         return PlanReply(ok=False, error=f"replan: {', '.join(unknown)} not in the plan")
-    missing = sorted(g for g in rp.goals.values() if g not in problem.graph.index)
+    missing = sorted(g for g in rp.goals.values() if g not in graph.index)
     if missing:
         return PlanReply(ok=False, error=f"replan: no node {', '.join(map(repr, missing))} on map {base.map!r}")
     deadline = time.perf_counter() + req.time_limit
     by = req.planner
     share = ILP_SHARE if by == "ilp" else 1.0
-    result = _load(REPLANNERS[by])(problem.graph, rp, base.mu, share * req.time_limit, req.seed)
+    result = _load(REPLANNERS[by])(graph, rp, base.mu, share * req.time_limit, req.seed)
     if not result.ok and by == "ilp":
         log.info("replan: the ILP found no plan (%s): SIPP plans on", result.error)
         by = "sipp"
-        result = _load(REPLANNERS[by])(problem.graph, rp, base.mu, max(deadline - time.perf_counter(), 0.05), req.seed)
+        result = _load(REPLANNERS[by])(graph, rp, base.mu, max(deadline - time.perf_counter(), 0.05), req.seed)
     if not result.ok:
         return PlanReply(ok=False, error=f"no plan (could not place {result.failed_vehicle}): {result.error}")
     tasks = {vid: msgspec.structs.replace(base.tasks[vid], goal=result.paths[vid][-1].node
                                           if vid in result.stranded else rp.goals.get(vid, base.tasks[vid].goal))
              for vid in result.paths}
-    plan = to_plan(problem.graph, base.map, base.planner, base.mu, tasks, result)
+    plan = to_plan(graph, base.map, base.planner, base.mu, tasks, result)
     plan = msgspec.structs.replace(plan, cost=validate_plan(plan).cost)  # whole paths, priced by the validator
     report = validate_plan(plan)
     if not report.ok:
