@@ -207,3 +207,38 @@ def test_a_descents_column_frees_from_the_top_as_the_body_comes_down() -> None:
         highest = 1.0 - max(0.0, s.t0 - 10.0 - REST_S) / DESCENT_S_PER_M
         assert s.p0[2] == pytest.approx(max(highest, 0.0))
     assert moving[-1].p0[2] < 0.1 < moving[len(moving) // 2].p0[2] < 1.0
+
+
+CITY_32 = ("cf01:P5_4_1>P6_5_1 cf02:P2_5_1>P2_6_0 cf03:P6_7_1>P7_8_0 cf04:P0_8_0>P6_8_0 cf05:P1_2_0>P9_4_1 "
+           "cf06:P9_1_0>P7_5_0 cf07:P1_6_0>P8_1_0 cf08:P6_2_0>P1_2_1 cf09:P0_9_1>P8_5_0 cf10:P8_6_0>P8_5_1 "
+           "cf11:P3_6_0>P0_5_1 cf12:P0_6_0>P7_7_0 cf13:P1_4_1>P3_8_1 cf14:P7_4_0>P5_4_0 cf15:P7_1_0>P0_0_0 "
+           "cf16:P1_1_0>P4_5_0 cf17:P4_1_0>P3_2_0 cf18:P1_5_0>P5_7_0 cf19:P7_2_0>P8_3_1 cf20:P1_0_0>P4_6_0 "
+           "cf21:P2_1_0>P3_1_0 cf22:P3_8_0>P9_2_0 cf23:P8_7_0>P3_0_1 cf24:P4_9_0>P1_8_0 cf25:P4_9_1>P2_7_1 "
+           "cf26:P3_3_0>P1_6_1 cf27:P0_4_0>P8_9_0 cf28:P1_8_1>P9_5_0 cf29:P0_3_1>P8_2_0 cf30:P4_7_1>P8_1_1 "
+           "cf31:P7_2_1>P8_7_1 cf32:P8_9_1>P5_8_1")
+"""32 tasks on city934 (a soak's draw, seed 7) whose replans after two drives were held hit the
+crossing of a prefix's last step."""
+
+
+def test_a_replan_whose_vehicles_cross_a_prefix_is_planned_again_in_another_order() -> None:
+    """SIPP reserves a prefix's last step only once its vehicle is placed, so one placed earlier
+    may cross it; the validator finds the contact and SIPP plans again with the later of the two
+    first (a 32-vehicle soak's replan failed this way)."""
+    from services.mission.sweeps import left_vehicle
+    from services.planner.maps.loading import load_graph
+    from services.planner.registry import _replan_with
+
+    tasks = {v: Task(start=a, goal=b) for v, a, b in (x.replace(">", ":").split(":") for x in CITY_32.split())}
+    reply = solve(PlanRequest(map="city934", tasks=tasks, time_limit=60))
+    assert reply.ok and reply.plan is not None, reply.error
+    plan, sweeps = reply.plan, []
+    for vid, t in (("cf05", 2.312), ("cf16", 4.284)):  # held on the road, in turn
+        sweeps += left_vehicle(vid, "tracking_hold", plan.position(vid, t), t, 0.0, None)
+        req = PlanRequest(map="city934", tasks={}, time_limit=1.0,
+                          replan=Replan(base=plan, at=t + 1.0, left=[vid], sweeps=sweeps, strand=True))
+        once, later = _replan_with(load_graph("city934"), req, "sipp", 1.0)
+        reply = solve(req)
+        assert reply.ok and reply.plan is not None, reply.error
+        assert validate_plan(reply.plan).ok
+        plan = reply.plan
+    assert not once.ok and "contact" in once.error and later == "cf31", once.error

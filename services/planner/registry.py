@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from importlib import import_module
 
 import msgspec
@@ -70,9 +70,8 @@ def solve_replan(req: PlanRequest) -> PlanReply:
     """Plan a running mission on (`Replan`, issue 16) on its base plan's graph with the planner the
     request names: SIPP (fast; the default), or the ILP where its time limit allows (on a plan on
     its time steps; SIPP takes over within the limit if it finds none). The spliced plan is
-    validated as a whole (prefixes + new suffixes + the vehicles at rest)."""
-    from services.planner.validate import validate_plan
-
+    validated as a whole (prefixes + new suffixes + the vehicles at rest); SIPP tries again with
+    the later of two vehicles it found in contact placed first, while the time limit allows."""
     rp = req.replan
     assert rp is not None
     base = rp.base
@@ -93,24 +92,45 @@ def solve_replan(req: PlanRequest) -> PlanReply:
     if missing:
         return PlanReply(ok=False, error=f"replan: no node {', '.join(map(repr, missing))} on map {base.map!r}")
     deadline = time.perf_counter() + req.time_limit
-    by = req.planner
-    share = ILP_SHARE if by == "ilp" else 1.0
-    result = _load(REPLANNERS[by])(graph, rp, base.mu, share * req.time_limit, req.seed)
-    if not result.ok and by == "ilp":
-        log.info("replan: the ILP found no plan (%s): SIPP plans on", result.error)
-        by = "sipp"
-        result = _load(REPLANNERS[by])(graph, rp, base.mu, max(deadline - time.perf_counter(), 0.05), req.seed)
+    if req.planner == "ilp":
+        reply, _ = _replan_with(graph, req, "ilp", ILP_SHARE * req.time_limit)
+        if reply.ok:
+            return reply
+        log.info("replan: the ILP found no plan (%s): SIPP plans on", reply.error)
+    first: list[str] = []
+    while True:
+        reply, later = _replan_with(graph, req, "sipp", max(deadline - time.perf_counter(), 0.05), first)
+        if reply.ok or later is None or later in first or time.perf_counter() > deadline:
+            return reply
+        first.insert(0, later)
+
+
+def _replan_with(graph: FleetGraph, req: PlanRequest, planner: str, time_limit: float,
+                 first: Sequence[str] = ()) -> tuple[PlanReply, str | None]:
+    """One replan by `planner` (SIPP with the vehicles `first` placed first), validated whole; and,
+    when the validator found two bodies in contact, the one SIPP placed later: a vehicle placed
+    earlier may cross the last step of a later one's prefix (`sipp/replan.py`), which placing it
+    first avoids."""
+    from services.planner.validate import validate_plan
+
+    rp = req.replan
+    assert rp is not None
+    base = rp.base
+    extra = {"first": first} if planner == "sipp" else {}
+    result = _load(REPLANNERS[planner])(graph, rp, base.mu, time_limit, req.seed, **extra)
     if not result.ok:
-        return PlanReply(ok=False, error=f"no plan (could not place {result.failed_vehicle}): {result.error}")
+        return PlanReply(ok=False, error=f"no plan (could not place {result.failed_vehicle}): {result.error}"), None
     tasks = {vid: msgspec.structs.replace(base.tasks[vid], goal=result.paths[vid][-1].node
                                           if vid in result.stranded else rp.goals.get(vid, base.tasks[vid].goal))
              for vid in result.paths}
     plan = to_plan(graph, base.map, base.planner, base.mu, tasks, result)
     plan = msgspec.structs.replace(plan, cost=validate_plan(plan).cost)  # whole paths, priced by the validator
     report = validate_plan(plan)
-    if not report.ok:
-        return PlanReply(ok=False, error="replan failed validation: " + "; ".join(report.errors[:5]))
-    return PlanReply(ok=True, plan=plan, planner=by)
+    if report.ok:
+        return PlanReply(ok=True, plan=plan, planner=planner), None
+    rank = {vid: i for i, vid in enumerate(result.priority)}
+    later = next((max(c.a, c.b, key=lambda v: rank[v]) for c in report.contacts if c.a in rank and c.b in rank), None)
+    return PlanReply(ok=False, error="replan failed validation: " + "; ".join(report.errors[:5])), later
 
 
 def solve_on_graph(req: PlanRequest) -> PlanReply:

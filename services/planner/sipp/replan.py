@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Sequence
 from itertools import pairwise
 
 import msgspec
@@ -58,9 +59,10 @@ STRAND_CANDIDATES = 8
 """How many ground nodes near a stranded vehicle are tried as its new goal."""
 
 
-def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float, seed: int = 0) -> PlanResult:
-    """The spliced paths of every remaining vehicle (see the module doc); PlanResult names the vehicle
-    it could not place."""
+def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float, seed: int = 0,
+                first: Sequence[str] = ()) -> PlanResult:
+    """The spliced paths of every remaining vehicle (see the module doc), the vehicles in `first`
+    placed first (in that order); PlanResult names the vehicle it could not place."""
     t0 = time.perf_counter()
     deadline = t0 + time_limit
     fixed, legs = split(graph, replan)
@@ -72,7 +74,8 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
             return failed(leg.vid, f"no route from {leg.task.start!r} to {leg.task.goal!r}", t0)
         if ctg.q[leg.goal][leg.start] > leg.usable:
             return failed(leg.vid, battery_shortfall(leg.task, ctg.q[leg.goal][leg.start], leg.usable), t0)
-    order = sorted(legs, key=lambda leg: (leg.depart, leg.vid))
+    ahead = {vid: i for i, vid in enumerate(first)}
+    order = sorted(legs, key=lambda leg: (ahead.get(leg.vid, len(ahead)), leg.depart, leg.vid))
     seen = {tuple(leg.vid for leg in order)}
     tried = 0
     stranded: dict[str, str] = {}
