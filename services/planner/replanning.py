@@ -20,7 +20,7 @@ from services.planner.result import PlanResult
 TURN_ALLOWANCE_S = 2.0
 """s: a vehicle at rest on its goal leaves for a new goal this long after the switch time, time to
 turn in place towards its first edge (it parked facing the way it came: 180 deg at the pursuit's
-3 rad/s turn rate, `services/executor/pure_pursuit.py`)."""
+6 rad/s turn rate, `services/executor/pure_pursuit.py`: 0.5 s, with margin for a loaded loop)."""
 
 
 @dataclass(frozen=True)
