@@ -102,6 +102,8 @@ def sipp(
     k0 = bisect_right(node_s[start], t_start) - 1
     if k0 < 0 or node_e[start][k0] < t_start or h[start] == INF:
         return None
+    if not node_e[goal] or node_e[goal][-1] != INF or closed_n[goal]:
+        return None  # the goal is never free for ever: no search (it would exhaust every interval)
     # arrivals: node, state key, end of its safe interval, time, cost, charge, parent arrival,
     # departure from the parent's node, edge from the parent
     a_node = [start]
