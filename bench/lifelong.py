@@ -83,6 +83,17 @@ async def lifelong(fleet: LocalFleet, spec: MissionSpec, fault_every: float, see
     return runner, [injected, done]
 
 
+def contact_episodes(runner: MissionRunner) -> list[list[object]]:
+    """Each pair of bodies that touched in ground truth: from and to (mission time), the deepest
+    overlap and how many samples."""
+    episodes: dict[tuple[str, str], list[float]] = {}
+    t0 = runner.t0 or 0.0
+    for t, a, b, gap in runner.sep.contacts if runner.sep is not None else []:
+        e = episodes.setdefault(tuple(sorted((a, b))), [t - t0, t - t0, gap, 0])
+        e[1], e[2], e[3] = t - t0, min(e[2], gap), e[3] + 1
+    return [[f"{a}-{b}", f"{e[0]:.1f}", f"{e[1]:.1f}", f"{100 * e[2]:.1f}", e[3]] for (a, b), e in episodes.items()]
+
+
 def main() -> None:
     parser = bench_parser(__doc__.splitlines()[0])
     parser.add_argument("--vehicles", type=int, default=16)
@@ -104,6 +115,7 @@ def main() -> None:
     result = runner.result
     assert result is not None
     print(result.summary())
+    print(format_table(["pair", "from s", "to s", "deepest cm", "samples"], contact_episodes(runner)))
     print(format_table(["t s", "vehicle", "fault", "fleet sim fault said"],
                        [[f"{t:.0f}", v, k, said] for t, v, k, said in injected]))
     left = dict(runner.left)

@@ -110,6 +110,8 @@ ARRIVAL_SLACK_S = 0.5
 a goal before a new goal's plan reached the executor is the old one's)."""
 REPLAN_LEAD_S = 1.0
 """s: the switch time of a replan is this far ahead of the fault (planning + handing the plans out)."""
+REPLAN_TRIES = 2
+"""How often a replan is asked for when the planner's answer does not come before its switch time."""
 REPLAN_TIME_LIMIT_S = 0.6
 """s: the planner's time limit for a replan (SIPP, paper 000 §V-D)."""
 CAPABILITIES_WAIT_S = 1.0
@@ -318,24 +320,31 @@ class MissionRunner(MissionClient[MissionResult]):
             await asyncio.gather(previous, return_exceptions=True)
         if self.plan is None or self.t0 is None:
             return "the mission has not started"
-        at = time.time() - self.t0 + REPLAN_LEAD_S
         left = [v for v in self.left if v in self.plan.paths]  # those that left since the last replan
-        req = PlanRequest(map=self.spec.map, tasks={}, planner=self.spec.replanner, mu=self.spec.mu,
-                          time_limit=REPLAN_TIME_LIMIT_S,
-                          replan=Replan(base=self.plan, at=at, left=left, sweeps=self.sweeps, goals=goals or {},
-                                        strand=True))
-        started = time.perf_counter()
-        try:
-            reply = await query(self.session, self.keys.planner_plan, req, PlanReply, timeout=REPLAN_LEAD_S)
-        except (QueryTimeout, QueryError) as exc:
-            return f"the planner did not replan: {exc}"
-        except RuntimeError:  # the mission ended (its session closed) while this replan waited
-            return "the mission ended"
-        took = time.perf_counter() - started
-        if not reply.ok or reply.plan is None:
-            return f"replanning failed: {reply.error}"
-        if time.time() - self.t0 > at:
-            return f"the replan came too late ({took:.2f} s)"
+        for _ in range(REPLAN_TRIES):  # a planner too slow this time is asked again, from later
+            at = time.time() - self.t0 + REPLAN_LEAD_S
+            req = PlanRequest(map=self.spec.map, tasks={}, planner=self.spec.replanner, mu=self.spec.mu,
+                              time_limit=REPLAN_TIME_LIMIT_S,
+                              replan=Replan(base=self.plan, at=at, left=left, sweeps=self.sweeps, goals=goals or {},
+                                            strand=True))
+            started = time.perf_counter()
+            try:
+                reply = await query(self.session, self.keys.planner_plan, req, PlanReply, timeout=REPLAN_LEAD_S)
+            except QueryTimeout as exc:
+                late = f"the planner did not replan: {exc}"
+                continue
+            except QueryError as exc:
+                return f"the planner did not replan: {exc}"
+            except RuntimeError:  # the mission ended (its session closed) while this replan waited
+                return "the mission ended"
+            took = time.perf_counter() - started
+            if not reply.ok or reply.plan is None:
+                return f"replanning failed: {reply.error}"
+            if time.time() - self.t0 <= at:
+                break
+            late = f"the replan came too late ({took:.2f} s)"
+        else:
+            return f"{late} ({REPLAN_TRIES} times)"
         wanted = {v: (goals or {}).get(v, t.goal) for v, t in self.plan.tasks.items()}
         short = {v: t.goal for v, t in reply.plan.tasks.items() if t.goal != wanted[v]}
         if refused := sorted(set(short) & set(goals or {})):
