@@ -101,7 +101,7 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
             # its goal is out of its reach even first in the order: it stops short (module doc)
             taken = {x.goal for x in order} | {graph.index[p[-1].node] for p in fixed.values()}
             short = None if vid in stranded else _stranded(graph, leg, mu, taken)
-            if short is None and graph.kinds[leg.start] != "air":
+            if short is None and leg.prefix[-1].t < leg.depart:  # at rest there: it stays
                 short = dataclasses.replace(leg, goal=leg.start, hold=True,
                                             task=msgspec.structs.replace(leg.task, goal=leg.task.start))
                 held.add(vid)
