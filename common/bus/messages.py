@@ -363,10 +363,12 @@ class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 
 class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """`planner`: which planner made the plan (a replan's: the ILP, or SIPP after it found none)."""
+    """`planner`: which planner made the plan (a replan's: the ILP, or SIPP after it found none);
+    `failed_vehicle`: without a plan, the vehicle prioritized planning could not place, if one."""
 
     ok: bool
     error: str = ""
+    failed_vehicle: str = ""
     plan: Plan | None = None
     team_plan: TeamPlan | None = None
     planner: str = ""
@@ -457,10 +459,12 @@ class TaskAddReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 
 class MissionAbort(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """`mission/<id>/abort`: every vehicle lands (flying) or stops (driving)."""
+    """`mission/<id>/abort`: every vehicle lands (flying) or stops (driving); with `vehicles`, only
+    those (a replan could not place a driving vehicle: it stops where it is, the others fly on)."""
 
     mission: str
     reason: str
+    vehicles: list[str] = []
 
 
 T = TypeVar("T")

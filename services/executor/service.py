@@ -259,10 +259,11 @@ class ExecutorService(Service):
     def _on_abort(self, abort: MissionAbort, _key: str) -> None:
         if abort.mission in self.aborts:
             return
-        self.aborts[abort.mission] = abort.reason
+        if not abort.vehicles:  # the whole mission: a plan of it that comes later is aborted too
+            self.aborts[abort.mission] = abort.reason
         self.team.on_abort(abort)
         for vid, ctl in self.controllers.items():
-            if self.plans[vid].mission == abort.mission:
+            if self.plans[vid].mission == abort.mission and (not abort.vehicles or vid in abort.vehicles):
                 ctl.abort(abort.reason)
 
     def _fuse(self, frame: PoseFrame) -> None:

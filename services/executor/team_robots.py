@@ -227,9 +227,10 @@ class TeamExecutor:
                 self._advance(vid)
 
     def on_abort(self, abort: MissionAbort) -> None:
-        self.aborts[abort.mission] = abort.reason
+        if not abort.vehicles:
+            self.aborts[abort.mission] = abort.reason
         for vid, robot in self.robots.items():
-            if robot.assignment.mission == abort.mission:
+            if robot.assignment.mission == abort.mission and (not abort.vehicles or vid in abort.vehicles):
                 robot.abort(abort.reason)
                 self._advance(vid)
 

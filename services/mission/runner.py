@@ -8,7 +8,9 @@ vehicle leaves it (its executor lands or stops it), and the planner plans the ot
 `REPLAN_LEAD_S` ahead around where it comes to rest (`Replan`); the executors switch to the new
 paths without stopping; a vehicle whose goal the fault put out of reach (a road closed by a
 vehicle that came down on it) stops at the nearest node it can reach (`Replan.strand`). The mission
-then ends when every other vehicle arrived (not a success: a vehicle left or stopped short). A fault the others cannot be planned around (the planner finds no plan, or does
+then ends when every other vehicle arrived (not a success: a vehicle left or stopped short). A
+vehicle on the ground that cannot be placed (it drives into the space a vehicle that left closed)
+is stopped where it is, alone (`MissionAbort.vehicles`), and leaves too. A fault the others cannot be planned around (the planner finds no plan, or does
 not answer in time), a fault that is not one vehicle's own (`stale_cmd_landing`, an executor's
 `aborted` after losing its router; a crash, a controller that failed) or `on_fault="abort"` ends
 it, landing every vehicle (`client.FAULT_EVENTS`).
@@ -28,6 +30,7 @@ import msgspec
 import zenoh
 
 from common.bus.messages import (
+    MissionAbort,
     PlanReply,
     PlanRequest,
     PoseFrame,
@@ -40,7 +43,7 @@ from common.bus.messages import (
     VehiclePlan,
     VehicleState,
 )
-from common.bus.pubsub import QueryError, QueryTimeout, query
+from common.bus.pubsub import Publisher, QueryError, QueryTimeout, query
 from common.bus.vehicle_plans import vehicle_plans
 from common.domain.battery import charge_used_ah
 from common.domain.planfile import Plan, Task
@@ -110,6 +113,10 @@ ARRIVAL_SLACK_S = 0.5
 a goal before a new goal's plan reached the executor is the old one's)."""
 REPLAN_LEAD_S = 1.0
 """s: the switch time of a replan is this far ahead of the fault (planning + handing the plans out)."""
+STOP_MAX = 3
+"""How many vehicles a replan may stop where they are (`MissionRunner._replan`) before it gives up."""
+GROUND_MODES = frozenset({"driving", "parked", "holding"})
+"""Modes of a vehicle on the ground that can stop where it is."""
 REPLAN_TRIES = 2
 """How often a replan is asked for when the planner's answer does not come before its switch time."""
 REPLAN_TIME_LIMIT_S = 0.6
@@ -184,6 +191,9 @@ class MissionRunner(MissionClient[MissionResult]):
         self.replans: list[float] = []
         """Planning time of each replan (s)."""
         self._replanning: asyncio.Task | None = None
+        self._blocked = ""
+        """The vehicle the last replan could not place."""
+        self._abort_pub: Publisher | None = None
         self.stranded: dict[str, str] = {}
         """Vehicles a replan gave a goal short of theirs (`Replan.strand`) -> which goal it was."""
         self.tasks_done = 0
@@ -263,6 +273,7 @@ class MissionRunner(MissionClient[MissionResult]):
         self.subscribe(self.keys.all_sim_truth, SimTruth, lambda t, _k: sep.update(t))
         self._plans = self.publishers(lambda vid: self.keys.vehicle(vid, "plan"), VehiclePlan,
                                       congestion_control=zenoh.CongestionControl.BLOCK)
+        self._abort_pub = self.publisher(self.keys.mission(self.mission, "abort"), MissionAbort)
         self.serve(self.keys.mission(self.mission, "add"), TaskAdd, TaskAddReply, self.add_task)
         return None
 
@@ -306,11 +317,34 @@ class MissionRunner(MissionClient[MissionResult]):
                             nodes[node].pos if node in nodes else None)
 
     async def _replan(self, previous: asyncio.Task | None) -> None:
-        """Plan the remaining vehicles on around those that left and hand the new plans out; a
-        failure is the mission's fault (it ends, landing everyone)."""
+        """Plan the remaining vehicles on around those that left and hand the new plans out. A
+        vehicle on the ground the planner could not place (it drives into the space a vehicle that
+        left closed) is stopped where it is, alone, and leaves too (`STOP_MAX` of them at most);
+        any other failure is the mission's fault (it ends, landing everyone)."""
         error = await self._plan_on(previous)
+        for _ in range(STOP_MAX):
+            if not error or not self._stop_blocked(error):
+                break
+            error = await self._plan_on(None)
         if error:
             self.fault = self.fault or f"{', '.join(self.left)} left the mission; {error}"
+
+    def _stop_blocked(self, error: str) -> bool:
+        """Stop the vehicle the last replan could not place, if it is on the ground (module doc of
+        `_replan`); whether it did."""
+        vid, self._blocked = self._blocked, ""
+        state = self.states.get(vid)
+        if (not vid or state is None or state.mode not in GROUND_MODES or self.plan is None or self.t0 is None
+                or vid not in self.plan.paths or vid in self.left or self._abort_pub is None):
+            return False
+        reason = f"{vid}: stopped where it is, no plan around the vehicles that left ({error})"
+        self._abort_pub.put(MissionAbort(mission=self.mission, reason=reason, vehicles=[vid]))
+        self.left[vid] = reason
+        ground = min(n.pos[2] for n in self.plan.graph.nodes.values() if n.kind != "air")
+        self.sweeps += left_vehicle(vid, "tracking_hold", (state.x, state.y, state.z), time.time() - self.t0,
+                                    ground, None)
+        self.events.append(reason)
+        return True
 
     async def _plan_on(self, previous: asyncio.Task | None, goals: dict[str, str] | None = None) -> str | None:
         """After `previous` (replans run one at a time): plan the running mission on from
@@ -339,6 +373,7 @@ class MissionRunner(MissionClient[MissionResult]):
                 return "the mission ended"
             took = time.perf_counter() - started
             if not reply.ok or reply.plan is None:
+                self._blocked = reply.failed_vehicle
                 return f"replanning failed: {reply.error}"
             if time.time() - self.t0 <= at:
                 break

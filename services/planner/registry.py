@@ -119,7 +119,8 @@ def _replan_with(graph: FleetGraph, req: PlanRequest, planner: str, time_limit: 
     extra = {"first": first} if planner == "sipp" else {}
     result = _load(REPLANNERS[planner])(graph, rp, base.mu, time_limit, req.seed, **extra)
     if not result.ok:
-        return PlanReply(ok=False, error=f"no plan (could not place {result.failed_vehicle}): {result.error}"), None
+        return PlanReply(ok=False, error=f"no plan (could not place {result.failed_vehicle}): {result.error}",
+                         failed_vehicle=result.failed_vehicle), None
     tasks = {vid: msgspec.structs.replace(base.tasks[vid], goal=result.paths[vid][-1].node
                                           if vid in result.stranded else rp.goals.get(vid, base.tasks[vid].goal))
              for vid in result.paths}
