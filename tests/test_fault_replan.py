@@ -9,7 +9,7 @@ import math
 
 import pytest
 
-from common.bus.messages import SimFault
+from common.bus.messages import MissionAbort, SimFault
 from common.domain.vehicle_model import VehicleModel
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
@@ -58,3 +58,28 @@ def test_one_vehicles_fault_leaves_the_others_flying_to_their_goals(tmp_path, fa
         assert result.vehicles[vid].arrived
     assert result.contacts == 0 and not watch.contacts, (watch.separation_line(), watch.contacts[:5])
     print(f"{fault}: replanned in {', '.join(f'{1e3 * t:.0f} ms' for t in result.replans)}; {result.events}")
+
+
+@pytest.mark.timeout(240)
+def test_one_driving_vehicle_stopped_alone_stays_and_the_others_fly_on(tmp_path) -> None:
+    """`MissionAbort.vehicles` (what the mission sends when a replan cannot place a driving
+    vehicle): cf3 stops where it is and stays, cf1 and cf2 fly on to their goals; no contact."""
+    spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20, slack_s=3.0)
+    marks: dict[str, float] = {}
+
+    async def scenario(watch: Watch, runner: MissionRunner) -> None:
+        await until(lambda: watch.mode("cf3") == "driving", 60, "cf3 driving")
+        await asyncio.sleep(2.0)
+        marks["abort"] = watch.abort(MissionAbort(mission=spec.mission, reason="test: cf3 alone", vehicles=["cf3"]))
+
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="stopalone") as fleet:
+        result, watch = fly(fleet, spec, scenario)
+
+    stopped = [s for s in watch.truth["cf3"] if s.t > marks["abort"] + 0.5]
+    assert stopped and max(math.dist((s.x, s.y), (stopped[0].x, stopped[0].y)) for s in stopped) < 0.01
+    assert result.plan is not None
+    assert watch.distance_to("cf3", result.plan.graph.nodes[TOWN_TASKS["cf3"].goal].pos) > 0.1  # short of its goal
+    assert not result.vehicles["cf3"].arrived and result.vehicles["cf1"].arrived and result.vehicles["cf2"].arrived
+    for vid in ("cf1", "cf2"):
+        assert watch.distance_to(vid, result.plan.graph.nodes[TOWN_TASKS[vid].goal].pos) < 0.05
+    assert result.contacts == 0 and not watch.contacts, watch.separation_line()

@@ -15,7 +15,15 @@ from dataclasses import dataclass, field
 import zenoh
 
 from common.bus.keys import Keys
-from common.bus.messages import ServiceStats, SimFault, SimTruth, Telemetry, VehicleEvent, VehicleState
+from common.bus.messages import (
+    MissionAbort,
+    ServiceStats,
+    SimFault,
+    SimTruth,
+    Telemetry,
+    VehicleEvent,
+    VehicleState,
+)
 from common.bus.pubsub import Publisher, subscribe
 from common.bus.session import ZenohConfig, open_session
 from common.domain.planfile import Task
@@ -98,6 +106,12 @@ class Watch:
             pub = self._faults[fault.vid] = Publisher(self._session, self.keys.sim_fault(fault.vid), SimFault)
         pub.put(fault)
         return time.time()
+
+    def abort(self, abort: MissionAbort) -> float:
+        """Publish `abort` (as the operator or a mission would); the time it was published."""
+        assert self._session is not None
+        Publisher(self._session, self.keys.mission(abort.mission, "abort"), MissionAbort).put(abort)
+        return time.time()  # (the publisher goes with the session)
 
     def mode(self, vid: str) -> str:
         return self.states[vid][-1].mode if self.states[vid] else ""
