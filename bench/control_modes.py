@@ -5,8 +5,9 @@ loss), 50 ms more latency, and 10 % loss.
 Each run is the whole fleet as `fleet demo` runs it (`services.mission.demo.local_fleet`: planner,
 executors, one gateway per radio, the simulated Crazyflies and motion capture) with every vehicle
 in one control mode. This process listens to the simulator's ground truth (`sim/truth/<vid>`) and
-afterwards compares it with the reference the executors track, rebuilt from the plan
-(`services.executor.trajectory.Trajectory` of each vehicle's path from the mission start): tracking
+afterwards compares it with the reference the executors track, rebuilt from the plan in force at
+the end (`services.executor.trajectory.Trajectory` of each vehicle's path from the mission start;
+after a replan the spliced paths, and a vehicle that left the mission is not counted): tracking
 RMS and max error in the air and on the ground (truth, not the executors' estimates), the vertical
 speed at each touchdown, whether every vehicle arrived and the contacts between bodies.
 
@@ -98,7 +99,10 @@ def fly(mode: str, link: str, run_dir: Path) -> Run:
         return out
     out.ok, out.reason, out.contacts = result.ok, result.reason, result.contacts
     out.arrived = sum(r.arrived for r in result.vehicles.values())
-    refs = {p.vid: Trajectory(p.steps) for p in vehicle_plans(result.plan, spec.mission, runner.t0).values()}
+    # the plan in force at the end (after a replan: every remaining vehicle's whole spliced path); a
+    # vehicle that left the mission is not in it and not counted
+    final = result.final_plan or result.plan
+    refs = {p.vid: Trajectory(p.steps) for p in vehicle_plans(final, spec.mission, runner.t0).values()}
     last: dict[str, SimTruth] = {}
     for s in sorted(truth, key=lambda s: s.t):
         ref = refs.get(s.vid)
