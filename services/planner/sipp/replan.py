@@ -100,12 +100,10 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
         if key in seen and replan.strand and vid not in held and time.perf_counter() <= deadline:
             # its goal is out of its reach even first in the order: it stops short (module doc)
             taken = {x.goal for x in order} | {graph.index[p[-1].node] for p in fixed.values()}
-            short = None if vid in stranded else _stranded(graph, leg, mu, taken)
-            if short is None and leg.prefix[-1].t < leg.depart:  # at rest there: it stays
-                short = dataclasses.replace(leg, goal=leg.start, hold=True,
-                                            task=msgspec.structs.replace(leg.task, goal=leg.task.start))
-                held.add(vid)
+            short = _short_of_goal(graph, leg, mu, taken, tried_nearby=vid in stranded)
             if short is not None:
+                if short.hold:
+                    held.add(vid)
                 stranded.setdefault(vid, reason)
                 order = [short] + [x for x in order if x.vid != vid]
                 seen = {tuple(x.vid for x in order)}
@@ -114,6 +112,16 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
         if key in seen or time.perf_counter() > deadline:
             return failed(vid, f"{reason} after {tried} priority order{'s' if tried > 1 else ''}", t0)
         seen.add(key)
+
+
+def _short_of_goal(graph: FleetGraph, leg: Leg, mu: float, taken: set[int], tried_nearby: bool) -> Leg | None:
+    """`leg` stopping short of its goal: at the nearest node it can reach (`_stranded`, unless
+    `tried_nearby`), or held where it is when it is at rest there; None when neither."""
+    short = None if tried_nearby else _stranded(graph, leg, mu, taken)
+    if short is None and leg.prefix[-1].t < leg.depart:  # at rest there: it stays
+        short = dataclasses.replace(leg, goal=leg.start, hold=True,
+                                    task=msgspec.structs.replace(leg.task, goal=leg.task.start))
+    return short
 
 
 def _stranded(graph: FleetGraph, leg: Leg, mu: float, taken: set[int]) -> Leg | None:
