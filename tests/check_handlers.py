@@ -121,8 +121,7 @@ HANDLINGS: tuple[Handling, ...] = (
               "                    if ctl.t0 is not None:  # started (or due to start): its timing is gone\n",
               "                for vid, ctl in {}.items():\n"
               "                    if ctl.t0 is not None:  # started (or due to start): its timing is gone\n"),),
-        "tests/test_faults_router.py::test_router_restart_mid_flight_aborts_the_mission_cleanly",
-        disabled="pass"),  # the tracking guard stops the driver for good (the gateway stopped it meanwhile)
+        "tests/test_faults_router.py::test_router_restart_mid_flight_aborts_the_mission_cleanly"),
     Handling(
         "the runner's lost-contact check",
         "mission client: `_check_contact` not called",
