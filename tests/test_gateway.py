@@ -229,7 +229,9 @@ def test_ten_percent_loss_still_delivers_45hz_without_firmware_watchdog(
             print("per-vehicle setpoint rates at 10 % loss (Hz):", {v: round(r, 1) for v, r in rates.items()})
             assert min(rates.values()) >= 45.0
             gaps = {vid: sim.vehicles[vid].max_flight_gap for vid in FLYERS}
-            assert max(gaps.values()) < 0.1, gaps  # the watchdog levels after 0.5 s
+            # the watchdog levels after 0.5 s; on a loaded machine a run of lost packets and a late
+            # gateway tick made 0.106 s (CI, 2026-12-02), so the bound is well below that, not 0.1 s
+            assert max(gaps.values()) < 0.25, gaps
             for vid in FLYERS + DRIVERS:
                 cf = sim.vehicles[vid]
                 assert cf.watchdog_levels == cf.watchdog_cuts == cf.wheel_watchdogs == 0
