@@ -133,6 +133,27 @@ def test_wheels_stop_when_setpoints_stop() -> None:
     assert sim.x == pytest.approx(x, abs=1e-6)
 
 
+def test_a_parked_vehicle_steps_at_once_as_in_substeps_and_moves_on_the_next_command() -> None:
+    """A vehicle at rest is advanced in one step (the simulator's fast path): the same place,
+    charge and voltage as through 2 ms sub-steps, after a drive that ran down under its watchdog."""
+    fast, slow = SimFlyingCar("a", MODEL, yaw=0.3), SimFlyingCar("b", MODEL, yaw=0.3)
+    for sim in (fast, slow):
+        sim.apply(WheelSetpoint(left=0.1, right=0.12), 0.0)
+        sim.step(3.0)  # driven until the wheel watchdog stopped it, then at rest
+    fast.step(60.0)
+    for _ in range(30000):
+        slow.step(0.002)
+    assert (fast.x, fast.y, fast.yaw, fast.z) == pytest.approx((slow.x, slow.y, slow.yaw, slow.z), abs=1e-9)
+    assert fast.charge_used_ah == pytest.approx(slow.charge_used_ah, rel=1e-9)
+    assert fast.battery.vbat == pytest.approx(slow.battery.vbat, abs=1e-9)
+    fast.apply(WheelSetpoint(left=0.1, right=0.1), fast.t)
+    fast.step(0.3)
+    assert fast.wheel_left > 0.05
+    fast.apply(FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=int(1.3 * HOVER)), fast.t)
+    fast.step(0.3)
+    assert fast.airborne and fast.z > 0.0
+
+
 def test_hover_drains_fly_power_and_idle_drains_idle_power_via_eq_4_5() -> None:
     sim = hovering()
     fly(sim, FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=HOVER), 10.0)

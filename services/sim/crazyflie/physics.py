@@ -38,6 +38,9 @@ from common.crazyflie.thrust import (
 from common.domain.battery import open_circuit_voltage
 from common.domain.vehicle_model import G, VehicleModel
 
+REST_EPS = 1e-6
+"""Thrust (N) and wheel speed (m/s) below which a stopped motor or wheel counts as at rest."""
+
 
 @dataclass(frozen=True, slots=True)
 class PhysicsParams:
@@ -94,6 +97,7 @@ class SimFlyingCar:
         self._wheels: tuple[float, float] = (0.0, 0.0)
         self._wheels_t = -math.inf
         self._gust: tuple[float, float, float] = (0.0, 0.0, -math.inf)
+        self._battery: tuple[tuple[float, float], BatteryState] = ((math.nan, math.nan), BatteryState(0, 0, 0, 0))
 
     def push(self, ax: float, ay: float, until: float) -> None:
         """Wind (a `gust` fault): a horizontal acceleration (m/s^2, world frame) on the body in
@@ -126,11 +130,27 @@ class SimFlyingCar:
         return roll, pitch, yaw_rate, cmd
 
     def step(self, dt: float) -> None:
-        """Advance the simulation by `dt` s (in sub-steps of at most `max_substep`)."""
+        """Advance the simulation by `dt` s (in sub-steps of at most `max_substep`; a parked
+        vehicle in one step: nothing but its idle drain changes until a command comes)."""
+        if self._parked():
+            self.thrust = self.wheel_left = self.wheel_right = 0.0
+            self.vx = self.vy = self.vz = self.roll = self.pitch = self.yaw_rate = 0.0
+            self._drain(dt)
+            self.t += dt
+            return
         n = max(1, math.ceil(dt / self.params.max_substep - 1e-9))
         h = dt / n
         for _ in range(n):
             self._substep(h)
+
+    def _parked(self) -> bool:
+        """On the ground with motors and wheels at rest and no command to move them in force
+        (a thrust command outlives the watchdog's cut only as 0; wheels their own watchdog)."""
+        if self.airborne or self.thrust > REST_EPS or abs(self.wheel_left) > REST_EPS or abs(self.wheel_right) > REST_EPS:
+            return False
+        if self._flight[3] and self.t - self._flight_t <= WATCHDOG_CUT_S:
+            return False
+        return not any(self._wheels) or self.t - self._wheels_t > self.params.wheel_watchdog_s
 
     def _substep(self, h: float) -> None:
         p = self.params
@@ -206,9 +226,14 @@ class SimFlyingCar:
 
     @property
     def battery(self) -> BatteryState:
-        soc = max(1.0 - self.charge_used_ah / self.model.capacity_ah, 0.0)
-        vbat = open_circuit_voltage(soc) - self.current * self.params.r_internal
-        return BatteryState(self.charge_used_ah, soc, vbat, self.current)
+        """The battery now (read several times a tick: by the power manager, the log blocks and
+        the truth; computed once per state)."""
+        key = (self.charge_used_ah, self.current)
+        if self._battery[0] != key:
+            soc = max(1.0 - self.charge_used_ah / self.model.capacity_ah, 0.0)
+            vbat = open_circuit_voltage(soc) - self.current * self.params.r_internal
+            self._battery = (key, BatteryState(self.charge_used_ah, soc, vbat, self.current))
+        return self._battery[1]
 
     def truth(self) -> SimTruth:
         """Ground truth now (angles in rad)."""

@@ -173,10 +173,11 @@ class PositionController:
     def command(self, sp: Setpoint, est: OnboardState, dt: float, level: bool = False) -> FlightSetpoint | None:
         """The attitude-loop command, or None for motors off. `level`: the supervisor's
         WarningLevelOut override (x and y released: level attitude; z kept)."""
-        if sp.kind == "null" or not self._ints:
+        if sp.kind == "null":  # motors off; the integrals start from zero with the next command
+            self._ints = {}
+            return None
+        if not self._ints:
             self.reset()
-            if sp.kind == "null":
-                return None
         if sp.kind == "attitude":
             if level:
                 return FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=sp.thrust)
