@@ -190,7 +190,8 @@ def report(log: SoakLog, seconds: float) -> str:
             extra = (f"missed {f.get('missed', 0):.0f}/{f.get('ticks', 0):.0f} ticks, late p99 {f.get('late_p99_ms', 0):.1f} ms, "
                      f"tick p99 {f.get('cost_p99_ms', 0):.1f} ms, pose->cmd p50/p99/max "
                      f"{f.get('pose_to_cmd_p50_ms', 0):.0f}/{f.get('pose_to_cmd_p99_ms', 0):.0f}/"
-                     f"{f.get('pose_to_cmd_max_ms', 0):.0f} ms")
+                     f"{f.get('pose_to_cmd_max_ms', 0):.0f} ms, from the bridge p50/p99 "
+                     f"{f.get('frame_to_cmd_p50_ms', 0):.1f}/{f.get('frame_to_cmd_p99_ms', 0):.1f} ms")
         elif st.service == "sim":
             extra = (f"truth behind {st.counters.get('truth_behind', 0)}x, watchdog level/cut "
                      f"{f.get('watchdog_levels', 0):.0f}/{f.get('watchdog_cuts', 0):.0f}, radio lost "
@@ -198,8 +199,10 @@ def report(log: SoakLog, seconds: float) -> str:
         elif st.service == "mocap":
             extra = f"poses {f.get('poses', 0):.0f}, late frames dropped {f.get('late_frames', 0):.0f}"
         elif st.service == "gateway":
-            extra = f"refused {sum(v for k, v in st.counters.items() if k.startswith('refused:'))}, " \
-                    f"radio_behind {st.counters.get('radio_behind', 0)}"
+            extra = (f"refused {sum(v for k, v in st.counters.items() if k.startswith('refused:'))}, "
+                     f"radio_behind {st.counters.get('radio_behind', 0)}, pose->radio p50/p99 "
+                     f"{f.get('pose_to_radio_p50_ms', 0):.1f}/{f.get('pose_to_radio_p99_ms', 0):.1f} ms, from the "
+                     f"bridge {f.get('frame_to_radio_p50_ms', 0):.1f}/{f.get('frame_to_radio_p99_ms', 0):.1f} ms")
         rows.append([name, st.drops, st.drops - first.drops, extra])
     lines += ["", format_table(["service", "dropped", "of which in soak", "figures"], rows), ""]
     mem = []
@@ -214,12 +217,15 @@ def report(log: SoakLog, seconds: float) -> str:
 def summary(log: SoakLog) -> dict:
     """What a test checks: each mission's verdict and each process's memory growth (MB/min)."""
     executors = [st.figures for st in log.stats.values() if st.service == "executor"]
+    gateways = [st.figures for st in log.stats.values() if st.service == "gateway"]
     return {"missions": [{"mission": m.mission, "ok": m.ok, "reason": m.reason, "contacts": m.contacts}
                          for m in log.missions],
             "flights": log.flights,
             "ticks": sum(f.get("ticks", 0.0) for f in executors),
             "missed": sum(f.get("missed", 0.0) for f in executors),
             "pose_to_cmd_p99_ms": max((f.get("pose_to_cmd_p99_ms", 0.0) for f in executors), default=0.0),
+            **{f"{name}_ms": max((f.get(f"{name}_ms", 0.0) for f in gateways), default=0.0)
+               for name in ("pose_to_radio_p50", "pose_to_radio_p99", "frame_to_radio_p50", "frame_to_radio_p99")},
             "growth_mb_per_min": {name: mb_per_min(points) for name, points in log.series.items()},
             "drops": {name: st.drops for name, st in log.stats.items()}}
 

@@ -103,6 +103,8 @@ def test_sim_backend_publishes_noisy_poses_and_reports_a_vanished_body(
         seen = Poses(session)
         truth: dict[str, SimTruth] = {}
         subscribe(session, KEYS.all_sim_truth, SimTruth, lambda m, _k: truth.__setitem__(m.vid, m))
+        frames: list[tuple[float, PoseFrame]] = []
+        subscribe(session, KEYS.mocap_frame, PoseFrame, lambda f, _k: frames.append((time.time(), f)))
         sim = SimService(spec, cfg, mocap=noise)
         async with running(bridge):
             async with running(sim):
@@ -128,6 +130,10 @@ def test_sim_backend_publishes_noisy_poses_and_reports_a_vanished_body(
         assert all(p.source == "sim" and p.z == pytest.approx(0.0, abs=0.01) for p in v1)
         delays = [at - p.t for at, p in seen.poses["v1"] if t0 <= at <= t1]
         assert min(delays) >= 0.01  # capture stamp is the truth's time; published after the latency
+        # a frame says when the bridge had it: the capture system's latency before, ours after
+        stamped = [(at, f) for at, f in frames if t0 <= at <= t1]
+        assert len(stamped) > 150
+        assert all(f.t + 0.01 <= f.arrived <= at for at, f in stamped)
 
     asyncio.run(main())
 

@@ -50,12 +50,15 @@ class FramePose(msgspec.Struct, frozen=True, forbid_unknown_fields=True, array_l
 class PoseFrame(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Every tracked vehicle's pose of one motion-capture frame (`mocap/frame`), stamped with the
     frame's capture time `t`: the hot path (DESIGN.md) carries one message per frame instead of one
-    per vehicle. `seq` counts the bridge's frames; `source` is its backend."""
+    per vehicle. `seq` counts the bridge's frames; `source` is its backend; `arrived` is when the
+    bridge had the frame (0: unknown): what comes before it is the capture system's own latency,
+    what comes after is this software's."""
 
     t: float
     seq: int
     poses: list[FramePose]
     source: str = "mocap"
+    arrived: float = 0.0
 
     def pose(self, p: FramePose) -> Pose:
         """`p` as a `Pose` of this frame."""
@@ -118,12 +121,14 @@ class Cmd(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 class CmdBatch(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """One control cycle's commands of one executor for the vehicles of one gateway
     (`gateway/<instance>/cmd`): the hot path's batch (DESIGN.md). `t` is when it was sent; `pose_t`
-    the capture time of the motion-capture frame the cycle fused (0: none), for latency figures."""
+    the capture time of the motion-capture frame the cycle fused (0: none) and `pose_arrived` when
+    the mocap bridge had that frame (`PoseFrame.arrived`), for latency figures."""
 
     owner: str
     t: float
     cmds: list[Cmd]
     pose_t: float = 0.0
+    pose_arrived: float = 0.0
 
 
 class PlanStep(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -77,15 +77,18 @@ FRAME_WAIT = 1.5
 
 
 class LoopStats:
-    """Cycle lateness (how long after the capture of its frame, or after its due time without one,
-    a cycle started), cycle cost and pose-to-command latency (the commands' publication - the capture
-    time of the newest frame fused), last N of each; counts and the worst latency since the start.
-    A cycle is missed (late) when its commands went out more than a period after its frame."""
+    """Cycle lateness (how long after its frame reached the mocap bridge, or after its due time
+    without one, a cycle started), cycle cost and pose-to-command latency (the commands' publication
+    - the capture time of the newest frame fused; and - the frame's arrival at the bridge: this
+    software's part, without the capture system's own latency), last N of each; counts and the
+    worst latency since the start. A cycle is missed (late) when its commands went out more than a
+    period after its frame reached the bridge."""
 
     def __init__(self, n: int = 2000) -> None:
         self.late: deque[float] = deque(maxlen=n)
         self.cost: deque[float] = deque(maxlen=n)
         self.latency: deque[float] = deque(maxlen=10 * n)
+        self.software: deque[float] = deque(maxlen=10 * n)
         self.ticks = 0
         self.missed = 0
         self.worst_latency = 0.0
@@ -97,13 +100,15 @@ class LoopStats:
         if late + cost > period:
             self.missed += 1
 
-    def add_latency(self, seconds: float) -> None:
+    def add_latency(self, seconds: float, software: float) -> None:
+        """From the capture, and from the frame's arrival at the bridge, to the commands' publication (s)."""
         self.latency.append(seconds)
+        self.software.append(software)
         self.worst_latency = max(self.worst_latency, seconds)
 
     def percentiles(self) -> dict[str, float]:
         return {**percentile_figures("late", self.late), **percentile_figures("cost", self.cost),
-                **percentile_figures("pose_to_cmd", self.latency)}
+                **percentile_figures("pose_to_cmd", self.latency), **percentile_figures("frame_to_cmd", self.software)}
 
     def figures(self) -> dict[str, float]:
         """Counts, percentiles and the worst latency, for `stats/executor/<instance>`."""
@@ -313,16 +318,18 @@ class ExecutorService(Service):
                     newest = frame
             if n % ROUTER_CHECK_TICKS == 0:
                 self._check_router(now)
-            self._cycle(now, n, newest.t if newest is not None else 0.0)
+            arrived = (newest.arrived or newest.t) if newest is not None else 0.0
+            self._cycle(now, n, newest.t if newest is not None else 0.0, arrived)
             n += 1
             end = time.monotonic()
-            late = now - newest.t if newest is not None else start - due
+            late = now - arrived if newest is not None else start - due
             self.stats.add(max(late, 0.0), end - start, self.period)
             if newest is not None:
-                self.stats.add_latency(time.time() - newest.t)
+                sent = time.time()
+                self.stats.add_latency(sent - newest.t, sent - arrived)
             due = end + wait
 
-    def _cycle(self, now: float, n: int, pose_t: float) -> None:
+    def _cycle(self, now: float, n: int, pose_t: float, pose_arrived: float) -> None:
         """Tick every owned controller; commands out as one batch per gateway."""
         batches: dict[str, list[Cmd]] = {}
         for vid, ctl in list(self.controllers.items()):
@@ -341,7 +348,8 @@ class ExecutorService(Service):
             self._report_mode(vid, ctl, state, now)
         sent = time.time()
         for gateway, cmds in batches.items():
-            self._batch.put(gateway, CmdBatch(owner=self.instance, t=sent, cmds=cmds, pose_t=pose_t))
+            self._batch.put(gateway, CmdBatch(owner=self.instance, t=sent, cmds=cmds, pose_t=pose_t,
+                                                   pose_arrived=pose_arrived))
 
     def _give_up(self, vid: str, exc: Exception, now: float) -> None:
         """Stop commanding `vid` for the rest of its mission (its gateway lands or stops it when

@@ -93,7 +93,7 @@ class MocapBridge(Service):
         if not poses:
             return
         self._frame_seq += 1
-        self._frames.put(PoseFrame(t=t, seq=self._frame_seq, source=self.config.backend,
+        self._frames.put(PoseFrame(t=t, seq=self._frame_seq, source=self.config.backend, arrived=now,
                                    poses=[FramePose(p.vid, p.x, p.y, p.z, p.yaw) for p in poses]))
         every = 1.0 / self.config.vehicle_pose_hz
         for pose in poses:

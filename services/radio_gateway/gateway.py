@@ -91,8 +91,11 @@ class RadioGateway(Service):
         self._links: dict[str, VehicleLink] = {}
         self._poses: Subscription[PoseFrame] | None = None
         self._pose_t = 0.0  # capture time of the newest frame behind the commands taken this tick
+        self._pose_arrived = 0.0  # and when the mocap bridge had it
         self.latency: deque[float] = deque(maxlen=20000)
         """Capture time of the frame an executor's batch fused -> its setpoints handed to the radio (s)."""
+        self.software_latency: deque[float] = deque(maxlen=20000)
+        """The same from the frame's arrival at the mocap bridge (the capture system's latency excluded)."""
 
     # ---- lifecycle ------------------------------------------------------------------------
 
@@ -156,8 +159,10 @@ class RadioGateway(Service):
             if batch:
                 sender.submit([(self._links[vid], raw) for vid, raw in batch])
             if self._pose_t:
-                self.latency.append(time.time() - self._pose_t)
-                self._pose_t = 0.0
+                handed = time.time()
+                self.latency.append(handed - self._pose_t)
+                self.software_latency.append(handed - (self._pose_arrived or self._pose_t))
+                self._pose_t = self._pose_arrived = 0.0
             self._sync_pose_subscriptions()
             if ticks % telemetry_every == 0:
                 self._publish_telemetry(now)
@@ -263,7 +268,8 @@ class RadioGateway(Service):
                     "%s: refused cmd for %s: %s (further ones only counted)", self.instance, vid, detail)
 
     def _on_batch(self, batch: CmdBatch) -> None:
-        self._pose_t = max(self._pose_t, batch.pose_t)
+        if batch.pose_t > self._pose_t:
+            self._pose_t, self._pose_arrived = batch.pose_t, batch.pose_arrived
         for cmd in batch.cmds:
             self._command(cmd.vid, cmd)
 
@@ -338,7 +344,8 @@ class RadioGateway(Service):
         return {"vehicles": len(self.channels), "links_ok": sum(ch.health.link_ok for ch in chans),
                 "taken_over": sum(ch.took_over for ch in chans),
                 "skipped": sum(v for k, v in self.counters.items() if k.startswith("skipped:")),
-                "flight_skipped": self.scheduler.flight_skipped, **percentile_figures("pose_to_radio", self.latency)}
+                "flight_skipped": self.scheduler.flight_skipped, **percentile_figures("pose_to_radio", self.latency),
+                **percentile_figures("frame_to_radio", self.software_latency)}
 
     def _sync_pose_subscriptions(self) -> None:
         """Motion-capture frames while a vehicle needs them: in onboard control mode (streamed to
