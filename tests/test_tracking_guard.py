@@ -29,7 +29,7 @@ from services.executor.vehicle_controller import ControlParams, VehicleControlle
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from services.sim.crazyflie.physics import SimFlyingCar
-from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps
+from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
 from tests.support.fleet_faults import TOWN_TASKS, Watch, airborne, until
 from tests.support.fleet_faults import fly as fly_mission
 
@@ -151,6 +151,30 @@ def test_a_vehicle_held_in_the_air_hovers_and_lands_safely_on_abort() -> None:
 # ---- in the fleet: one executor starved of CPU ----------------------------------------------------
 
 STOP_S, RUN_S = 0.15, 0.05  # the starved executor runs 50 ms of every 200 ms
+
+
+def test_a_vehicle_whose_plan_goes_where_another_is_held_holds_too() -> None:
+    """The fleet's reflex (issue 15): told that another vehicle is held at a point its plan reaches
+    within `yield_s`, a vehicle holds too, in the air and on the ground; a point it reaches later,
+    or passes well clear of, leaves it flying its plan."""
+    fly_at = next(s.t for s in STEPS if s.edge == "fly")
+    for at, airborne_then in ((fly_at - 1.0, True), (0.2, False)):
+        sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
+        ctrl = VehicleController("cf1", MODEL, owner="test")
+        ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
+        run(ctrl, sim, T0 + at)
+        now, traj = sim.t, ctrl.trajectory
+        ahead = traj.plan_position(now - T0 + 2.0)
+        later = traj.plan_position(min(now - T0 + 6.0, traj.end_time))
+        aside = (ahead[0], ahead[1] - 0.5, ahead[2])  # the path runs along +x and +y
+        assert not ctrl.yield_to("cf9", aside, now) and not ctrl.yield_to("cf9", later, now)
+        assert ctrl.yield_to("cf9", ahead, now)
+        run(ctrl, sim, now + 1.0)
+        assert ctrl.mode == (Mode.HOVERING if airborne_then else Mode.HOLDING), ctrl.mode
+        assert ctrl.held is not None and ctrl.held.startswith("yields to cf9")
+        held = (sim.x, sim.y, sim.z)
+        run(ctrl, sim, sim.t + 2.0)
+        assert math.dist(held, (sim.x, sim.y, sim.z)) < 0.05  # it stays there
 
 
 def starve(pid: int, stop: threading.Event) -> None:

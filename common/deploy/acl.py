@@ -67,7 +67,8 @@ ROLES: dict[str, Role] = {
     "executor": Role(
         publish=("vehicle/*/cmd", "gateway/*/cmd", "vehicle/*/state", "vehicle/*/event", "vehicle/*/action"),
         subscribe=("vehicle/*/plan", "vehicle/*/team_plan", "mocap/frame", "vehicle/*/pose", "vehicle/*/telemetry",
-                   "vehicle/*/state", "vehicle/*/action_status", "mission/*/start", "mission/*/abort"),
+                   "vehicle/*/state", "vehicle/*/event", "vehicle/*/action_status", "mission/*/start",
+                   "mission/*/abort"),
         watch=("alive/executor/*",)),
     "planner": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan"), serve=("planner/plan", "planner/graph")),
     "gateway": Role(publish=("vehicle/*/telemetry", "vehicle/*/event"),

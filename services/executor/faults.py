@@ -46,7 +46,11 @@ class FaultParams:
     reference (it drifted, or its gateway landed it, while it had no owner); it also waits
     `guard_drive_start_s` after a drive starts from rest: a vehicle parked facing away from its
     first edge turns in place on its spot first (pure pursuit, > 60 deg off) and falls behind its
-    plan there, by up to 9 cm in a 32-vehicle soak on city934."""
+    plan there, by up to 9 cm in a 32-vehicle soak on city934. The fleet's reflex to a held
+    vehicle (`VehicleController.yield_to`): a vehicle whose plan brings it within reach of where
+    another is held in the next `yield_s` s holds too, before a replan could steer it around (the
+    mission's replan switches about a second after the hold, later when it is asked again); 0
+    disables the reflex."""
 
     vbat_low: float = 3.3
     vbat_low_s: float = 1.0
@@ -64,6 +68,7 @@ class FaultParams:
     guard_s: float = 0.3
     guard_rejoin_s: float = 5.0
     guard_drive_start_s: float = 2.0
+    yield_s: float = 3.0
 
     def descent_accel_cmd(self, vz: float) -> float:
         """Vertical acceleration (m/s^2) steering the dead-reckoned vertical speed to -descent_speed."""

@@ -152,6 +152,7 @@ class ExecutorService(Service):
         frames = self.subscribe(k.mocap_frame, PoseFrame, maxlen=64)  # pulled by the control loop
         self.subscribe(k.all_vehicles("telemetry"), Telemetry, self._on_telemetry, maxlen=1024)
         self.subscribe(k.all_vehicles("state"), VehicleState, self._on_state, maxlen=4096)
+        self.subscribe(k.all_vehicles("event"), VehicleEvent, self._on_event, maxlen=1024)
         self.subscribe(k.all_missions("start"), MissionStart, self._on_start)
         self.subscribe(k.all_missions("abort"), MissionAbort, self._on_abort)
         self._cmd = self.publishers(lambda vid: k.vehicle(vid, "cmd"), Cmd)
@@ -294,6 +295,18 @@ class ExecutorService(Service):
     def _on_state(self, state: VehicleState, _key: str) -> None:
         self.team.on_state(state)
         self.ownership.on_state(state)
+
+    def _on_event(self, event: VehicleEvent, _key: str) -> None:
+        """The fleet's reflex to a vehicle held by the tracking guard (`VehicleController.yield_to`):
+        every owned vehicle whose plan goes where it is held holds too, and is reported in turn."""
+        seen = self.last_seen.get(event.vid)
+        if event.kind != "tracking_hold" or seen is None:
+            return
+        pos = (seen[1].x, seen[1].y, seen[1].z)
+        now = time.time()
+        for vid, ctl in self.controllers.items():
+            if vid != event.vid:
+                ctl.yield_to(event.vid, pos, now)
 
     # ---- the loop -------------------------------------------------------------------------------
     async def _control_loop(self, frames: Subscription[PoseFrame]) -> None:

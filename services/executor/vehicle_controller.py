@@ -35,6 +35,9 @@ from services.executor.trajectory import RefSample, Trajectory, TrajectoryParams
 
 log = logging.getLogger(__name__)
 
+YIELD_STEP_S = 0.05
+"""s between the plan positions `VehicleController.yield_to` looks at (0.05 s is at most 1.5 cm of flight)."""
+
 
 @dataclass(frozen=True)
 class ControlParams:
@@ -104,6 +107,7 @@ class VehicleController:
         self.held: str | None = None
         """Why the tracking guard holds the vehicle (None: it does not)."""
         self._hover_ref: RefSample | None = None  # where a held vehicle hovers
+        self._yield: str | None = None  # another vehicle held where this one's plan goes: hold too
 
     # ---- inputs ---------------------------------------------------------------------------
 
@@ -263,6 +267,9 @@ class VehicleController:
                 return
             if self._fault_landing or self.held or (m.mode == Mode.LANDING and rel >= self._landing_end):
                 return  # a landing lasts until touchdown (see `_control`), even past its plan time
+            if self._yield is not None and ref is not None:
+                self._hold(now, est, ref, self._yield)
+                return
             if self._guard(now, est, ref):
                 return
             self._follow_plan(now, rel, est)
@@ -272,6 +279,9 @@ class VehicleController:
             return
         if self.held:
             return  # stopped for good: the plan's timing is gone
+        if self._yield is not None and ref is not None:
+            self._hold(now, est, ref, self._yield)
+            return
         if m.mode == Mode.DRIVING and self._guard(now, est, ref):
             return
         if est.stale or link:
@@ -301,16 +311,42 @@ class VehicleController:
         since = self._guard_since = self._guard_since if self._guard_since is not None else now
         if error <= f.guard_burst * margin and now - since < f.guard_s:
             return False
-        self.held = (f"tracking error {error:.3f} m past the plan's margin {margin:.3f} m "
-                     f"for {now - since:.2f} s in {self.machine.mode}")
+        self._hold(now, est, ref, f"tracking error {error:.3f} m past the plan's margin {margin:.3f} m "
+                                  f"for {now - since:.2f} s in {self.machine.mode}")
+        return True
+
+    def _hold(self, now: float, est: Estimate, ref: RefSample, why: str) -> None:
+        """Hold the vehicle where it is for the rest of the mission: hovering, or stopped on the ground."""
+        self.held = why
         if self.machine.airborne:
             self._hover_ref = RefSample(ref.t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, est.yaw, 0.0,
                                         Mode.HOVERING)
-            self.machine.request(Mode.HOVERING, now, self.held)
+            self.machine.request(Mode.HOVERING, now, why)
         else:
-            self.machine.request(Mode.HOLDING, now, self.held)
-        log.warning("%s: held by the tracking guard: %s", self.vid, self.held)
-        return True
+            self.machine.request(Mode.HOLDING, now, why)
+        log.warning("%s: held by the tracking guard: %s", self.vid, why)
+
+    def yield_to(self, vid: str, pos: tuple[float, float, float], now: float) -> bool:
+        """The fleet's reflex to `vid`, held by the tracking guard at `pos` (issue 15): this vehicle
+        holds too (at its next tick, reported as `tracking_hold`) if its plan brings its body within
+        reach of `vid`'s in the next `yield_s` s: both envelopes, plus the guard's allowance for this
+        one's tracking. Whether it will hold."""
+        f = self.params.faults
+        traj = self._active
+        if (not f.guard or f.yield_s <= 0.0 or traj is None or self.t0 is None or self.held or self._yield
+                or self._fault_landing or self._abort or self.machine.mode in (Mode.DONE, Mode.EMERGENCY_LANDING)):
+            return False
+        m = self.model
+        reach_xy = 2.0 * m.radius + f.guard_factor * m.margin
+        reach_z = m.height + f.guard_factor * m.margin
+        rel = now - self.t0
+        for k in range(int(f.yield_s / YIELD_STEP_S) + 1):
+            x, y, z = traj.plan_position(min(rel + k * YIELD_STEP_S, traj.end_time))
+            if abs(z - pos[2]) < reach_z and math.hypot(x - pos[0], y - pos[1]) < reach_xy:
+                self._yield = (f"yields to {vid}, held at ({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f}), where its plan "
+                               f"goes in {k * YIELD_STEP_S:.1f} s")
+                return True
+        return False
 
     def _follow_plan(self, now: float, rel: float, est: Estimate) -> None:
         traj = self._active

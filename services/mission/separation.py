@@ -3,12 +3,15 @@ cylinders of radius r and height h touch when |d_xy| < 2r and |d_z| < h)."""
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from common.bus.messages import SimTruth
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -40,5 +43,14 @@ class SeparationMonitor:
             if gap < self.min_gap:
                 self.min_gap, self.min_pair = gap, (vids[i], vids[j])
             if gap < 0:
-                t = max(self.latest[vids[i]].t, self.latest[vids[j]].t)
+                a, b = self.latest[vids[i]], self.latest[vids[j]]
+                t = max(a.t, b.t)
+                if not any({c[1], c[2]} == {a.vid, b.vid} for c in self.contacts):
+                    log.warning("contact: %s and %s %.1f cm into each other at %s, %s", a.vid, b.vid, -100 * gap,
+                                _where(a), _where(b))
                 self.contacts.append((t, vids[i], vids[j], gap))
+
+
+def _where(t: SimTruth) -> str:
+    return (f"({t.x:.2f}, {t.y:.2f}, {t.z:.2f}) {'in the air' if t.airborne else 'on the ground'}"
+            f"{' motors on' if t.motors else ''} v=({t.vx:.2f}, {t.vy:.2f}, {t.vz:.2f})")
