@@ -165,7 +165,7 @@ def test_a_vehicle_whose_plan_goes_where_another_is_held_holds_too() -> None:
         run(ctrl, sim, T0 + at)
         now, traj = sim.t, ctrl.trajectory
         ahead = traj.plan_position(now - T0 + 2.0)
-        later = traj.plan_position(min(now - T0 + 6.0, traj.end_time))
+        later = traj.plan_position(min(now - T0 + FaultParams().yield_s + 4.0, traj.end_time))
         aside = (ahead[0], ahead[1] - 0.5, ahead[2])  # the path runs along +x and +y
         assert not ctrl.yield_to("cf9", aside, now) and not ctrl.yield_to("cf9", later, now)
         assert ctrl.yield_to("cf9", ahead, now)

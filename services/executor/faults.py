@@ -49,8 +49,8 @@ class FaultParams:
     plan there, by up to 9 cm in a 32-vehicle soak on city934. The fleet's reflex to a held
     vehicle (`VehicleController.yield_to`): a vehicle whose plan brings it within reach of where
     another is held in the next `yield_s` s holds too, before a replan could steer it around (the
-    mission's replan switches about a second after the hold, later when it is asked again); 0
-    disables the reflex."""
+    mission's replan switches a second after it hears of the hold, or 3 s when its planner had to
+    be asked again: `services.mission.runner.REPLAN_TRIES`); 0 disables the reflex."""
 
     vbat_low: float = 3.3
     vbat_low_s: float = 1.0
@@ -68,7 +68,7 @@ class FaultParams:
     guard_s: float = 0.3
     guard_rejoin_s: float = 5.0
     guard_drive_start_s: float = 2.0
-    yield_s: float = 3.0
+    yield_s: float = 4.0
 
     def descent_accel_cmd(self, vz: float) -> float:
         """Vertical acceleration (m/s^2) steering the dead-reckoned vertical speed to -descent_speed."""

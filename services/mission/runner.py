@@ -118,7 +118,9 @@ STOP_MAX = 3
 GROUND_MODES = frozenset({"driving", "parked", "holding"})
 """Modes of a vehicle on the ground that can stop where it is."""
 REPLAN_TRIES = 2
-"""How often a replan is asked for when the planner's answer does not come before its switch time."""
+"""How often a replan is asked for when the planner's answer does not come before its switch time;
+each try gives the planner one `REPLAN_LEAD_S` more (a loaded machine's planner is slow for a while).
+The executors' reflex to a held vehicle looks as far ahead (`FaultParams.yield_s`)."""
 REPLAN_TIME_LIMIT_S = 0.6
 """s: the planner's time limit for a replan (SIPP, paper 000 §V-D)."""
 CAPABILITIES_WAIT_S = 1.0
@@ -355,15 +357,16 @@ class MissionRunner(MissionClient[MissionResult]):
         if self.plan is None or self.t0 is None:
             return "the mission has not started"
         left = [v for v in self.left if v in self.plan.paths]  # those that left since the last replan
-        for _ in range(REPLAN_TRIES):  # a planner too slow this time is asked again, from later
-            at = time.time() - self.t0 + REPLAN_LEAD_S
+        for k in range(REPLAN_TRIES):  # a planner too slow this time is asked again, from later
+            lead = REPLAN_LEAD_S * (k + 1)
+            at = time.time() - self.t0 + lead
             req = PlanRequest(map=self.spec.map, tasks={}, planner=self.spec.replanner, mu=self.spec.mu,
                               time_limit=REPLAN_TIME_LIMIT_S,
                               replan=Replan(base=self.plan, at=at, left=left, sweeps=self.sweeps, goals=goals or {},
                                             strand=True))
             started = time.perf_counter()
             try:
-                reply = await query(self.session, self.keys.planner_plan, req, PlanReply, timeout=REPLAN_LEAD_S)
+                reply = await query(self.session, self.keys.planner_plan, req, PlanReply, timeout=lead)
             except QueryTimeout as exc:
                 late = f"the planner did not replan: {exc}"
                 continue
