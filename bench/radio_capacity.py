@@ -26,7 +26,6 @@ from common.bus.keys import Keys
 from common.bus.session import InProcessRouter
 from common.deploy.radios import GatewayParams, LinkModel, simulated_radios
 from services.radio_gateway.gateway import RadioGateway
-from services.radio_gateway.link import schedulable_pps
 from services.sim.crazyflie.service import SimService
 from tests.support.loadgen import LoadCommander, running
 
@@ -70,9 +69,9 @@ async def measure(router: InProcessRouter, n: int, seconds: float, warmup: float
 
 
 def model_rate(n: int, link: LinkModel, params: GatewayParams) -> float:
-    """What the schedule promises each of n flying vehicles: the budget left after cflib's pings and
-    the status requests, shared equally, at most one setpoint per tick."""
-    return min(params.tick_hz, (schedulable_pps(link.budget_pps, n) - n * params.status_hz) / n)
+    """What the schedule promises each of n flying vehicles: the budget left after the status
+    requests, shared equally, at most one setpoint per tick (the gateway stops cflib's pings)."""
+    return min(params.tick_hz, (link.budget_pps - n * params.status_hz) / n)
 
 
 def plot(rows: list[Row], out: Path) -> Path:

@@ -42,7 +42,7 @@ from common.crazyflie import crtp
 from common.deploy.radios import RadiosFile
 from common.domain.ownership import owner_of
 from services.radio_gateway.health import FLYING, LINK_EVENTS, LOCKED, Event
-from services.radio_gateway.link import RadioSender, VehicleLink, schedulable_pps
+from services.radio_gateway.link import RadioSender, VehicleLink
 from services.radio_gateway.scheduler import Scheduler
 from services.radio_gateway.vehicle import Refused, VehicleChannel
 
@@ -84,7 +84,7 @@ class RadioGateway(Service):
                                              onboard=link.onboard)
                          for vid, link in self.spec.vehicles.items()}
         self.scheduler = Scheduler(list(self.channels.values()),
-                                   schedulable_pps(self.spec.link.budget_pps, len(self.channels)), self.params, now)
+                                   self.spec.link.budget_pps, self.params, now)
         self.owners: dict[str, str | None] = dict.fromkeys(self.channels)
         self.connections = {vid: Connection() for vid in self.channels}
         self._logged: set[tuple[str, str]] = set()

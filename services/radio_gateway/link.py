@@ -43,15 +43,6 @@ from common.crazyflie import crtp
 
 log = logging.getLogger(__name__)
 
-CFLIB_PINGS_HZ = 10.0
-"""Link-control pings cflib sends on every open link (`cflib/crazyflie/link_statistics.py`,
-`_ping_thread(interval=0.1)`): airtime the gateway's schedule does not control."""
-
-
-def schedulable_pps(budget_pps: float, vehicles: int) -> float:
-    """A radio's packets per second left to the gateway's schedule once cflib's pings are paid."""
-    return max(budget_pps - vehicles * CFLIB_PINGS_HZ, 0.0)
-
 LogCallback = Callable[[str, float, dict[str, float]], None]
 """``on_log(vid, arrival time, {variable: value})`` on a cflib thread."""
 PacketCallback = Callable[[str, bytes], None]
@@ -107,6 +98,11 @@ class VehicleLink:
         init_drivers()
         TOC_CACHE.mkdir(parents=True, exist_ok=True)
         cf = Crazyflie(rw_cache=str(TOC_CACHE))
+        # cflib pings every connected link 10 times a second for its link statistics
+        # (`link_statistics.py`, started on `connected`), airtime outside the gateway's schedule and a
+        # percentile over the last 100 round trips per answer; the gateway judges a link by its log
+        # block, so the pings stop as soon as they start
+        cf.connected.add_callback(lambda _uri: cf.link_statistics.stop())
         cf.fully_connected.add_callback(lambda _uri: self._connected(cf))
         cf.connection_failed.add_callback(lambda _uri, msg: self._ended(cf, "failed", msg))
         cf.connection_lost.add_callback(lambda _uri, msg: self._ended(cf, "lost", msg))

@@ -134,6 +134,8 @@ class CrazyflieFirmware:
         self.last_rx = -math.inf
         self.received = 0
         self.malformed = 0
+        self.echoes = 0
+        """Link echo requests answered (cflib's link-statistics pings)."""
         self.locks = 0
         self.console: list[str] = []
         self._est: OnboardState | None = None
@@ -395,6 +397,7 @@ class CrazyflieFirmware:
 
     def _link(self, header: int, ch: int, payload: bytes, now: float) -> list[Packet]:
         if ch == 0:
+            self.echoes += 1
             return [bytes((header,)) + payload]  # echo
         if ch == 1:
             return [bytes((header,)) + b"Bitcraze Crazyflie".ljust(30, b"\0")]
