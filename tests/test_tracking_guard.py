@@ -177,6 +177,21 @@ def test_a_vehicle_whose_plan_goes_where_another_is_held_holds_too() -> None:
         assert math.dist(held, (sim.x, sim.y, sim.z)) < 0.05  # it stays there
 
 
+def test_a_vehicle_stopped_by_a_stale_pose_is_held_for_good_once_its_plan_moved_on() -> None:
+    """Stopped on the ground by a stale pose while its plan runs on, a vehicle is where the others'
+    plans no longer expect it: once its reference is 3x the margin away it is held for good (and
+    reported, so the others yield and are replanned), even before its pose comes back."""
+    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    ctrl = VehicleController("cf1", MODEL, owner="test")
+    ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
+    lost = T0 + 4.0
+    run(ctrl, sim, lost + 3.0, Mocap(MocapNoise(pos_std=0.001, dropouts=((lost, lost + 2.0),)), seed=3))
+    assert ctrl.machine.sequence() == [Mode.PARKED, Mode.DRIVING, Mode.HOLDING], ctrl.machine.sequence()
+    assert ctrl.held is not None and ctrl.held.startswith("its plan moved on"), ctrl.held
+    held_at = next(tr.t for tr in ctrl.machine.history if tr.dst == Mode.HOLDING)
+    assert lost < held_at < lost + 2.0  # before the pose came back, after it went stale
+
+
 def starve(pid: int, stop: threading.Event) -> None:
     """Stop and continue process `pid` in turns until `stop` is set (it is left running)."""
     try:

@@ -138,6 +138,8 @@ class ExecutorService(Service):
         """Every owned vehicle's pose filter, for fusing a frame in one step."""
         self.stats = LoopStats()
         self._last_mode: dict[str, str] = {}
+        self._told_held: set[str] = set()
+        """Vehicles whose hold (`VehicleController.held`) was reported."""
         self._told_aborted: list[str] = []
         """Vehicles whose mission this executor aborted while the router was lost: told once it is back."""
         self._executors: AliveSet | None = None
@@ -381,11 +383,15 @@ class ExecutorService(Service):
         plan for a battery or link fault: "low_battery" / "link_lost", with the node it lands at."""
         prev = self._last_mode.get(vid)
         self._last_mode[vid] = state.mode
+        if not ctl.held:
+            self._told_held.discard(vid)
+        elif vid not in self._told_held and state.mode in (Mode.HOVERING, Mode.HOLDING):
+            self._told_held.add(vid)  # (also held while already holding: `_left_behind`)
+            self._event.put(vid, VehicleEvent(vid=vid, t=now, kind="tracking_hold", detail=ctl.held))
+            return
         if prev == state.mode:
             return
         kind, detail, node = FAULT_MODES.get(state.mode), f"from {prev}", ""
-        if ctl.held and state.mode in (Mode.HOVERING, Mode.HOLDING):
-            kind, detail = "tracking_hold", ctl.held
         leaves_plan = state.mode == Mode.LANDING or (state.mode == Mode.DONE and prev != Mode.LANDING)
         if kind is None and leaves_plan:
             if ctl.faults.low_battery(ctl.charge_used_ah, now):

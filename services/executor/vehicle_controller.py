@@ -37,6 +37,9 @@ log = logging.getLogger(__name__)
 
 YIELD_STEP_S = 0.05
 """s between the plan positions `VehicleController.yield_to` looks at (0.05 s is at most 1.5 cm of flight)."""
+YIELD_BEHIND_S = 1.0
+"""s of its plan behind now that `yield_to` looks at too: a vehicle may lag its reference by up to
+the guard's burst (3x a 3 cm margin: 0.9 s of driving)."""
 
 
 @dataclass(frozen=True)
@@ -108,6 +111,7 @@ class VehicleController:
         """Why the tracking guard holds the vehicle (None: it does not)."""
         self._hover_ref: RefSample | None = None  # where a held vehicle hovers
         self._yield: str | None = None  # another vehicle held where this one's plan goes: hold too
+        self._stopped_at: tuple[float, float, float] | None = None  # where a fault on the ground stopped it
 
     # ---- inputs ---------------------------------------------------------------------------
 
@@ -287,9 +291,12 @@ class VehicleController:
         if est.stale or link:
             if m.mode != Mode.HOLDING:
                 self._hold_since = now
+                self._stopped_at = (est.x, est.y, est.z)  # (dead-reckoned since the last pose: it drove there)
                 m.request(Mode.HOLDING, now, "pose stale" if est.stale else "link lost")
             elif now - (self._hold_since or now) > self.params.faults.max_hold_s:
                 m.request(Mode.DONE, now, "held too long, plan given up")
+            else:
+                self._left_behind(now, est, ref)
             return
         self._follow_plan(now, rel, est)
 
@@ -315,6 +322,19 @@ class VehicleController:
                                   f"for {now - since:.2f} s in {self.machine.mode}")
         return True
 
+    def _left_behind(self, now: float, est: Estimate, ref: RefSample | None) -> None:
+        """Stopped on the ground for a fault that may clear (stale pose, lost link) while its plan
+        runs on: once the plan's reference is `guard_burst` x the margin away from where the
+        vehicle stopped (known without fresh poses: it does not move), the others' plans no longer
+        fit it, so it is held for good and reported like any vehicle the guard holds."""
+        f, margin = self.params.faults, self.model.margin
+        if not f.guard or margin <= 0.0 or ref is None or self._stopped_at is None:
+            return
+        error = math.dist(self._stopped_at, (ref.x, ref.y, ref.z))
+        if error > f.guard_burst * margin:
+            self._hold(now, est, ref, f"its plan moved on {error:.3f} m while it was stopped "
+                                      f"({self.machine.history[-1].reason if self.machine.history else 'holding'})")
+
     def _hold(self, now: float, est: Estimate, ref: RefSample, why: str) -> None:
         """Hold the vehicle where it is for the rest of the mission: hovering, or stopped on the ground."""
         self.held = why
@@ -322,7 +342,7 @@ class VehicleController:
             self._hover_ref = RefSample(ref.t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, est.yaw, 0.0,
                                         Mode.HOVERING)
             self.machine.request(Mode.HOVERING, now, why)
-        else:
+        elif self.machine.mode != Mode.HOLDING:
             self.machine.request(Mode.HOLDING, now, why)
         log.warning("%s: held by the tracking guard: %s", self.vid, why)
 
@@ -339,12 +359,16 @@ class VehicleController:
         m = self.model
         reach_xy = 2.0 * m.radius + f.guard_factor * m.margin
         reach_z = m.height + f.guard_factor * m.margin
+        est = self.estimator.estimate(now)
         rel = now - self.t0
-        for k in range(int(f.yield_s / YIELD_STEP_S) + 1):
-            x, y, z = traj.plan_position(min(rel + k * YIELD_STEP_S, traj.end_time))
+        # where it is, then its plan from a little behind (it may lag its reference) to `yield_s` ahead
+        places = [(-1.0, (est.x, est.y, est.z))] + [
+            (k * YIELD_STEP_S, traj.plan_position(min(max(rel + k * YIELD_STEP_S, 0.0), traj.end_time)))
+            for k in range(-int(YIELD_BEHIND_S / YIELD_STEP_S), int(f.yield_s / YIELD_STEP_S) + 1)]
+        for ahead, (x, y, z) in places:
             if abs(z - pos[2]) < reach_z and math.hypot(x - pos[0], y - pos[1]) < reach_xy:
-                self._yield = (f"yields to {vid}, held at ({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f}), where its plan "
-                               f"goes in {k * YIELD_STEP_S:.1f} s")
+                where = "where it is" if ahead < -YIELD_BEHIND_S else f"where its plan goes in {max(ahead, 0.0):.1f} s"
+                self._yield = f"yields to {vid}, held at ({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f}), {where}"
                 return True
         return False
 
