@@ -227,6 +227,8 @@ def test_wrong_reported_cost():
     right = validate_plan(make_plan(VALID)).cost
     only_error(make_plan(VALID, cost=right + 1e-3), "cost: the plan reports")
     assert validate_plan(make_plan(VALID, cost=right * (1 + 1e-8))).ok
+    unpriced = validate_plan(make_plan(VALID, cost=0.0), check_cost=False)  # a replan before it is priced
+    assert unpriced.ok and unpriced.cost == pytest.approx(right)
 
 
 # -- eq. 1-3 by hand (mu 0.25, W_max 10 J, t_max 10 s) ---------------------------------------------------------

@@ -125,10 +125,9 @@ def _replan_with(graph: FleetGraph, req: PlanRequest, planner: str, time_limit: 
                                           if vid in result.stranded else rp.goals.get(vid, base.tasks[vid].goal))
              for vid in result.paths}
     plan = to_plan(graph, base.map, base.planner, base.mu, tasks, result)
-    plan = msgspec.structs.replace(plan, cost=validate_plan(plan).cost)  # whole paths, priced by the validator
-    report = validate_plan(plan)
-    if report.ok:
-        return PlanReply(ok=True, plan=plan, planner=planner), None
+    report = validate_plan(plan, check_cost=False)
+    if report.ok:  # priced by the validator: whole paths, the executed prefix and the new suffix
+        return PlanReply(ok=True, plan=msgspec.structs.replace(plan, cost=report.cost), planner=planner), None
     rank = {vid: i for i, vid in enumerate(result.priority)}
     later = next((max(c.a, c.b, key=lambda v: rank[v]) for c in report.contacts if c.a in rank and c.b in rank), None)
     return PlanReply(ok=False, error="replan failed validation: " + "; ".join(report.errors[:5])), later
