@@ -357,13 +357,22 @@ class MissionRunner(MissionClient[MissionResult]):
         if self.plan is None or self.t0 is None:
             return "the mission has not started"
         left = [v for v in self.left if v in self.plan.paths]  # those that left since the last replan
+        answer = await self._ask_replan(self.plan, self.t0, left, goals or {})
+        if isinstance(answer, str):
+            return answer
+        return self._apply_replan(*answer, left, goals or {})
+
+    async def _ask_replan(self, plan: Plan, t0: float, left: list[str],
+                          goals: dict[str, str]) -> tuple[PlanReply, float, float] | str:
+        """The planner's replan of `plan` (its reply, the switch time and how long it took), asked
+        again from later when it does not come before its switch time; or why there is none."""
+        late = ""
         for k in range(REPLAN_TRIES):  # a planner too slow this time is asked again, from later
             lead = REPLAN_LEAD_S * (k + 1)
-            at = time.time() - self.t0 + lead
+            at = time.time() - t0 + lead
             req = PlanRequest(map=self.spec.map, tasks={}, planner=self.spec.replanner, mu=self.spec.mu,
                               time_limit=REPLAN_TIME_LIMIT_S,
-                              replan=Replan(base=self.plan, at=at, left=left, sweeps=self.sweeps, goals=goals or {},
-                                            strand=True))
+                              replan=Replan(base=plan, at=at, left=left, sweeps=self.sweeps, goals=goals, strand=True))
             started = time.perf_counter()
             try:
                 reply = await query(self.session, self.keys.planner_plan, req, PlanReply, timeout=lead)
@@ -378,14 +387,19 @@ class MissionRunner(MissionClient[MissionResult]):
             if not reply.ok or reply.plan is None:
                 self._blocked = reply.failed_vehicle
                 return f"replanning failed: {reply.error}"
-            if time.time() - self.t0 <= at:
-                break
+            if time.time() - t0 <= at:
+                return reply, at, took
             late = f"the replan came too late ({took:.2f} s)"
-        else:
-            return f"{late} ({REPLAN_TRIES} times)"
-        wanted = {v: (goals or {}).get(v, t.goal) for v, t in self.plan.tasks.items()}
+        return f"{late} ({REPLAN_TRIES} times)"
+
+    def _apply_replan(self, reply: PlanReply, at: float, took: float, left: list[str],
+                      goals: dict[str, str]) -> str | None:
+        """Take the planner's replan (`_ask_replan`): the vehicles it strands, the new goals, the
+        plans handed out; why not, if it left a new goal out of reach."""
+        assert self.plan is not None and self.t0 is not None and reply.plan is not None
+        wanted = {v: goals.get(v, t.goal) for v, t in self.plan.tasks.items()}
         short = {v: t.goal for v, t in reply.plan.tasks.items() if t.goal != wanted[v]}
-        if refused := sorted(set(short) & set(goals or {})):
+        if refused := sorted(set(short) & set(goals)):
             return f"{', '.join(f'{wanted[v]!r}' for v in refused)} out of reach"
         self.replans.append(took)
         self.plan = reply.plan
@@ -395,11 +409,11 @@ class MissionRunner(MissionClient[MissionResult]):
             self.events.append(f"{vid}: {wanted[vid]!r} out of reach now: it stops at {node!r}")
         for vid, path in self.plan.paths.items():
             self.reports[vid].planned_s = path[-1].t
-        for vid in goals or {}:
+        for vid in goals:
             self.reports[vid].arrived = False
             self.stranded.pop(vid, None)
         self.hand_out(self.t0)
-        why = f"around {', '.join(self.left)}" if left else f"for {', '.join(goals or {})}" if goals else "again"
+        why = f"around {', '.join(self.left)}" if left else f"for {', '.join(goals)}" if goals else "again"
         self.events.append(f"replanned {len(self.plan.paths)} vehicles {why} in {took:.2f} s (switch at {at:.1f} s, "
                            f"{reply.planner})")
         return None
