@@ -328,8 +328,8 @@ class VehicleController:
         vehicle stopped (known without fresh poses: it does not move), the others' plans no longer
         fit it, so it is held for good and reported like any vehicle the guard holds."""
         f, margin = self.params.faults, self.model.margin
-        if not f.guard or margin <= 0.0 or ref is None or self._stopped_at is None:
-            return
+        if not f.guard or margin <= 0.0 or ref is None or self._stopped_at is None or now < self._guard_from:
+            return  # (taken over: the guard waits for it to get back onto its reference)
         error = math.dist(self._stopped_at, (ref.x, ref.y, ref.z))
         if error > f.guard_burst * margin:
             self._hold(now, est, ref, f"its plan moved on {error:.3f} m while it was stopped "
