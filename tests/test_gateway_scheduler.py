@@ -16,7 +16,7 @@ from common.deploy.radios import GatewayParams
 from services.radio_gateway.health import LinkHealth
 from services.radio_gateway.scheduler import Scheduler
 from services.radio_gateway.vehicle import Drive, VehicleChannel
-from tests.support.gateway_packets import Notify, Supervisor, decode
+from tests.support.gateway_packets import Notify, Null, Supervisor, decode
 
 HOVER = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=48000)
 TICK = 0.01
@@ -223,6 +223,18 @@ def test_flight_setpoints_go_before_status_requests_and_only_flying_cars_are_ask
     for vid in ("car", "drone"):
         assert _kinds(sent[vid])["FlightSetpoint"] >= 95  # ~50 Hz each: the budget's share, no less
     assert _kinds(sent["drone"])["StatusRequest"] == 0
+
+
+def test_a_stock_vehicle_with_nothing_to_send_gets_null_packets_to_keep_its_link_active() -> None:
+    """The firmware resets its log blocks after a second without any radio packet
+    (`CONFIG_RADIO_ACTIVITY_TIMEOUT_MS`); a parked stock Crazyflie gets no setpoints and has no wheel
+    app to ask for a status, so the schedule sends it a null packet at the status rate."""
+    params = GatewayParams()
+    drone = VehicleChannel("drone", params, 0.0, wheels=False)
+    sent, _ = _run([drone], Scheduler([drone], 500.0, params, 0.0), 2.0)
+    nulls = [t for t, p in sent["drone"] if isinstance(p, Null)]
+    assert len(nulls) == pytest.approx(2.0 * params.status_hz, abs=1)
+    assert max(b - a for a, b in zip([0.0, *nulls], nulls, strict=False)) <= 1.0 / params.status_hz + 0.02
 
 
 def test_arming_and_crash_recovery_requests_follow_the_supervisor() -> None:

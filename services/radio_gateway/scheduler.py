@@ -13,7 +13,11 @@ holds at most two ticks' worth) and spends them, as one batch, in this order:
    stopped, with the slots left. When the budget is short, every flying vehicle's rate drops
    equally instead of some starving;
 3. supervisor requests (arming, crash recovery) and the wheel app's status requests, `status_hz`
-   per vehicle with the app, staggered: with the slots flight left (they wait, setpoints do not).
+   per vehicle with the app, staggered: with the slots flight left (they wait, setpoints do not); a
+   vehicle without the app gets a null packet instead, so that a parked stock Crazyflie's link
+   stays active (the firmware resets its log blocks after `CONFIG_RADIO_ACTIVITY_TIMEOUT_MS`
+   without a radio packet; over a Crazyradio cflib polls anyway, over UDP it does not, and its
+   link-statistics pings, which kept such a link alive, are stopped).
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 
+from common.crazyflie import crtp
 from common.deploy.radios import GatewayParams
 from services.radio_gateway.health import Event
 from services.radio_gateway.vehicle import VehicleChannel
@@ -103,8 +108,8 @@ class Scheduler:
     def _status(self, now: float, batch: list[Packet]) -> None:
         for ch in self.channels:
             due = self._status_due[ch.vid]
-            if ch.wheels and now >= due and self._take():
-                batch.append((ch.vid, ch.status_request(now)))
+            if now >= due and self._take():
+                batch.append((ch.vid, ch.status_request(now) if ch.wheels else crtp.NULL_PACKET))
                 self._status_due[ch.vid] = max(due + self._status_period, now)
 
     def _flight(self, now: float, batch: list[Packet], events: list[tuple[str, Event]]) -> None:

@@ -19,6 +19,11 @@ class Notify:
 
 
 @dataclass(frozen=True)
+class Null:
+    """A link-layer null packet (header 0xff, nothing else): the stock vehicle's keep-alive."""
+
+
+@dataclass(frozen=True)
 class Supervisor:
     """A supervisor request (port 9, channel 1): 1 arm, 2 crash recovery, 3 emergency stop."""
 
@@ -36,6 +41,8 @@ class ExtPose:
 def decode(raw: bytes) -> object:
     """The gateway's packets, read as the firmware reads them (independently of the encoder)."""
     port, ch, payload = raw[0] >> 4, raw[0] & 3, raw[1:]
+    if port == 15 and ch == 3 and not payload:
+        return Null()
     if port == 3:
         roll, pitch, yawrate, thrust = struct.unpack("<fffH", payload)
         return FlightSetpoint(roll=roll, pitch=-pitch, yawrate=yawrate, thrust=thrust)

@@ -129,6 +129,7 @@ class SimCrazyflie(asyncio.DatagramProtocol):
                 asyncio.get_running_loop().call_later(self._blackout_until - now, self.datagram_received, data, addr)
             return
         if data == crtp.NULL_PACKET:  # cflib's scan, or a radio's poll: the link answers
+            self.firmware.heard(now)
             self._reply(crtp.NULL_PACKET, addr)
             return
         at = self.radio.uplink(now, reliable(data))

@@ -262,6 +262,12 @@ class CrazyflieFirmware:
     def uptime_ms(self, now: float) -> float:
         return (now - self.booted_at) * 1000.0
 
+    def heard(self, now: float) -> None:
+        """A packet reached the radio: any raw radio packet, a null one too, refreshes the link's
+        activity (`radiolink.c: radiolinkSyslinkDispatch()`, `lastPacketTick`)."""
+        if self.running:
+            self.last_rx = now
+
     def link_active(self, now: float) -> bool:
         return now - self.last_rx < LINK_ACTIVITY_S
 
@@ -380,11 +386,11 @@ class CrazyflieFirmware:
         if not raw:
             return []
         port, ch, payload = raw[0] >> 4, raw[0] & 0x03, bytes(raw[1:])
+        self.heard(now)
         if port == PORT_LINK and ch == 3:
             return self._power(payload, now) if payload[:1] == bytes((POWER_PREFIX,)) else []
         if not self.running:
             return []
-        self.last_rx = now
         self.received += 1
         handler = self._ports.get(port)
         if handler is None:
