@@ -163,7 +163,8 @@ def check_recording(recordings: Path, demo_output: str) -> None:
         assert near.min() < 0.1, f"{vid}'s path never is at its start {task['start']}"
         if vid in left:  # the tracking guard held it (under the browser's load): it ends where it stopped
             continue
-        assert np.linalg.norm(path[-1, 1:3] - goal[:2]) < 0.1, f"{vid}'s path does not end at {task['goal']}"
+        assert np.linalg.norm(path[-1, 1:3] - goal[:2]) < 0.1, \
+            f"{vid}'s path does not end at {task['goal']}: {demo_output[-1500:]}"
         timeline = [m for _, m in sorted(modes.get(vid, []))]
         assert timeline and timeline[0] == "parked" and timeline[-1] == "done", f"{vid}: modes {timeline}"
         assert {"driving", "flying"} & set(timeline), f"{vid} never moved: modes {timeline}"
