@@ -307,7 +307,10 @@ class VehicleController:
         if not f.guard or margin <= 0.0 or ref is None or est.stale:
             self._guard_since = None
             return False
-        error = math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z))
+        if self.machine.mode == Mode.TAKING_OFF:  # (climbing late in its own spot's column: harmless)
+            error = math.dist((est.x, est.y), (ref.x, ref.y))
+        else:
+            error = math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z))
         limit = f.guard_factor * margin
         if error <= limit or now < self._guard_from:  # (taken over off its reference: it gets back first)
             self._guard_since = None
