@@ -1,4 +1,4 @@
-"""Radio link loss (issue 8), injected into the simulated radio (every packet to and from one vehicle
+"""Radio link loss (issues 8 and 16), injected into the simulated radio (every packet to and from one vehicle
 lost for a while):
 
 - at the gateway, with a stand-in executor hovering two vehicles: the simulated firmware levels the
@@ -7,8 +7,8 @@ lost for a while):
   block (event and telemetry), `link_up` and `vehicle_locked` when the link is back, and reboots
   it (`rebooted`); the other vehicle flies on;
 - in a mission, a 1.5 s loss while cruising: levelled, no cut; the link is reported lost, the
-  executor lands the vehicle at its nearest safe node once the link is back and the mission aborts
-  cleanly;
+  executor lands the vehicle at its nearest safe node once the link is back and the mission replans
+  the others around it: every one of them arrives (ground truth, no contact);
 - a vehicle that sank to the ground while its link was lost (the firmware kept a thrust below the
   hover) still gets a landing from its executor (it used to raise and take the executor down).
 """
@@ -32,7 +32,15 @@ from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from services.radio_gateway.gateway import RadioGateway
 from services.sim.crazyflie.service import SimService
-from tests.support.fleet_faults import SAFE_TOUCHDOWN, TOWN_TASKS, Watch, fly, until
+from tests.support.fleet_faults import (
+    SAFE_TOUCHDOWN,
+    TOWN_TASKS,
+    Watch,
+    assert_the_others_arrived,
+    cruising,
+    fly,
+    until,
+)
 from tests.support.loadgen import LoadCommander, running
 
 
@@ -81,14 +89,13 @@ def test_firmware_levels_at_half_a_second_cuts_at_two_and_the_gateway_reports_th
 
 
 @pytest.mark.timeout(180)
-def test_a_link_lost_mid_flight_lands_the_vehicle_and_aborts_the_mission(tmp_path) -> None:
+def test_a_link_lost_mid_flight_lands_the_vehicle_and_the_others_fly_on(tmp_path) -> None:
     spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
     marks: dict[str, float] = {}
 
     async def scenario(watch: Watch, runner: MissionRunner) -> None:
-        await until(lambda: watch.mode("cf1") == "flying", 60, "cf1 flying")
-        await asyncio.sleep(1.0)  # cruising: the setpoint the firmware keeps is about the hover's
-        marks["cut"] = watch.inject(SimFault(vid="cf1", kind="radio_blackout", duration_s=1.5))
+        await cruising(watch, "cf1")
+        marks["cut"] = watch.inject(SimFault(vid="cf1", kind="radio_blackout", duration_s=1.5))  # under the 2 s cut
 
     with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="radiofault") as fleet:
         result, watch = fly(fleet, spec, scenario)
@@ -99,7 +106,7 @@ def test_a_link_lost_mid_flight_lands_the_vehicle_and_aborts_the_mission(tmp_pat
     assert {"sim_watchdog_level", "link_lost", "link_up"} <= set(kinds)
     assert "sim_watchdog_cut" not in kinds and "vehicle_locked" not in kinds  # back in range before 2 s
     assert any(not tel.link_ok for tel in watch.telemetry["cf1"] if tel.t > cut)
-    assert not result.ok and "cf1: link_lost" in result.reason, result.reason
+    assert_the_others_arrived(result, watch, "cf1")
     # the executor's event names where it lands cf1: a node where cf1's plan takes off or lands ...
     told = [e for _, e in watch.events if e.vid == "cf1" and e.kind == "link_lost" and e.node]
     assert told, [(e.kind, e.detail) for _, e in watch.events if e.vid == "cf1"]
@@ -111,12 +118,9 @@ def test_a_link_lost_mid_flight_lands_the_vehicle_and_aborts_the_mission(tmp_pat
     pos = result.plan.graph.nodes[node].pos
     assert watch.at_rest_on("cf1", pos), (node, pos, watch.truth["cf1"][-1], round(watch.distance_to("cf1", pos), 3))
     assert watch.landed_safely("cf1") == ""
-    assert result.contacts == 0 and not watch.contacts, (watch.separation_line(), watch.contacts[:5])
     for vid in TOWN_TASKS:
-        assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
-        assert not watch.locked(vid), f"{vid}: the supervisor locked and was not rebooted"
         assert watch.hardest_touchdown(vid) < SAFE_TOUCHDOWN, (vid, watch.hardest_touchdown(vid))
-    print(f"cf1 landed at {node} (its event's), {100 * watch.distance_to('cf1', pos):.1f} cm from it in ground "
+    print(f"replanned in {', '.join(f'{1e3 * t:.0f} ms' for t in result.replans)}; cf1 landed at {node} (its event's), {100 * watch.distance_to('cf1', pos):.1f} cm from it in ground "
           f"truth, touchdown {watch.hardest_touchdown('cf1'):.2f} m/s; {watch.separation_line()}")
 
 

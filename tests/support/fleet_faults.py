@@ -214,3 +214,30 @@ def fly(fleet: LocalFleet, spec: MissionSpec, scenario: Scenario) -> tuple[Missi
 
 def airborne(watch: Watch, vid: str, z: float = 0.3) -> Callable[[], bool]:
     return lambda: bool(watch.truth[vid]) and watch.truth[vid][-1].z > z
+
+
+async def cruising(watch: Watch, vid: str) -> None:
+    """Wait until `vid` flies at cruise height, then 1 s more (in cruise, the setpoint the firmware
+    keeps through a silence is about the hover's)."""
+    await until(lambda: watch.mode(vid) == "flying", 60, f"{vid} flying")
+    await until(airborne(watch, vid), 5, f"{vid} at cruise height")
+    await asyncio.sleep(1.0)
+
+
+def assert_the_others_arrived(result: MissionResult, watch: Watch, faulted: str) -> None:
+    """Issue 16's outcome of one vehicle's fault, judged in ground truth: the mission replanned the
+    others around `faulted`, every other vehicle is at its goal, `faulted` came down softly and
+    rests on the ground, no supervisor is left locked and no bodies touched."""
+    assert faulted in result.reason and "every other vehicle arrived" in result.reason, result.reason
+    assert result.replans, result.events
+    assert result.plan is not None
+    assert watch.at_rest_on_ground(faulted), watch.truth[faulted][-1]
+    assert watch.hardest_touchdown(faulted) < SAFE_TOUCHDOWN, watch.hardest_touchdown(faulted)
+    for vid in result.vehicles:
+        assert not watch.locked(vid), f"{vid}: the supervisor locked and was not rebooted"
+        if vid == faulted:
+            continue
+        goal = result.plan.graph.nodes[result.plan.paths[vid][-1].node].pos
+        assert watch.distance_to(vid, goal) < 0.05, (vid, watch.truth[vid][-1], goal)
+        assert result.vehicles[vid].arrived, vid
+    assert result.contacts == 0 and not watch.contacts, (watch.separation_line(), watch.contacts[:5])
