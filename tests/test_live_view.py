@@ -169,4 +169,5 @@ def check_recording(recordings: Path, demo_output: str) -> None:
         assert timeline and timeline[0] == "parked" and timeline[-1] == "done", f"{vid}: modes {timeline}"
         assert {"driving", "flying"} & set(timeline), f"{vid} never moved: modes {timeline}"
         assert battery.get(vid) and all(3.0 < v < 4.3 for v in battery[vid]), f"{vid}: battery {battery.get(vid)}"
-    assert "flying" in [m for _, m in modes["cf1"]], "cf1 crosses the gap in the air"
+    if "cf1" not in left:  # held on its way up, it never reached `flying`
+        assert "flying" in [m for _, m in modes["cf1"]], f"cf1 crosses the gap in the air: {demo_output[-1500:]}"

@@ -247,7 +247,15 @@ class Subscription(Generic[T]):
             except Exception as exc:
                 self.counters.drop("handler", self.type, key, f"{type(exc).__name__}: {exc}", exc)
 
+    def close_and_drain(self) -> list[tuple[T, str]]:
+        """Stop receiving and return every message that arrived but was not handled yet, oldest
+        first (a recorder's last samples when it stops: under load its handler lags the stream)."""
+        self.close()
+        return self._mailbox.drain()
+
     def close(self) -> None:
+        if self._closed:
+            return
         self._closed = True
         self._subscriber.undeclare()
         if self._task is not None:

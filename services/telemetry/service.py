@@ -7,13 +7,16 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from common.bus.args import keys_from_args, run_service, zconfig_from_args
 from common.bus.messages import GraphReply, GraphRequest, SimTruth, Telemetry, VehiclePlan, VehicleState
 from common.bus.process_priority import lower_priority
-from common.bus.pubsub import QueryError, query
+from common.bus.pubsub import QueryError, Subscription, query
 from common.bus.service import Service
 from common.domain.mapfile import load_map
 from common.errors import InputError
@@ -23,6 +26,13 @@ log = logging.getLogger(__name__)
 
 GRAPH_TIMEOUT_S = 10.0
 """How long the planner may take to build a map's graph for the recorder."""
+STREAM_BACKLOG = 4096
+"""Samples of each stream (states, telemetry, ground truth) waiting to be drawn; beyond, the oldest go."""
+TIME_JITTER_S = 1e-3
+"""s a sample's time may fall short of the drawing interval and still be drawn (100 Hz stamps are not
+exactly 10 ms apart: at 20 Hz every fifth, not every sixth)."""
+CATCH_UP_S = 2.0
+"""s the recorder may spend at its stop drawing its backlog (`fleet down` kills after 5 s)."""
 
 
 class TelemetryService(Service):
@@ -47,14 +57,29 @@ class TelemetryService(Service):
     async def main(self) -> None:
         k = self.keys
         self.subscribe(k.all_vehicles("plan"), VehiclePlan, self._on_plan)
-        self.subscribe(k.all_vehicles("state"), VehicleState, self._on_state, maxlen=4096)
-        self.subscribe(k.all_vehicles("telemetry"), Telemetry, self._with_recording(FleetRecording.log_telemetry), maxlen=4096)
-        self.subscribe(k.all_sim_truth, SimTruth, self._with_recording(FleetRecording.log_truth), maxlen=4096)
+        streams = [(self.subscribe(key, typ, handler, maxlen=STREAM_BACKLOG), handler) for key, typ, handler in (
+            (k.all_vehicles("state"), VehicleState, self._on_state),
+            (k.all_vehicles("telemetry"), Telemetry, self._with_recording(FleetRecording.log_telemetry)),
+            (k.all_sim_truth, SimTruth, self._with_recording(FleetRecording.log_truth)))]
         try:
             await self.stopped()
         finally:
+            self._catch_up(streams)
             if self.recording is not None:
                 self.recording.close()
+
+    def _catch_up(self, streams: list[tuple[Subscription, Callable[[Any, str], None]]]) -> None:
+        """Draw what arrived but was not drawn yet before the recording closes: the recorder runs at
+        a lower priority and lags the streams on a busy machine, and a fleet stopped right after a
+        mission would otherwise lose the mission's end (its last positions, every vehicle's `done`)."""
+        deadline = time.monotonic() + CATCH_UP_S
+        for sub, handler in streams:
+            backlog = sub.close_and_drain()
+            for n, (msg, key) in enumerate(backlog):
+                if time.monotonic() > deadline:
+                    log.warning("telemetry: %d samples of %s not drawn at the stop", len(backlog) - n, sub.key)
+                    break
+                handler(msg, key)
 
     def _on_state(self, state: VehicleState, key: str) -> None:
         """Every mode change reaches the timeline; the rest of the states at most `max_hz`."""
@@ -66,10 +91,10 @@ class TelemetryService(Service):
         """At most `max_hz` messages per key are drawn: the streams arrive at up to 100 Hz per
         vehicle and the recorder shares the machine with the control loops."""
         def handler(msg, key: str) -> None:
-            now = time.monotonic()
-            if self.recording is None or now - self._logged_at.get(key, -float("inf")) < self.min_interval:
+            since = msg.t - self._logged_at.get(key, -math.inf)  # by the sample's own time: a backlog
+            if self.recording is None or 0.0 <= since < self.min_interval - TIME_JITTER_S:  # is drawn alike
                 return
-            self._logged_at[key] = now
+            self._logged_at[key] = msg.t
             log_fn(self.recording, msg)
         return handler
 
