@@ -7,7 +7,6 @@ outcome required."""
 
 from __future__ import annotations
 
-import asyncio
 import math
 
 import pytest
@@ -15,7 +14,7 @@ import pytest
 from common.bus.messages import MissionAbort, SimFault
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from tests.support.fleet_faults import TOWN_TASKS, Watch, airborne, fly, until
+from tests.support.fleet_faults import TOWN_TASKS, Watch, cruising, fly, until
 
 GUST = SimFault(vid="cf1", kind="gust", duration_s=0.5, gust=(5.0, 0.0))
 """5 m/s^2 along +x for 0.5 s: pushes a cruising vehicle 9-10 cm off its plan before the LQR holds it."""
@@ -32,9 +31,7 @@ def test_a_vehicle_held_by_wind_and_one_stopped_alone_leave_the_others_flying_on
     marks: dict[str, float] = {}
 
     async def scenario(watch: Watch, runner: MissionRunner) -> None:
-        await until(lambda: watch.mode("cf1") == "flying", 60, "cf1 flying")
-        await until(airborne(watch, "cf1"), 5, "cf1 at cruise height")
-        await asyncio.sleep(1.0)
+        await cruising(watch, "cf1")
         watch.inject(GUST)
         await until(lambda: watch.first("cf1", "tracking_hold") is not None, 5, "cf1 held by the guard")
         await until(lambda: bool(runner.replans), 5, "the replan around cf1")
