@@ -23,7 +23,6 @@ from services.mocap_bridge.config import MocapConfig
 from tests.support.fleet_faults import (
     TOWN_TASKS,
     Watch,
-    airborne,
     assert_the_others_arrived,
     cruising,
     fly,
@@ -42,7 +41,7 @@ def test_a_short_dropout_is_flown_through_a_long_one_lands_the_vehicle_and_the_o
 
     async def scenario(watch: Watch, runner: MissionRunner) -> None:
         await until(lambda: watch.mode("cf1") == "flying" and watch.mode("cf2") == "flying", 60, "both flying")
-        await until(airborne(watch, "cf2"), 5, "cf2 at cruise height")
+        await cruising(watch, "cf2")
         marks["short"] = watch.inject(SimFault(vid="cf2", kind="mocap_dropout", duration_s=SHORT))
         await cruising(watch, "cf1")
         await asyncio.sleep(max(0.0, marks["short"] + SHORT + 0.5 - time.time()))
