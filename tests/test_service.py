@@ -99,44 +99,6 @@ class Crashing(Service):
         await self.stopped()
 
 
-class SlowToServe(Echo):
-    """Echo in a process descheduled between its start and its first declaration."""
-
-    async def main(self) -> None:
-        time.sleep(0.5)  # blocks the loop, as a starved process would
-        await super().main()
-
-
-@pytest.mark.timeout(20)
-def test_a_service_seen_alive_already_answers_its_queries(zenoh_router: str, zsession: Sessions) -> None:
-    """A client that queries the moment the service's token appears is answered (the token came
-    before main() declared its queryable: `fleet up` on a loaded machine failed a team example's
-    first plan with "no queryable answered")."""
-    client = zsession()
-    answers: list[str] = []
-
-    def ask_when_alive() -> None:
-        deadline = time.monotonic() + 10.0
-        while not list(client.liveliness().get(KEYS.alive("echo", "e1"), timeout=1.0)):
-            assert time.monotonic() < deadline
-        try:
-            answers.append(asyncio.run(query(client, KEYS.planner_plan, PlanRequest(map="m", tasks={}), PlanReply,
-                                             timeout=3.0)).error)
-        except QueryError as exc:
-            answers.append(f"failed: {exc}")
-
-    async def scenario() -> None:
-        slow = SlowToServe("echo", "e1", ZenohConfig.client(zenoh_router), KEYS)
-        asker = asyncio.create_task(asyncio.to_thread(ask_when_alive))
-        run = asyncio.create_task(slow.run())
-        await asker
-        slow.stop()
-        assert await run == 0
-
-    asyncio.run(scenario())
-    assert answers == ["m"], answers
-
-
 @pytest.mark.timeout(10)
 def test_a_failing_task_stops_the_service_with_exit_code_1(zenoh_router: str) -> None:
     assert asyncio.run(Crashing("crash", "c1", ZenohConfig.client(zenoh_router), KEYS).run()) == 1

@@ -11,9 +11,7 @@ Subclass `Service` and override `main()` (or compose: call its helpers from your
     sys.exit(asyncio.run(Echo("echo", "e1", ZenohConfig.client(endpoint)).run()))
 
 `run()` stops on SIGINT/SIGTERM, on `stop()`, when `main()` returns, or when `main()` or a spawned
-task fails (exit code 1). The liveliness token (and the launcher's readiness mark) comes once
-`main()` has run to its first await, where it declares what it serves: a client that sees the
-service alive finds its queryables and subscribers. Stopping cancels the tasks, closes everything declared through the
+task fails (exit code 1). Stopping cancels the tasks, closes everything declared through the
 helpers (newest first), drops the liveliness token and closes the session, on the event loop.
 """
 
@@ -149,13 +147,11 @@ class Service:
             except zenoh.ZError as exc:
                 log.error("%s/%s: cannot open zenoh session: %s", self.name, self.instance, exc)
                 return 1
-            main = self.spawn(self.main(), name="main")
-            await asyncio.sleep(0)  # main declares what it serves before its first await: then it is alive
-            if not main.done():
-                self._closers.append(declare_alive(self.session, self.keys, self.name, self.instance).undeclare)
-                log.info("%s/%s running", self.name, self.instance)
-                mark_ready()
+            self._closers.append(declare_alive(self.session, self.keys, self.name, self.instance).undeclare)
+            log.info("%s/%s running", self.name, self.instance)
+            mark_ready()
             self.spawn(self._watch_loop(), name="loop-watch")
+            main = self.spawn(self.main(), name="main")
             stop = asyncio.create_task(self._stop.wait())
             await asyncio.wait({main, stop}, return_when=asyncio.FIRST_COMPLETED)
             stop.cancel()
