@@ -22,6 +22,8 @@ from common.bus.session import free_tcp_endpoint
 from services.api import CommandRefused, Fleet, MissionEvent, PlanningError, VehicleBusy
 from tests.support.service_logs import service_warnings
 
+pytestmark = pytest.mark.flight
+
 REPO = Path(__file__).resolve().parents[1]
 FLEET = [sys.executable, "-m", "services.cli"]
 

@@ -25,6 +25,7 @@ from common.bus.pubsub import (
     QueryError,
     QueryTimeout,
     drop_name,
+    find_queryable,
     query,
     serve,
     subscribe,
@@ -232,6 +233,30 @@ def test_query_reply_error_reply_malformed_request_timeout_and_no_queryable(zses
     asyncio.run(scenario())
     assert counters[f"query_error:{KEYS.planner_plan}"] == 1
     assert counters[drop_name("malformed", PlanRequest, KEYS.planner_plan)] == 1
+
+
+@pytest.mark.timeout(15)
+def test_a_query_waits_for_a_queryable_declared_after_it_was_sent(zsession: Sessions) -> None:
+    """A client that saw a service come alive (its token comes first) and asks it at once."""
+    server, client = zsession(), zsession()
+    key = KEYS.planner_plan
+
+    async def scenario() -> None:
+        with pytest.raises(QueryError, match="no queryable"):
+            await query(client, key, plan_request("town"), PlanReply, timeout=2)
+        assert not await find_queryable(client, key, 0.2)
+
+        async def serve_late() -> None:
+            await asyncio.sleep(0.5)
+            serve(server, key, PlanRequest, PlanReply, plan_handler)
+
+        late = asyncio.create_task(serve_late())
+        start = time.monotonic()
+        reply = await query(client, key, plan_request("town"), PlanReply, timeout=2, find_s=3)
+        assert reply.ok and 0.5 <= time.monotonic() - start < 2.0
+        await late
+
+    asyncio.run(scenario())
 
 
 @pytest.mark.timeout(10)

@@ -16,6 +16,8 @@ from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from tests.support.fleet_faults import TOWN_TASKS, Watch, cruising, fly, until
 
+pytestmark = pytest.mark.flight
+
 GUST = SimFault(vid="cf1", kind="gust", duration_s=0.5, gust=(5.0, 0.0))
 """5 m/s^2 along +x for 0.5 s: pushes a cruising vehicle 9-10 cm off its plan before the LQR holds it."""
 

@@ -18,6 +18,8 @@ from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from tests.support.fleet_faults import TOWN_TASKS, Watch, assert_the_others_arrived, cruising, fly
 
+pytestmark = pytest.mark.flight
+
 MODEL = VehicleModel()
 NEARLY_EMPTY_AH = MODEL.capacity_ah - 0.5 * MODEL.reserve_ah
 """Half the reserve left (5 % of the capacity): about 3.1 V in flight."""

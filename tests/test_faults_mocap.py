@@ -32,6 +32,7 @@ from tests.support.fleet_faults import (
 SHORT, LONG = 0.3, 2.0
 
 
+@pytest.mark.flight
 @pytest.mark.timeout(180)
 def test_a_short_dropout_is_flown_through_a_long_one_lands_the_vehicle_and_the_others_fly_on(tmp_path) -> None:
     """cf2 loses its body for 0.3 s in cruise and flies on to its goal; then cf1 for 2 s: it lands,

@@ -88,6 +88,7 @@ def test_firmware_levels_at_half_a_second_cuts_at_two_and_the_gateway_reports_th
     assert watch.truth["cf0"] and not watch.contacts, watch.separation_line()  # cf0 fell beside cf1, not onto it
 
 
+@pytest.mark.flight
 @pytest.mark.timeout(180)
 def test_a_link_lost_mid_flight_lands_the_vehicle_and_the_others_fly_on(tmp_path) -> None:
     spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)

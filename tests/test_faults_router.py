@@ -32,6 +32,7 @@ never climb: harder than a landing under position control (about 0.5 m/s, the mo
 up), far from a fall from cruise height (2.8 m/s from 0.4 m)."""
 
 
+@pytest.mark.flight
 @pytest.mark.timeout(180)
 def test_router_restart_mid_flight_aborts_the_mission_cleanly(tmp_path) -> None:
     spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)

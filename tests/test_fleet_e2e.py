@@ -21,6 +21,8 @@ from services.mission.runner import MissionRunner, MissionSpec
 from tests.support.fleet_faults import SETTLE_S, TOWN_TASKS, Watch, settle
 from tests.support.service_logs import service_warnings
 
+pytestmark = pytest.mark.flight
+
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -15,6 +15,8 @@ from common.deploy.compose import interpolate
 from common.deploy.radios import free_udp_ports
 from tests.support.service_logs import service_warnings
 
+pytestmark = pytest.mark.flight
+
 REPO = Path(__file__).resolve().parents[1]
 FLEET = [sys.executable, "-m", "services.cli"]
 

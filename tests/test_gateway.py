@@ -68,6 +68,7 @@ def _airborne(sim: SimService, vids: list[str], z: float = 0.35) -> Callable[[],
     return lambda: all(v in sim.vehicles and sim.vehicles[v].car.z > z for v in vids)
 
 
+@pytest.mark.flight
 def test_four_vehicles_fly_at_50hz_or_more_while_two_drive_on_one_radio(
         zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
     cfg = ZenohConfig.client(zenoh_router)
@@ -215,6 +216,7 @@ def test_only_the_current_owner_is_obeyed(zenoh_router: str) -> None:
     asyncio.run(main())
 
 
+@pytest.mark.flight
 def test_ten_percent_loss_still_delivers_45hz_without_firmware_watchdog(
         zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
     cfg = ZenohConfig.client(zenoh_router)

@@ -18,6 +18,8 @@ from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from tests.support.fleet_faults import TOWN_TASKS, Watch, fly, until
 
+pytestmark = pytest.mark.flight
+
 REPO = Path(__file__).resolve().parents[1]
 
 

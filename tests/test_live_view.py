@@ -24,6 +24,8 @@ from PIL import Image
 from services.telemetry.rerun_log import web_viewer_url
 from tests.support.service_logs import service_warnings
 
+pytestmark = pytest.mark.flight
+
 REPO = Path(__file__).resolve().parents[1]
 ARTIFACTS = REPO / "out" / "test-artifacts"
 CHROMIUM, CHROMEDRIVER = shutil.which("chromium"), shutil.which("chromedriver")

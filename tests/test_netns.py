@@ -212,6 +212,7 @@ def _wait_for_router(log: Path, timeout: float) -> None:
         time.sleep(0.1)
 
 
+@pytest.mark.flight
 @pytest.mark.netns
 @pytest.mark.timeout(180)
 def test_executor_host_cut_off_mid_flight_its_vehicles_pass_to_the_other_host(hosts: Hosts, tmp_path: Path) -> None:

@@ -18,6 +18,8 @@ from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from tests.support.fleet_faults import SAFE_TOUCHDOWN, TOWN_TASKS
 
+pytestmark = pytest.mark.flight
+
 
 @pytest.mark.timeout(240)
 def test_onboard_mode_flies_a_town_mission_without_contact(tmp_path) -> None:

@@ -204,6 +204,7 @@ def starve(pid: int, stop: threading.Event) -> None:
         os.kill(pid, signal.SIGCONT)
 
 
+@pytest.mark.flight
 @pytest.mark.timeout(240)
 def test_a_starved_executor_holds_its_vehicles_and_nothing_touches(tmp_path) -> None:
     spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)

@@ -351,12 +351,36 @@ class QueryTimeout(QueryError):
     """No reply arrived within the timeout."""
 
 
-async def query(session: zenoh.Session, key: str, request: Any, rep_type: type[Rep], *, timeout: float) -> Rep:
+SERVICE_START_S = 5.0
+"""How long a client waits for the queryable of a service it just saw come alive (`query`'s find_s)."""
+
+
+async def find_queryable(session: zenoh.Session, key: str, timeout: float) -> bool:
+    """Whether a queryable on `key` is declared, waiting up to `timeout` s for one to appear (a
+    service that is alive may not have declared it yet: its token comes first)."""
+    querier = session.declare_querier(key)
+    try:
+        async with asyncio.timeout(timeout):
+            while not querier.matching_status.matching:
+                await asyncio.sleep(0.02)
+        return True
+    except TimeoutError:
+        return False
+    finally:
+        querier.undeclare()
+
+
+async def query(session: zenoh.Session, key: str, request: Any, rep_type: type[Rep], *, timeout: float,
+                find_s: float = 0.0) -> Rep:
     """Send `request` to the queryable on `key` and return its decoded reply, without blocking the loop.
 
-    ``reply = await query(s, keys.planner_plan, PlanRequest(...), PlanReply, timeout=60)``
-    Raises `QueryTimeout`, or `QueryError` for an error reply, a malformed reply or no queryable.
+    ``reply = await query(s, keys.planner_plan, PlanRequest(...), PlanReply, timeout=60, find_s=5)``
+    `find_s`: first wait up to this long for the queryable to be declared (`find_queryable`: a
+    client that saw a service come alive and asks it at once). Raises `QueryTimeout`, or
+    `QueryError` for an error reply, a malformed reply or no queryable.
     """
+    if find_s > 0.0:
+        await find_queryable(session, key, find_s)
     loop = asyncio.get_running_loop()
     first: asyncio.Future[zenoh.Reply | None] = loop.create_future()
 

@@ -36,7 +36,7 @@ from common.bus.messages import (
     Telemetry,
     VehicleState,
 )
-from common.bus.pubsub import Publisher, QueryError, Subscription, query, subscribe
+from common.bus.pubsub import SERVICE_START_S, Publisher, QueryError, Subscription, query, subscribe
 from common.bus.session import ZenohConfig, open_session
 from common.domain.mapfile import load_map, spot_pose
 from common.domain.planfile import Plan, PlanGraph, Task
@@ -315,7 +315,7 @@ class AsyncFleet:
         if map not in self._graphs:
             try:
                 reply = await query(self.session, self.keys.planner_graph, GraphRequest(map=map), GraphReply,
-                                    timeout=PLANNER_MARGIN_S)
+                                    timeout=PLANNER_MARGIN_S, find_s=SERVICE_START_S)
             except QueryError as exc:
                 raise PlanningError(f"the planner is unreachable or failed: {exc}") from None
             if not reply.ok or reply.graph is None:
@@ -326,7 +326,7 @@ class AsyncFleet:
     async def _ask_planner(self, request: PlanRequest, time_limit: float) -> PlanReply:
         try:
             reply = await query(self.session, self.keys.planner_plan, request, PlanReply,
-                                timeout=time_limit + PLANNER_MARGIN_S)
+                                timeout=time_limit + PLANNER_MARGIN_S, find_s=SERVICE_START_S)
         except QueryError as exc:
             raise PlanningError(f"the planner is unreachable or failed: {exc}") from None
         if not reply.ok:

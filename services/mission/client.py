@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from typing import Generic, TypeVar
 
 from common.bus.messages import MissionAbort, MissionStart, PlanReply, PlanRequest, VehicleEvent, VehicleState
-from common.bus.pubsub import QueryError, QueryTimeout, query
+from common.bus.pubsub import SERVICE_START_S, QueryError, QueryTimeout, query
 from common.bus.service import Service
 
 log = logging.getLogger(__name__)
@@ -164,7 +164,8 @@ class MissionClient(Service, Generic[R]):
             return self.conclude(False, error)
         wait = self.planner_wait_s()
         try:
-            reply = await query(self.session, self.keys.planner_plan, self.plan_request(), PlanReply, timeout=wait)
+            reply = await query(self.session, self.keys.planner_plan, self.plan_request(), PlanReply, timeout=wait,
+                                find_s=SERVICE_START_S)
         except QueryTimeout:
             return self.conclude(False, f"the planner did not answer within {wait:.0f} s")
         except QueryError as exc:

@@ -15,8 +15,8 @@ from typing import Any
 
 from common.bus.args import keys_from_args, run_service, zconfig_from_args
 from common.bus.messages import GraphReply, GraphRequest, SimTruth, Telemetry, VehiclePlan, VehicleState
-from common.bus.process_priority import lower_priority
-from common.bus.pubsub import QueryError, Subscription, query
+from common.bus.process_priority import adjust_priority
+from common.bus.pubsub import SERVICE_START_S, QueryError, Subscription, query
 from common.bus.service import Service
 from common.domain.mapfile import load_map
 from common.errors import InputError
@@ -123,7 +123,7 @@ class TelemetryService(Service):
         """The planner's graph of the map (`planner/graph`) and the map file's zones and obstacles."""
         try:
             reply = await query(self.session, self.keys.planner_graph, GraphRequest(map=map_name), GraphReply,
-                                timeout=GRAPH_TIMEOUT_S)
+                                timeout=GRAPH_TIMEOUT_S, find_s=SERVICE_START_S)
             if not reply.ok or reply.graph is None:
                 raise InputError(map_name, "", reply.error or "the planner sent no graph")
             recording.log_map(reply.graph, load_map(map_name))
@@ -134,7 +134,7 @@ class TelemetryService(Service):
 def cmd_telemetry(args: argparse.Namespace) -> int:
     if args.max_hz <= 0:
         raise InputError(f"--max-hz: must be positive, got {args.max_hz}")
-    lower_priority(args.nice)
+    adjust_priority(max(args.nice, 0))  # it only ever gives way
     svc = TelemetryService(args.instance, zconfig_from_args(args), keys_from_args(args),
                            out=args.out, viewer=args.viewer, web=args.web, max_hz=args.max_hz,
                            web_port=args.web_port, grpc_port=args.grpc_port)
