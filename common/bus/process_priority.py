@@ -1,12 +1,10 @@
-"""Change a process's CPU priority: lower it so that it cannot delay the fleet's control loops (the
-recorder), or raise it so that a loaded machine does not stall what stands for the physical world
-(the simulator: real vehicles, cameras and radios do not share the machine's CPU).
+"""Lower a process's CPU priority so that it cannot delay the fleet's control loops.
 
 `os.nice` alone is not enough on Linux with autogrouping (`kernel.sched_autogroup_enabled`): the
 scheduler first shares the CPU between autogroups (one per session), and a nice value only weighs
 within its group. `fleet up` starts each service in its own session, so a niced recorder still got
 an equal share beside the executors and gateways (measured: 32 % of a core on a saturated 2-core
-machine). The autogroup's own nice value is changed too, where the kernel has autogroups and this
+machine). The autogroup's own nice value is lowered too, where the kernel has autogroups and this
 process leads its session (so the group is its own, not a terminal's shared with the user's shell).
 """
 
@@ -21,20 +19,14 @@ log = logging.getLogger(__name__)
 AUTOGROUP = Path("/proc/self/autogroup")
 
 
-def adjust_priority(nice: int) -> None:
-    """Add `nice` to this process's nice value (> 0 lowers its priority, < 0 raises it), and to its
-    autogroup's if the group is its own. Raising needs CAP_SYS_NICE (root): without it the process
-    keeps its priority and says so."""
-    if nice == 0:
+def lower_priority(nice: int) -> None:
+    """Add `nice` (> 0) to this process's nice value, and to its autogroup's if the group is its own."""
+    if nice <= 0:
         return
-    try:
-        value = os.nice(nice)
-    except PermissionError:
-        log.warning("cannot raise this process's priority by %d (needs CAP_SYS_NICE): it runs at its own", -nice)
-        return
+    value = os.nice(nice)
     if not AUTOGROUP.exists() or os.getsid(0) != os.getpid():
         return
     try:
         AUTOGROUP.write_text(f"{value}\n")
     except OSError as exc:  # a kernel without autogroups, or a sandbox that refuses it
-        log.info("cannot change the autogroup's priority: %s", exc)
+        log.info("cannot lower the autogroup's priority: %s", exc)

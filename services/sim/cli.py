@@ -19,11 +19,6 @@ if TYPE_CHECKING:
 # The demo room of paper 002's team (maps/collab/demo-room.yaml), as `fleet collab plan` knows it.
 ROOM_MAP, ROOM_START, ROOM_UGV = "demo-room", "1.25,1.25,1", "0.75,1.25,0"
 FAULT_KINDS: tuple[str, ...] = get_args(SimFaultKind)
-SIM_PRIORITY = 10
-"""Nice steps the simulated Crazyflies' process is raised by. Real vehicles, cameras and radios do
-not share the machine's CPU with the fleet: a starved simulator instead froze the world for 0.1-1 s
-on a loaded 2-core machine, and the fleet saw every body vanish from motion capture and every link
-go quiet at once (emergency landings, held vehicles) for a stall no lab has."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -31,10 +26,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--config", help="radios file (YAML, docs/radio.md): simulate its udp:// vehicles")
     sim.add_argument("--radio", action="append", help="simulate only this radio's vehicles (repeatable)")
     sim.add_argument("--truth-hz", type=float, default=100.0, help="ground-truth rate on sim/truth/<vid> (Hz)")
-    sim.add_argument("--priority", type=int, default=SIM_PRIORITY,
-                     help="raise the simulator's CPU priority by this much (nice steps; needs root or "
-                          "CAP_SYS_NICE, else it runs at its own): the simulated world must not stall when the "
-                          "fleet loads the machine (0: leave it)")
     add_zenoh_args(sim, default_instance="sim")
     sim.set_defaults(handler=_crazyflies)
     ssub = sim.add_subparsers(dest="sim_command", metavar="ACTION")
@@ -95,7 +86,6 @@ def _register_fault(ssub: argparse._SubParsersAction) -> None:
 
 
 def _crazyflies(args: argparse.Namespace) -> int:
-    from common.bus.process_priority import adjust_priority
     from common.deploy.radios import load_radios_for
     from services.sim.crazyflie.service import SimService
 
@@ -104,9 +94,6 @@ def _crazyflies(args: argparse.Namespace) -> int:
     spec = load_radios_for(args.config, args.radio or [])
     if args.truth_hz <= 0:
         raise InputError("--truth-hz", "", "must be positive")
-    if args.priority < 0:
-        raise InputError("--priority", "", "must be 0 or more (it only raises the simulator's priority)")
-    adjust_priority(-args.priority)
     return run_service(SimService(spec, zconfig_from_args(args), instance=args.instance, keys=keys_from_args(args),
                                   radios=args.radio, truth_hz=args.truth_hz))
 

@@ -15,7 +15,7 @@ from typing import Any
 
 from common.bus.args import keys_from_args, run_service, zconfig_from_args
 from common.bus.messages import GraphReply, GraphRequest, SimTruth, Telemetry, VehiclePlan, VehicleState
-from common.bus.process_priority import adjust_priority
+from common.bus.process_priority import lower_priority
 from common.bus.pubsub import SERVICE_START_S, QueryError, Subscription, query
 from common.bus.service import Service
 from common.domain.mapfile import load_map
@@ -134,7 +134,7 @@ class TelemetryService(Service):
 def cmd_telemetry(args: argparse.Namespace) -> int:
     if args.max_hz <= 0:
         raise InputError(f"--max-hz: must be positive, got {args.max_hz}")
-    adjust_priority(max(args.nice, 0))  # it only ever gives way
+    lower_priority(args.nice)
     svc = TelemetryService(args.instance, zconfig_from_args(args), keys_from_args(args),
                            out=args.out, viewer=args.viewer, web=args.web, max_hz=args.max_hz,
                            web_port=args.web_port, grpc_port=args.grpc_port)
