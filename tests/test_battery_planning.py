@@ -14,7 +14,7 @@ from common.domain.battery import charge_used_ah, open_circuit_voltage, state_of
 from common.domain.vehicle_model import VehicleModel
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from tests.support.fleet_faults import TOWN_TASKS, Watch, until
+from tests.support.fleet_faults import NO_RECORDER, TOWN_TASKS, Watch, until
 
 MODEL = VehicleModel()
 
@@ -50,7 +50,7 @@ def test_a_nearly_empty_vehicle_is_refused_before_the_start_with_its_shortfall(t
         finally:
             watch.close()
 
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=1, fleet="emptybattery") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=1, fleet="emptybattery", without=NO_RECORDER) as fleet:
         runner = asyncio.run(main(fleet))
     result = runner.result
     assert result is not None and not result.ok

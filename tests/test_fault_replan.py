@@ -14,7 +14,7 @@ import pytest
 from common.bus.messages import MissionAbort, SimFault
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from tests.support.fleet_faults import TOWN_TASKS, Watch, cruising, fly, until
+from tests.support.fleet_faults import NO_RECORDER, TOWN_TASKS, Watch, cruising, fly, until
 
 pytestmark = pytest.mark.flight
 
@@ -40,7 +40,7 @@ def test_a_vehicle_held_by_wind_and_one_stopped_alone_leave_the_others_flying_on
         assert watch.mode("cf3") == "driving", watch.mode("cf3")
         marks["abort"] = watch.abort(MissionAbort(mission=spec.mission, reason="test: cf3 alone", vehicles=["cf3"]))
 
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="heldalone") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="heldalone", without=NO_RECORDER) as fleet:
         result, watch = fly(fleet, spec, scenario)
 
     assert result.plan is not None

@@ -16,7 +16,14 @@ from common.domain.vehicle_model import VehicleModel
 from services.executor.faults import landing_nodes
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from tests.support.fleet_faults import TOWN_TASKS, Watch, assert_the_others_arrived, cruising, fly
+from tests.support.fleet_faults import (
+    NO_RECORDER,
+    TOWN_TASKS,
+    Watch,
+    assert_the_others_arrived,
+    cruising,
+    fly,
+)
 
 pytestmark = pytest.mark.flight
 
@@ -34,7 +41,7 @@ def test_low_battery_mid_flight_lands_at_the_nearest_safe_node_and_the_others_fl
         await cruising(watch, "cf1")
         marks["drained"] = watch.inject(SimFault(vid="cf1", kind="battery", charge_used_ah=NEARLY_EMPTY_AH))
 
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="batteryfault") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="batteryfault", without=NO_RECORDER) as fleet:
         result, watch = fly(fleet, spec, scenario)
 
     drained = marks["drained"]

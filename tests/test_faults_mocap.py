@@ -21,6 +21,7 @@ from services.mission.runner import MissionRunner, MissionSpec
 from services.mocap_bridge.bridge import MocapBridge
 from services.mocap_bridge.config import MocapConfig
 from tests.support.fleet_faults import (
+    NO_RECORDER,
     TOWN_TASKS,
     Watch,
     assert_the_others_arrived,
@@ -49,7 +50,7 @@ def test_a_short_dropout_is_flown_through_a_long_one_lands_the_vehicle_and_the_o
         assert watch.mode("cf1") == "flying", "cf1 must still be flying for the long dropout"
         marks["long"] = watch.inject(SimFault(vid="cf1", kind="mocap_dropout", duration_s=LONG))
 
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="mocapfault") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="mocapfault", without=NO_RECORDER) as fleet:
         result, watch = fly(fleet, spec, scenario)
 
     short, long = marks["short"], marks["long"]

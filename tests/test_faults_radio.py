@@ -33,6 +33,7 @@ from services.mission.runner import MissionRunner, MissionSpec
 from services.radio_gateway.gateway import RadioGateway
 from services.sim.crazyflie.service import SimService
 from tests.support.fleet_faults import (
+    NO_RECORDER,
     SAFE_TOUCHDOWN,
     TOWN_TASKS,
     Watch,
@@ -98,7 +99,7 @@ def test_a_link_lost_mid_flight_lands_the_vehicle_and_the_others_fly_on(tmp_path
         await cruising(watch, "cf1")
         marks["cut"] = watch.inject(SimFault(vid="cf1", kind="radio_blackout", duration_s=1.5))  # under the 2 s cut
 
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="radiofault") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="radiofault", without=NO_RECORDER) as fleet:
         result, watch = fly(fleet, spec, scenario)
 
     cut = marks["cut"]

@@ -18,7 +18,7 @@ from common.domain.planfile import Task
 from common.domain.scenario import read_scenario
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from tests.support.fleet_faults import SETTLE_S, TOWN_TASKS, Watch, settle
+from tests.support.fleet_faults import NO_RECORDER, SETTLE_S, TOWN_TASKS, Watch, settle
 from tests.support.service_logs import service_warnings
 
 pytestmark = pytest.mark.flight
@@ -35,7 +35,7 @@ def _pid_of(run_dir, instance: str) -> int:
 def test_executor_killed_mid_flight_its_vehicles_still_arrive(tmp_path) -> None:
     spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
     killed: dict[str, object] = {}
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="e2e") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="e2e", without=NO_RECORDER) as fleet:
         runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
 
         async def kill_when_flying() -> None:
@@ -92,7 +92,7 @@ def test_ten_percent_packet_loss_keeps_tracking_within_bounds(tmp_path) -> None:
     tasks = {k: TOWN_TASKS[k] for k in ("cf1", "cf3")}  # a flyer and a driver
     spec = MissionSpec(map="town", tasks=tasks, planner="sipp", time_limit=20)
     with local_fleet("town", tasks, tmp_path / "run", executors=1, fleet="lossy",
-                     link=LinkModel(loss=0.10, seed=3)) as fleet:
+                     link=LinkModel(loss=0.10, seed=3), without=NO_RECORDER) as fleet:
         runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
         asyncio.run(runner.run())
     result = runner.result
@@ -112,7 +112,7 @@ def test_stock_crazyflies_fly_a_fly_only_mission(tmp_path) -> None:
     scenario = read_scenario(REPO / "maps" / "scenarios" / "town_fly.yaml")
     tasks = {vid: Task(start=t.start, goal=t.goal) for vid, t in scenario.tasks.items()}  # the scenario says nothing
     spec = MissionSpec(map="town", tasks=tasks, planner="sipp", time_limit=20)
-    with local_fleet("town", dict(scenario.tasks), tmp_path / "run", executors=1, fleet="stock") as fleet:
+    with local_fleet("town", dict(scenario.tasks), tmp_path / "run", executors=1, fleet="stock", without=NO_RECORDER) as fleet:
         runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
         asyncio.run(runner.run())
     result = runner.result

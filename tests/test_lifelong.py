@@ -16,7 +16,7 @@ import pytest
 
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from tests.support.fleet_faults import TOWN_TASKS, Watch, fly, until
+from tests.support.fleet_faults import NO_RECORDER, TOWN_TASKS, Watch, fly, until
 
 pytestmark = pytest.mark.flight
 
@@ -43,7 +43,7 @@ def test_lifelong_tasks_and_an_operators_new_goal_are_flown_without_contact(tmp_
         # cf3 drives for 15 s: while it is on its way, send it elsewhere
         answers.append(await asyncio.to_thread(fleet_mission_add, fleet, runner.mission, "cf3", "WP5"))
 
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="lifelong") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="lifelong", without=NO_RECORDER) as fleet:
         result, watch = fly(fleet, spec, scenario)
 
     assert answers[0].returncode == 0, answers[0]

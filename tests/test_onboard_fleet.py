@@ -16,7 +16,7 @@ from common.bus.pubsub import subscribe
 from common.bus.session import open_session
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from tests.support.fleet_faults import SAFE_TOUCHDOWN, TOWN_TASKS
+from tests.support.fleet_faults import NO_RECORDER, SAFE_TOUCHDOWN, TOWN_TASKS
 
 pytestmark = pytest.mark.flight
 
@@ -26,7 +26,7 @@ def test_onboard_mode_flies_a_town_mission_without_contact(tmp_path) -> None:
     spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
     controls: dict[str, str] = {}
     stats: list[ServiceStats] = []
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=1, fleet="onboard", control="onboard") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=1, fleet="onboard", control="onboard", without=NO_RECORDER) as fleet:
         runner = MissionRunner(spec, fleet.client_config(), fleet.keys, progress=False)
 
         async def fly() -> None:

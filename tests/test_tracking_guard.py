@@ -30,7 +30,7 @@ from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from services.sim.crazyflie.physics import SimFlyingCar
 from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
-from tests.support.fleet_faults import TOWN_TASKS, Watch, airborne, until
+from tests.support.fleet_faults import NO_RECORDER, TOWN_TASKS, Watch, airborne, until
 from tests.support.fleet_faults import fly as fly_mission
 
 MODEL = VehicleModel(margin=0.03)  # the shipped maps' margin
@@ -232,7 +232,7 @@ def test_a_starved_executor_holds_its_vehicles_and_nothing_touches(tmp_path) -> 
             thread.join()
             marks["fed"] = time.time()
 
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="guard") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="guard", without=NO_RECORDER) as fleet:
         result, watch = fly_mission(fleet, spec, scenario)
 
     assert result.contacts == 0, result.summary()

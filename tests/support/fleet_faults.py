@@ -39,6 +39,10 @@ TOWN_TASKS = {
 }
 """16 s plans on the town map: both flyers airborne from about 4 s to 12 s of the mission."""
 STATS_SERVICES = ("executor", "gateway", "sim", "mocap")
+NO_RECORDER = ("telemetry",)
+"""Services a flight test that judges the control path leaves out of compose.yaml's fleet: the
+recorder is tested by the live view, the examples and its own tests, and would only share the
+2-core machine with the loops being judged."""
 AT_NODE_M = 0.08
 """m (3D, ground truth) from a node that counts as being on it: the executor's own arrival radius
 (5 cm, on its estimate) plus its estimate's error from the truth (motion-capture noise, a few cm)."""
