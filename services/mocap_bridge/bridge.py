@@ -79,8 +79,8 @@ class MocapBridge(Service):
 
     def _on_frame(self, t: float, seen: Mapping[str, BodyPose]) -> None:
         """A frame captured at `t`: poses and events. One older than `max_age_s` by now (the loop
-        fell behind) is dropped and counted: a late pose only misleads, and a backlog of them
-        would grow without bound (measured: 80 s behind in an overloaded soak)."""
+        fell behind) is dropped and counted: a backlog of late poses would grow without bound
+        (measured: 80 s behind in an overloaded soak); a younger one is fused at its capture time."""
         assert self.tracker is not None
         now = time.time()
         if now - t > self.config.max_age_s:

@@ -10,7 +10,7 @@ vehicle_pose_hz: 20             # poses per second per body on vehicle/<vid>/pos
 bodies: {cf_01: cf1, cf_02: cf2}   # rigid-body name -> vehicle id (empty: the body's name is the vid)
 lost_after_s: 0.1               # a body unseen this long is reported lost
 latency_s: 0.0                  # real systems: subtracted from the arrival time for the capture stamp
-max_age_s: 0.1                  # a frame captured longer ago when the bridge gets to it is dropped
+max_age_s: 0.25                 # a frame captured longer ago when the bridge gets to it is dropped
 startup_wait_s: 10              # at start, wait this long for every mapped body, then name the missing
 frame: {up: z, origin: [0, 0, 0], yaw_deg: 0}   # the system's frame -> the map's (frame.py)
 ```
@@ -59,7 +59,7 @@ class MocapConfig(msgspec.Struct, **_Strict):
     bodies: dict[str, str] = {}
     lost_after_s: Positive = 0.1
     latency_s: NonNegative = 0.0
-    max_age_s: Positive = 0.1
+    max_age_s: Positive = 0.25
     startup_wait_s: NonNegative = 10.0
     frame: FrameSpec = FrameSpec()
 
