@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
-from common.bus.messages import ServiceStats
+from common.bus.messages import ServiceStats, SimTruth
 from common.bus.pubsub import subscribe
 from common.bus.session import open_session
 from common.deploy.local import LocalFleet
@@ -40,6 +40,8 @@ from services.planner.maps.loading import load_graph
 
 MAP = "city934"
 SERVICES = ("executor", "gateway", "sim", "mocap", "planner")
+END_TRUTH_S = 1.0
+"""How long the soak listens to the simulator's ground truth at its end (every vehicle's, at `truth_hz`)."""
 _PAGE_KB = os.sysconf("SC_PAGE_SIZE") / 1024
 _TICKS = os.sysconf("SC_CLK_TCK")
 
@@ -93,6 +95,23 @@ class SoakLog:
     """Vehicle trips whose plan takes to the air."""
     load: list[float] = field(default_factory=list)
     """The machine's 1-minute load average at each process sample (other work shares the cores)."""
+    final: dict[str, SimTruth] = field(default_factory=dict)
+    """Each vehicle's ground truth once the soak is over (`END_TRUTH_S`): where the fleet left it."""
+    vehicles: int = 0
+
+    def sim_figures(self) -> dict[str, float | str]:
+        """The simulators' latest figures, summed (hardest touchdown: the largest; `hardest`: the
+        three hardest touchdowns, m/s)."""
+        sims = [st.figures for st in self.stats.values() if st.service == "sim"]
+        hardest = sorted(((v, k.split(":", 1)[1]) for f in sims for k, v in f.items() if k.startswith("touchdown_mps:")),
+                         reverse=True)
+        return {"touchdown_max_mps": max((f.get("touchdown_max_mps", 0.0) for f in sims), default=0.0),
+                "watchdog_cuts": sum(f.get("watchdog_cuts", 0.0) for f in sims),
+                "hardest": ", ".join(f"{vid} {v:.2f}" for v, vid in hardest[:3])}
+
+    def not_at_rest(self) -> list[str]:
+        """Vehicles the soak left in the air or with motors running (ground truth)."""
+        return sorted(vid for vid, truth in self.final.items() if truth.airborne or truth.motors)
 
     def on_stats(self, msg: ServiceStats) -> None:
         name = f"{msg.service}/{msg.instance}"
@@ -119,7 +138,7 @@ async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], sec
     """Missions back to back for `seconds` (the last one is flown to its end); after a failed one
     the services run on without missions until the time is up (memory, drops and deadlines still
     count: every executor ticks and every pose flows whether the vehicles move or not)."""
-    log = SoakLog()
+    log = SoakLog(vehicles=len(tasks))
     pids = {p["instance"]: p["pid"] for p in json.loads((fleet.run_dir / "up.json").read_text())}
     session = open_session(fleet.client_config())
     for service in SERVICES:  # one subscription per service: what the router's access control grants
@@ -148,6 +167,10 @@ async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], sec
                 break
             tasks = draw_tasks(graph, {vid: t.goal for vid, t in tasks.items()}, rng)
         await asyncio.sleep(2.5)  # everyone's last stats
+        truths = subscribe(session, fleet.keys.all_sim_truth, SimTruth,
+                           lambda m, _k: log.final.__setitem__(m.vid, m))
+        await asyncio.sleep(END_TRUTH_S)
+        truths.close()
     finally:
         sampler.cancel()
         session.close()
@@ -176,6 +199,11 @@ def report(log: SoakLog, seconds: float) -> str:
              f"{arrived}/{flights} vehicle trips arrived ({log.flights} with flights), contacts {sum(m.contacts for m in log.missions)}, "
              f"closest bodies {100 * gap:.1f} cm; machine load average {min(log.load, default=0):.1f}-"
              f"{max(log.load, default=0):.1f} on {os.cpu_count()} cores"]
+    sim = log.sim_figures()
+    lines.append(f"at the end (ground truth): {len(log.final) - len(log.not_at_rest())}/{log.vehicles} vehicles at rest "
+                 f"on the ground{' (not: ' + ', '.join(log.not_at_rest()) + ')' if log.not_at_rest() else ''}; "
+                 f"hardest touchdowns (m/s) {sim.get('hardest') or '-'}; motors cut in the air "
+                 f"{sim.get('watchdog_cuts', 0):.0f}x")
     for m in log.missions:
         if not m.ok:
             lines.append(f"failed: {m.mission}: {m.reason}")
@@ -227,6 +255,9 @@ def summary(log: SoakLog) -> dict:
             **{f"{name}_ms": max((f.get(f"{name}_ms", 0.0) for f in gateways), default=0.0)
                for name in ("pose_to_radio_p50", "pose_to_radio_p99", "frame_to_radio_p50", "frame_to_radio_p99")},
             "growth_mb_per_min": {name: mb_per_min(points) for name, points in log.series.items()},
+            "vehicles": log.vehicles, "heard_at_end": sorted(log.final), "not_at_rest": log.not_at_rest(),
+            "touchdown_max_mps": log.sim_figures().get("touchdown_max_mps", 0.0),
+            "watchdog_cuts": log.sim_figures().get("watchdog_cuts", 0.0),
             "drops": {name: st.drops for name, st in log.stats.items()}}
 
 

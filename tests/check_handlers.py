@@ -160,12 +160,18 @@ HANDLINGS: tuple[Handling, ...] = (
               "        if False:\n"),),
         "tests/test_faults_blind_landing.py::test_a_stop_or_wheel_command_does_not_end_the_safety_landing_in_the_air"),
     Handling(
-        "waiting for rest before the emergency descent's cut",
-        "executor: motors off at the predicted time, poses or not",
+        "landing in place once poses are back in an emergency descent",
+        "executor: the blind descent goes on with poses back, motors off at the predicted time once it seems at rest",
         (Edit("services/executor/vehicle_controller.py",
-              "        if cut is not None and now >= cut and (est.stale or abs(est.vz) < faults.rest_speed):\n",
-              "        if cut is not None and now >= cut:\n"),),
+              "        if not est.stale and not on_board:\n            return self._land_in_place(now, est, descent)\n",
+              "        if False:\n            return self._land_in_place(now, est, descent)\n"),),
         "tests/test_faults_router.py::test_a_blind_descent_whose_commands_were_lost_waits_for_the_vehicle_to_rest"),
+    Handling(
+        "the blind descent's settled thrust bias",
+        "executor: the blind descent takes the flight integrators' last bias (bounded)",
+        (Edit("services/executor/vehicle_controller.py", "bias = min(max(self.lqr.settled_bias,",
+              "bias = min(max(self.lqr.accel_bias(),"),),
+        "tests/test_closed_loop.py::test_an_emergency_descent_after_a_wound_up_integrator_neither_climbs_nor_falls"),
     Handling(
         "re-stopping on a status that shows the motors running",
         "gateway: no `motors_restopped`",

@@ -140,6 +140,57 @@ def test_pose_lost_in_the_air_lands_blind_and_gently() -> None:
     assert sim.last_impact_speed < 0.6
 
 
+@pytest.mark.parametrize(("wound", "settled"), [(-1.0, False), (1.0, False), (-1.0, True)])
+def test_an_emergency_descent_after_a_wound_up_integrator_neither_climbs_nor_falls(wound: float, settled: bool) -> None:
+    """A stalled loop (commands that never arrived while the error grew) leaves the LQR's height
+    integrator at its limit, a thrust bias of 5.5 m/s^2, as the poses go stale for 0.6 s. The
+    descent takes over the settled bias, not the wound-up one. Had the wind-up lasted long enough
+    to settle (upwards), the descent bounds it, and once poses are back the flight controller, its
+    integrators reset, lands it where it is; its motors stop once it rests. (It used to keep the
+    last bias: in a 32-vehicle soak three vehicles climbed to 30 m and fell at 25 m/s.)"""
+    lost = T0 + TAKEOFF + 2.0
+
+    wound_at: list[float] = []
+
+    def wind_up(ctrl: VehicleController, now: float) -> None:
+        if ctrl.mode == Mode.EMERGENCY_LANDING and not wound_at:
+            wound_at.append(now)
+            ctrl.lqr.integral[2] = wound * ctrl.lqr.integral_limit
+            if settled:
+                ctrl.lqr.settled_bias = ctrl.lqr.accel_bias()
+
+    noise = MocapNoise(pos_std=0.001, dropouts=((lost, lost + 0.6),))
+    ctrl, sim, records = fly_plan(noise=noise, until=lost + 10.0, hook=wind_up)
+    assert ctrl.machine.sequence()[-2:] == [Mode.EMERGENCY_LANDING, Mode.DONE]
+    start = next(r for r in records if r.mode == Mode.EMERGENCY_LANDING)
+    descent = [r for r in records if r.mode == Mode.EMERGENCY_LANDING]
+    assert max(r.truth.z for r in descent) < start.truth.z + (0.5 if settled else 0.05)
+    assert not sim.airborne and not sim.truth().motors
+    assert sim.last_impact_speed < 0.7, sim.last_impact_speed
+
+
+@pytest.mark.parametrize(("every", "delay_s"), [(3, 0.1), (5, 0.15)])
+def test_an_emergency_descent_on_a_slow_loop_with_poses_coming_and_going_lands_gently(every: int, delay_s: float) -> None:
+    """The 32-vehicle soak's world on 2 loaded cores: the loop at 33 or 20 Hz on poses 0.1-0.15 s
+    old, which vanish for 0.45 s of every 0.6 s for 3.6 s (the simulator stalling). The pose goes
+    stale in the air: an emergency landing, blind while they are gone, landed in place by the
+    flight controller while they are back. It used to climb away (to 2.4-2.7 m, never landing)
+    or fall (4.8-6 m/s): a wound-up bias kept, and a touchdown predicted blind that the poses had
+    since shown wrong cut the motors 0.8 m up."""
+    cruise = T0 + TAKEOFF + 1.0
+    gaps = tuple((cruise + 0.6 * k, cruise + 0.6 * k + 0.45) for k in range(6))
+    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    ctrl = VehicleController("cf1", MODEL, owner="test")
+    ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
+    records = run(ctrl, sim, cruise + 12.0, Mocap(MocapNoise(pos_std=0.001, dropouts=gaps), seed=1),
+                  every=every, delay_s=delay_s)
+    descent = [r for r in records if r.mode == Mode.EMERGENCY_LANDING]
+    assert descent, ctrl.machine.sequence()
+    assert ctrl.mode == Mode.DONE and not sim.airborne and not sim.truth().motors
+    assert max(r.truth.z for r in descent) < descent[0].truth.z + 0.5
+    assert sim.last_impact_speed < 0.7, sim.last_impact_speed
+
+
 def test_low_battery_in_the_air_lands_at_the_nearest_ground_node() -> None:
     # nearly empty: fine on the ground, the voltage sags below 3.3 V under flight load
     ctrl, sim, _ = fly_plan(charge_used_ah=0.93 * MODEL.capacity_ah, until=T0 + TAKEOFF + 10.0)

@@ -115,6 +115,14 @@ def lqr_gain(model: FlightModel = FlightModel(), weights: LqrWeights = LqrWeight
     return k
 
 
+BIAS_SETTLE_S = 2.0
+"""s: time constant of `FlightLqr.settled_bias`."""
+BIAS_LEARN_ERROR = 0.05
+"""m: `FlightLqr.settled_bias` learns only while the height error is below this (a take-off on a
+loaded machine's late poses lags its reference by 10-30 cm and winds the integrator up, then
+overshoots: the bias then is the transient's, not the thrust model's)."""
+
+
 class FlightLqr:
     """Roll, pitch, yaw rate and thrust setpoints for one vehicle of `mass` kg."""
 
@@ -131,6 +139,10 @@ class FlightLqr:
     def reset(self) -> None:
         """Forget the integrators and the propagated attitude (call when a flight starts)."""
         self.integral = [0.0, 0.0, 0.0]
+        self.settled_bias = 0.0
+        """`accel_bias` low-passed over `BIAS_SETTLE_S` of flight on the reference: the thrust-model
+        error the flight learned, without the wind-up of the last moments (a stalled loop's
+        commands that never arrived wind the integrator to its limit, 5.5 m/s^2, in under a second)."""
         self.roll = self.pitch = self.yaw_rate = 0.0
         self.expected_accel = (0.0, 0.0, 0.0)  # world frame, m/s^2, of the last command
 
@@ -146,6 +158,8 @@ class FlightLqr:
         if integrate:
             lim = self.integral_limit
             self.integral = [min(max(i + e * dt, -lim), lim) for i, e in zip(self.integral, (ex, ey, ez), strict=True)]
+            if abs(ez) < BIAS_LEARN_ERROR:  # flying on its reference, not a transient's wind-up
+                self.settled_bias += (self.accel_bias() - self.settled_bias) * min(dt / BIAS_SETTLE_S, 1.0)
         c, s = math.cos(est.yaw), math.sin(est.yaw)
         ix, iy, iz = self.integral
         # reference acceleration in the yawed frame, fed forward as attitude (v'x = g pitch, ...)

@@ -10,7 +10,8 @@ not fall below C_low), lost radio link, and where to go when the plan must be le
 - emergency descent: without a trustworthy pose, a level descent at `descent_speed` on the
   dead-reckoned state (the estimator predicts with the commanded accelerations); the real vehicle
   may descend slower (drag, thrust error), so the motors stop only after the predicted descent
-  time again (`descent_slack`) plus `descent_margin_s`.
+  time again (`descent_slack`) plus `descent_margin_s`; with poses back, the flight controller lands
+  it where it is and the motors stop once it rests (`EmergencyDescent`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from dataclasses import dataclass
 
 from common.bus.messages import PlanStep, Telemetry
 from common.domain.vehicle_model import VehicleModel
+from common.flight.landing import RestWatch
 
 _MIN_DESCENT = 0.01
 """m: the descent of a safe landing is timed as at least this long, so that its last two entries are
@@ -33,8 +35,12 @@ class FaultParams:
     link_timeout_s: telemetry silence meaning a lost link; max_hold_s: longest ground hold before
     giving up the plan; emergency descent: speed (m/s), gain on its error (1/s), acceleration
     limit (m/s^2), and the wait past the predicted touchdown before the motors stop, as a
-    fraction of the predicted descent time plus a margin (s); rest_speed: with poses back, a
-    vertical speed (m/s) below which the vehicle rests (motors may stop). Tracking guard
+    fraction of the predicted descent time plus a margin (s); descent_bias_max: the largest
+    thrust-model error (m/s^2) the blind descent takes over from the flight integrators (their
+    settled bias: a flight learns up to 0.2 m/s^2, a slow loop 1.1; a stalled loop winds them up to
+    5.5, which the descent used to keep: climbs to 30 m in a 32-vehicle soak); rest_s: with poses,
+    the landing in place rests that long on the ground (`common.flight.landing.RestWatch`) before
+    the motors stop. Tracking guard
     (issue 15): a plan is collision-free only while every vehicle stays within the margin it was
     planned with (`VehicleModel.margin`), so a vehicle whose estimated distance from its reference
     exceeds `guard_factor` x margin for `guard_s`, or `guard_burst` x margin at once, is held. Two
@@ -64,7 +70,8 @@ class FaultParams:
     descent_accel: float = 1.0
     descent_slack: float = 1.0
     descent_margin_s: float = 0.3
-    rest_speed: float = 0.05
+    rest_s: float = 0.3
+    descent_bias_max: float = 1.5
     guard: bool = True
     guard_factor: float = 2.0
     guard_burst: float = 3.0
@@ -77,6 +84,18 @@ class FaultParams:
         """Vertical acceleration (m/s^2) steering the dead-reckoned vertical speed to -descent_speed."""
         a = self.descent_gain * (-self.descent_speed - vz)
         return min(max(a, -self.descent_accel), self.descent_accel)
+
+
+@dataclass(slots=True)
+class EmergencyDescent:
+    """One emergency landing (`VehicleController._emergency`): when it began (or went blind again);
+    blind, when its motors may stop (set at the predicted touchdown); with poses, where its landing
+    in place began (t, x, y, z, yaw; None while blind) and the watch for its touchdown."""
+
+    start: float
+    rests: RestWatch
+    cut: float | None = None
+    anchor: tuple[float, float, float, float, float] | None = None
 
 
 class FaultMonitor:

@@ -26,10 +26,11 @@ from common.bus.messages import (
 from common.crazyflie.thrust import WheelBase, thrust_command, to_flight_setpoint
 from common.domain.vehicle_model import G, VehicleModel
 from common.flight.estimator import Estimate, EstimatorParams, KalmanBank, PoseEstimator
+from common.flight.landing import REST_SPEED, RestWatch, descent_ref
 from common.flight.lqr import FlightLqr, LqrWeights
 from common.flight.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
 from services.executor import onboard
-from services.executor.faults import FaultMonitor, FaultParams, safe_landing_steps
+from services.executor.faults import EmergencyDescent, FaultMonitor, FaultParams, safe_landing_steps
 from services.executor.pure_pursuit import PurePursuit, PursuitParams
 from services.executor.trajectory import RefSample, Trajectory, TrajectoryParams
 
@@ -102,7 +103,7 @@ class VehicleController:
         self._ground_z = 0.0  # height of the ground the vehicle took off from or lands on
         self._landing_end = 0.0
         self._hold_since: float | None = None
-        self._descent: tuple[float, float | None] | None = None  # emergency: start, motors-off time
+        self._descent: EmergencyDescent | None = None
         self._abort: str | None = None
         self._last_tick: float | None = None
         self._guard_since: float | None = None  # since when the tracking error is past the margin
@@ -191,7 +192,7 @@ class VehicleController:
         if mode in AIRBORNE:
             self.lqr.reset()
         if mode == Mode.EMERGENCY_LANDING:
-            self._descent = (now, None)
+            self._descent = EmergencyDescent(now, RestWatch(self.params.touchdown_height, self.params.faults.rest_s))
         elif rel is not None and fault_landing:
             self._begin_safe_landing(now, rel, self.estimator.estimate(now), "landing continued after take-over")
         elif rel is not None and mode == Mode.LANDING:
@@ -263,7 +264,7 @@ class VehicleController:
         if m.airborne:
             if est.stale:
                 if m.request(Mode.EMERGENCY_LANDING, now, "pose stale in the air"):
-                    self._descent = (now, None)
+                    self._descent = EmergencyDescent(now, RestWatch(self.params.touchdown_height, self.params.faults.rest_s))
                 return
             reason = "low battery" if low else "link lost" if link else self._abort
             if reason and not self._fault_landing:
@@ -489,27 +490,53 @@ class VehicleController:
 
     def _emergency(self, now: float, est: Estimate) -> Setpoint:
         """Level descent on the dead-reckoned state (the estimator integrates the accelerations
-        commanded here); the thrust keeps the bias the flight integrators learned. Motors off
-        after the predicted descent time again plus a margin (see `FaultParams`), unless poses
-        are back and show the vehicle still descending: the prediction assumed every command
-        arrived, which a lost router or radio makes false (the gateway may have been landing it
-        its own way), so the motors then wait until it rests."""
-        faults = self.params.faults
-        assert self._descent is not None
-        start, cut = self._descent
-        if cut is None and est.z <= self._ground_z:  # predicted touchdown
-            cut = now + faults.descent_slack * (now - start) + faults.descent_margin_s
-            self._descent = (start, cut)
-        if cut is not None and now >= cut and (est.stale or abs(est.vz) < faults.rest_speed):
+        commanded here); the thrust keeps the bias the flight integrators learned (settled, and
+        within what a thrust model can be wrong by: `FaultParams.descent_bias_max`). Motors off
+        after the predicted descent time again plus a margin (see `FaultParams`). With poses back
+        the flight controller lands it where it is (`_land_in_place`): the prediction assumed every
+        command arrived, which a lost router or radio makes false (the gateway may have been
+        landing it its own way), and a stalled loop's wound-up integrators made it climb blind."""
+        faults, descent = self.params.faults, self._descent
+        assert descent is not None
+        on_board = onboard.onboard(self.faults.last_telemetry)
+        if not est.stale and not on_board:
+            return self._land_in_place(now, est, descent)
+        if descent.anchor is not None:  # blind again: predict afresh from here
+            descent.anchor, descent.start = None, now
+        if descent.cut is None and est.z <= self._ground_z:  # predicted touchdown
+            descent.cut = now + faults.descent_slack * (now - descent.start) + faults.descent_margin_s
+        if descent.cut is not None and now >= descent.cut and (est.stale or abs(est.vz) < REST_SPEED):
             self.machine.request(Mode.DONE, now, "emergency descent complete")
             return StopSetpoint()
         accel = faults.descent_accel_cmd(est.vz)
-        if onboard.onboard(self.faults.last_telemetry):
+        if on_board:
             return onboard.descent(est, accel, self.estimator, faults, now)
         d = self.lqr.model.drag_rate  # the thrust also makes up for the drag of the descent
         self.estimator.set_input((-d * est.vx, -d * est.vy, accel), now)
-        thrust = self.model.mass * (G + self.lqr.accel_bias() + accel + d * est.vz)
+        bias = min(max(self.lqr.settled_bias, -faults.descent_bias_max), faults.descent_bias_max)
+        thrust = self.model.mass * (G + bias + accel + d * est.vz)
         return to_flight_setpoint(0.0, 0.0, 0.0, thrust_command(thrust))
+
+    def _land_in_place(self, now: float, est: Estimate, descent: EmergencyDescent) -> Setpoint:
+        """An emergency landing with poses: the LQR, its integrators reset (a stalled loop may have
+        wound them up), lands the vehicle where the poses came back, down at the descent speed onto
+        the ground below; motors off once it rests there, or on anything higher (the gateway's
+        safety landing does the same: `common.flight.landing`)."""
+        p = self.params
+        if descent.anchor is None:  # (a blind prediction of the touchdown is void: it is here)
+            descent.anchor, descent.cut = (now, est.x, est.y, est.z, est.yaw), None
+            self.lqr.reset()
+        t0, x0, y0, z0, yaw0 = descent.anchor
+        z_ref, vz_ref = descent_ref(p.faults.descent_speed, p.touchdown_height, t0, z0, now, ground=self._ground_z)
+        if descent.rests(now, est.z - z_ref, est.vz):
+            self.machine.request(Mode.DONE, now, "emergency descent complete")
+            return StopSetpoint()
+        ref = RefSample(t=now, x=x0, y=y0, z=z_ref, vx=0.0, vy=0.0, vz=vz_ref, ax=0.0, ay=0.0, az=0.0, yaw=yaw0,
+                        yaw_rate=0.0, mode=Mode.EMERGENCY_LANDING)
+        aloft = est.z - self._ground_z > p.liftoff_height
+        sp = self.lqr.command(est, ref, integrate=aloft)
+        self.estimator.set_input(self.lqr.expected_accel if aloft else (0.0, 0.0, 0.0), now)
+        return sp
 
     # ---- accounting and state -------------------------------------------------------------
 

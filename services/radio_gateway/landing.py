@@ -31,6 +31,7 @@ from common.crazyflie.thrust import DRAG, thrust_command, thrust_newtons, to_fli
 from common.deploy.radios import LandingParams
 from common.domain.vehicle_model import G
 from common.flight.estimator import Estimate, PoseEstimator
+from common.flight.landing import RestWatch, descent_ref
 from common.flight.lqr import FlightLqr
 from common.flight.modes import Mode
 from common.flight.reference import RefSample
@@ -39,8 +40,6 @@ log = logging.getLogger(__name__)
 
 _LIFTOFF_HEIGHT = 0.01
 """m: below this the LQR integrators stay off (as in the executor)."""
-_REST_SPEED = 0.05
-"""m/s: slower than this counts as resting."""
 _CUT_SLACK = 0.25
 """Open loop: fraction of the predicted descent time waited past touchdown (the height and the
 hover thrust are estimates) before the motors stop."""
@@ -87,30 +86,6 @@ class OpenLoopDescent:
         return self.v0 + (self.speed - self.v0) * t / self._ramp if t < self._ramp else self.speed
 
 
-def descent_ref(params: LandingParams, t0: float, z0: float, now: float) -> tuple[float, float]:
-    """The landing's vertical reference (z, vz) at `now` for a descent from `z0` starting at `t0`:
-    down at `speed` to twice `touchdown_height` below the ground, where it stays."""
-    floor = -2.0 * params.touchdown_height
-    z_ref = max(z0 - params.speed * max(now - t0, 0.0), floor)
-    return z_ref, (-params.speed if floor < z_ref < z0 else 0.0)
-
-
-class RestWatch:
-    """Touchdown: at least `touchdown_height` above the reference (the ground or a helipad holds it)
-    and slower than `_REST_SPEED`, for `rest_s`."""
-
-    def __init__(self, params: LandingParams) -> None:
-        self.params = params
-        self._since: float | None = None
-
-    def __call__(self, now: float, above_ref: float, vz: float) -> bool:
-        if above_ref >= self.params.touchdown_height and abs(vz) < _REST_SPEED:
-            self._since = self._since if self._since is not None else now
-            return now - self._since >= self.params.rest_s
-        self._since = None
-        return False
-
-
 class SafeLanding:
     """One vehicle's hover-then-land, started at `start` after `last` (the last flight setpoint sent).
     Feed it poses with `on_pose`; `step(now)` gives the next setpoint, or None once landed."""
@@ -129,7 +104,7 @@ class SafeLanding:
         self._vertical: tuple[float, float, float] | None = None  # t, z, vz of the last estimate used
         self.closed_loop = False
         self._anchor: tuple[float, float, float, float, float] | None = None  # t, x, y, z, yaw
-        self._rests = RestWatch(params)
+        self._rests = RestWatch(params.touchdown_height, params.rest_s)
         self._open_loop: tuple[float, OpenLoopDescent] | None = None
 
     @property
@@ -162,7 +137,7 @@ class SafeLanding:
             self.lqr.reset()
         self.closed_loop = True
         t0, x0, y0, z0, yaw0 = self._anchor
-        z_ref, vz_ref = descent_ref(p, t0, z0, now)
+        z_ref, vz_ref = descent_ref(p.speed, p.touchdown_height, t0, z0, now)
         if self._rests(now, est.z - z_ref, est.vz):
             return None
         ref = RefSample(t=now, x=x0, y=y0, z=z_ref, vx=0.0, vy=0.0, vz=vz_ref, ax=0.0, ay=0.0, az=0.0,
@@ -213,7 +188,7 @@ class OnboardLanding:
         self.closed_loop = False
         """Poses showed the touchdown (else the predicted time ended it)."""
         self._anchor: tuple[float, float, float] | None = None  # x, y, z where it hovers
-        self._rests = RestWatch(params)
+        self._rests = RestWatch(params.touchdown_height, params.rest_s)
 
     def on_pose(self, pose: Pose, now: float) -> None:
         if self.estimator.update(pose):
@@ -232,7 +207,7 @@ class OnboardLanding:
             self._anchor = (src.x, src.y, src.z)
         x0, y0, z0 = self._anchor
         t0 = self.start + p.hover_s
-        z_ref, vz_ref = descent_ref(p, t0, z0, now)
+        z_ref, vz_ref = descent_ref(p.speed, p.touchdown_height, t0, z0, now)
         if est is not None:
             if self._rests(now, est.z - z_ref, est.vz):
                 self.closed_loop = True

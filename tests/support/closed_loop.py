@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import random
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -100,13 +101,17 @@ def reference_steps(model: VehicleModel) -> list[PlanStep]:
 
 def run(ctrl: VehicleController, sim: SimFlyingCar | FirmwareCar, until: float, mocap: Mocap | None = None,
         dt: float = 0.01, telemetry_every: int = 10,
-        on_tick: Callable[[float], None] | None = None, control: ControlMode = "offboard") -> list[Record]:
+        on_tick: Callable[[float], None] | None = None, control: ControlMode = "offboard",
+        every: int = 1, delay_s: float = 0.0) -> list[Record]:
     """Step the loop from the simulator's clock to `until`: pose -> controller -> setpoint ->
     physics, with battery telemetry every `telemetry_every` ticks (saying control mode `control`;
     onboard needs `sim` to be a `tests.support.onboard_loop.FirmwareCar`). `on_tick(now)` runs
-    before each tick (fault injection)."""
+    before each tick (fault injection). A slow loop: poses reach the controller `delay_s` late and
+    it ticks every `every` periods (the vehicle keeps the last setpoint meanwhile)."""
     mocap = mocap or Mocap()
     records: list[Record] = []
+    late: deque[Pose] = deque()
+    setpoint = None
     k = 0
     while sim.t < until - 1e-9:
         now = sim.t
@@ -115,13 +120,16 @@ def run(ctrl: VehicleController, sim: SimFlyingCar | FirmwareCar, until: float, 
         truth = sim.truth()
         pose = mocap.observe(truth)
         if pose is not None:
-            ctrl.on_pose(pose)
+            late.append(pose)
+        while late and late[0].t <= now - delay_s + 1e-9:
+            ctrl.on_pose(late.popleft())
         if telemetry_every and k % telemetry_every == 0:
             ctrl.on_telemetry(Telemetry(vid=sim.vid, t=now, gateway="sim", vbat=sim.battery.vbat,
                                         link_quality=1.0, sent=k, dropped=0,
                                         cmd_rate_hz=1.0 / dt, control=control), now)
-        cmd, _ = ctrl.tick(now)
-        sim.apply(cmd.setpoint, now)
+        if k % every == 0:
+            setpoint = ctrl.tick(now)[0].setpoint
+        sim.apply(setpoint, now)
         records.append(Record(now, truth, ctrl.reference(now), ctrl.mode))
         sim.step(dt)
         k += 1
