@@ -173,6 +173,12 @@ HANDLINGS: tuple[Handling, ...] = (
               "bias = min(max(self.lqr.accel_bias(),"),),
         "tests/test_closed_loop.py::test_an_emergency_descent_after_a_wound_up_integrator_neither_climbs_nor_falls"),
     Handling(
+        "poses back during the gateway's blind descent",
+        "gateway: once blind, the safety landing descends open loop to its end",
+        (Edit("services/radio_gateway/landing.py", "        if not self._failed and now - self.pose_at",
+              "        if not self._failed and self._open_loop is None and now - self.pose_at"),),
+        "tests/test_gateway_landing.py::test_poses_back_during_a_blind_descent_that_climbs_land_it_in_place"),
+    Handling(
         "re-stopping on a status that shows the motors running",
         "gateway: no `motors_restopped`",
         (Edit("services/radio_gateway/vehicle.py",

@@ -26,15 +26,16 @@ def _hovering(z: float, params: PhysicsParams | None = None) -> SimFlyingCar:
 
 
 def _land(car: SimFlyingCar, poses_until: float, last: FlightSetpoint | None = HOVER,
-          params: LandingParams | None = None, limit: float = 12.0) -> tuple[SafeLanding, float]:
-    """Run the landing from the car's clock; poses (1 mm noise) are fed while t < poses_until.
-    Returns the landing and the time the motors were stopped."""
+          params: LandingParams | None = None, limit: float = 12.0,
+          poses_from: float = -math.inf) -> tuple[SafeLanding, float]:
+    """Run the landing from the car's clock; poses (1 mm noise) are fed while poses_from <= t <
+    poses_until. Returns the landing and the time the motors were stopped."""
     rng = random.Random(1)
     landing = SafeLanding(car.t, last, params or LandingParams(), DT)
     start = car.t
     while car.t < start + limit:
         t = car.t
-        if t < poses_until:
+        if poses_from <= t < poses_until:
             truth = car.truth()
             landing.on_pose(Pose(vid="v1", t=t, x=truth.x + rng.gauss(0, 0.001), y=truth.y + rng.gauss(0, 0.001),
                                  z=truth.z + rng.gauss(0, 0.001), yaw=truth.yaw), t)
@@ -73,6 +74,20 @@ def test_blind_landing_without_any_pose() -> None:
     assert not landing.closed_loop
     assert car.z == 0.0 and car.thrust < 1e-3 and car.last_impact_speed < 0.35
     assert took == pytest.approx(0.5 + OpenLoopDescent(0.8, 0.2, 1.0).duration, abs=0.05)
+
+
+def test_poses_back_during_a_blind_descent_that_climbs_land_it_in_place() -> None:
+    """The 32-vehicle soak on a loaded machine: the executor's commands went stale as its vehicle
+    touched down, while no pose reached the gateway; its blind descent assumed `blind_height` and
+    a hover thrust 15 % high (the executor's last setpoints braked the touchdown), so it climbed.
+    The poses that come back 1 s later bring the position control back, from where it is: it lands
+    gently. (The blind descent used to run to its end, motors off 12 m up: a fall at 14 m/s.)"""
+    high = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=hover_command(1.15 * 0.041))
+    car = SimFlyingCar("v1", params=PhysicsParams(), pos=(0.3, -0.2, 0.0), yaw=0.4)
+    car.apply(high, car.t)
+    landing, _took = _land(car, poses_until=math.inf, poses_from=car.t + 1.0, last=high, limit=20.0)
+    assert landing.closed_loop
+    assert car.z == 0.0 and car.thrust < 1e-3 and car.last_impact_speed < 0.35, car.last_impact_speed
 
 
 def test_open_loop_descent_profile() -> None:

@@ -16,7 +16,9 @@ one in the air when its executor goes silent).
   flight setpoint (the hover thrust the executor had found) and making up for the descent's drag:
   from the vertical speed it had, to `speed` at `accel`, then coast at `speed` onto the ground
   below the last known height (or `blind_height` if no pose was ever seen), where the coast
-  thrust, below the weight, keeps it; motors off a margin after the predicted touchdown.
+  thrust, below the weight, keeps it; motors off a margin after the predicted touchdown. Poses
+  that come back end it: the position control lands the vehicle from where they show it (a hover
+  thrust too high makes the blind descent climb: in a 32-vehicle soak, to 12 m).
 """
 
 from __future__ import annotations
@@ -106,6 +108,7 @@ class SafeLanding:
         self._anchor: tuple[float, float, float, float, float] | None = None  # t, x, y, z, yaw
         self._rests = RestWatch(params.touchdown_height, params.rest_s)
         self._open_loop: tuple[float, OpenLoopDescent] | None = None
+        self._failed = False  # the flight stack raised: open loop to the end
 
     @property
     def descent_start(self) -> float:
@@ -113,18 +116,21 @@ class SafeLanding:
 
     def on_pose(self, pose: Pose, now: float) -> None:
         """A pose received at `now` (gateway clock)."""
-        if self._open_loop is None and self.estimator.update(pose):
+        if self.estimator.update(pose):
             self.pose_at = now
         self.last_z = pose.z
 
     def step(self, now: float) -> FlightSetpoint | None:
-        if self._open_loop is None and now - self.pose_at <= self.params.pose_timeout_s:
+        if not self._failed and now - self.pose_at <= self.params.pose_timeout_s:
             try:
                 est = self.estimator.estimate(now)
                 if not est.stale:
+                    if self._open_loop is not None:  # poses back in the blind descent: land from here
+                        self._open_loop, self._anchor = None, None
                     return self._closed_loop(now, est)
             except Exception:  # the borrowed flight stack failed: the open-loop descent still lands
                 log.exception("safety landing: position control failed, descending open loop")
+                self._failed = True
                 return self._descend_open_loop(now)
         if self.closed_loop or now >= self.descent_start:
             return self._descend_open_loop(now)
