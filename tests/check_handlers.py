@@ -165,7 +165,8 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/vehicle_controller.py",
               "        if not est.stale and not on_board:\n            return self._land_in_place(now, est, descent)\n",
               "        if False:\n            return self._land_in_place(now, est, descent)\n"),),
-        "tests/test_faults_router.py::test_a_blind_descent_whose_commands_were_lost_waits_for_the_vehicle_to_rest"),
+        "tests/test_closed_loop.py::test_an_emergency_descent_on_a_slow_loop_with_poses_coming_and_going_lands_gently",
+        disabled="pass"),
     Handling(
         "the blind descent's settled thrust bias",
         "executor: the blind descent takes the flight integrators' last bias (bounded)",

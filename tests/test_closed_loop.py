@@ -135,7 +135,10 @@ def test_pose_lost_in_the_air_lands_blind_and_gently() -> None:
     ctrl, sim, records = fly_plan(noise=lost, until=T0 + TAKEOFF + 8.0)
     assert ctrl.machine.sequence()[-3:] == [Mode.FLYING, Mode.EMERGENCY_LANDING, Mode.DONE]
     descending = [r for r in records if r.mode == Mode.EMERGENCY_LANDING]
-    assert max(abs(r.truth.roll) + abs(r.truth.pitch) for r in descending[20:]) < math.radians(2)
+    start = descending[0].truth
+    # its horizontal speed braked (0.25 m from 0.3 m/s; level all the way it drifted 0.52 m), then level
+    assert max(math.hypot(r.truth.x - start.x, r.truth.y - start.y) for r in descending) < 0.3
+    assert max(abs(r.truth.roll) + abs(r.truth.pitch) for r in descending[100:]) < math.radians(2)
     assert not sim.airborne and not sim.truth().motors
     assert sim.last_impact_speed < 0.6
 
@@ -143,7 +146,7 @@ def test_pose_lost_in_the_air_lands_blind_and_gently() -> None:
 @pytest.mark.parametrize(("wound", "settled"), [(-1.0, False), (1.0, False), (-1.0, True)])
 def test_an_emergency_descent_after_a_wound_up_integrator_neither_climbs_nor_falls(wound: float, settled: bool) -> None:
     """A stalled loop (commands that never arrived while the error grew) leaves the LQR's height
-    integrator at its limit, a thrust bias of 5.5 m/s^2, as the poses go stale for 0.6 s. The
+    integrator at its limit, a thrust bias of 5.5 m/s^2, as the poses go stale for 1.2 s. The
     descent takes over the settled bias, not the wound-up one. Had the wind-up lasted long enough
     to settle (upwards), the descent bounds it, and once poses are back the flight controller, its
     integrators reset, lands it where it is; its motors stop once it rests. (It used to keep the
@@ -159,7 +162,7 @@ def test_an_emergency_descent_after_a_wound_up_integrator_neither_climbs_nor_fal
             if settled:
                 ctrl.lqr.settled_bias = ctrl.lqr.accel_bias()
 
-    noise = MocapNoise(pos_std=0.001, dropouts=((lost, lost + 0.6),))
+    noise = MocapNoise(pos_std=0.001, dropouts=((lost, lost + 1.2),))
     ctrl, sim, records = fly_plan(noise=noise, until=lost + 10.0, hook=wind_up)
     assert ctrl.machine.sequence()[-2:] == [Mode.EMERGENCY_LANDING, Mode.DONE]
     start = next(r for r in records if r.mode == Mode.EMERGENCY_LANDING)

@@ -7,8 +7,9 @@ not fall below C_low), lost radio link, and where to go when the plan must be le
 - safe landing: fly level to above the nearest node of the vehicle's own plan where it takes off or
   lands (a node it was going to use anyway, under airspace it flies in), then descend at the
   landing speed;
-- emergency descent: without a trustworthy pose, a level descent at `descent_speed` on the
-  dead-reckoned state (the estimator predicts with the commanded accelerations); the real vehicle
+- emergency descent: without a trustworthy pose, a descent at `descent_speed` on the
+  dead-reckoned state, its horizontal speed braked to a stop, then level (the estimator predicts
+  with the commanded accelerations); the real vehicle
   may descend slower (drag, thrust error), so the motors stop only after the predicted descent
   time again (`descent_slack`) plus `descent_margin_s`; with poses back, the flight controller lands
   it where it is and the motors stop once it rests (`EmergencyDescent`).
@@ -40,7 +41,8 @@ class FaultParams:
     settled bias: a flight learns up to 0.2 m/s^2, a slow loop 1.1; a stalled loop winds them up to
     5.5, which the descent used to keep: climbs to 30 m in a 32-vehicle soak); rest_s: with poses,
     the landing in place rests that long on the ground (`common.flight.landing.RestWatch`) before
-    the motors stop. Tracking guard
+    the motors stop; descent_brake_max: the largest horizontal deceleration (m/s^2) braking the
+    descent's horizontal speed (at `descent_gain`). Tracking guard
     (issue 15): a plan is collision-free only while every vehicle stays within the margin it was
     planned with (`VehicleModel.margin`), so a vehicle whose estimated distance from its reference
     exceeds `guard_factor` x margin for `guard_s`, or `guard_burst` x margin at once, is held. Two
@@ -72,6 +74,7 @@ class FaultParams:
     descent_margin_s: float = 0.3
     rest_s: float = 0.3
     descent_bias_max: float = 1.5
+    descent_brake_max: float = 2.0
     guard: bool = True
     guard_factor: float = 2.0
     guard_burst: float = 3.0
@@ -79,6 +82,13 @@ class FaultParams:
     guard_rejoin_s: float = 5.0
     guard_drive_start_s: float = 2.0
     yield_s: float = 4.0
+
+    def descent_brake(self, vx: float, vy: float) -> tuple[float, float]:
+        """Horizontal acceleration (m/s^2, world) braking the dead-reckoned horizontal speed at
+        `descent_gain`, at most `descent_brake_max` (a tilt of about 12 deg)."""
+        ax, ay = -self.descent_gain * vx, -self.descent_gain * vy
+        scale = min(1.0, self.descent_brake_max / max(math.hypot(ax, ay), 1e-9))
+        return ax * scale, ay * scale
 
     def descent_accel_cmd(self, vz: float) -> float:
         """Vertical acceleration (m/s^2) steering the dead-reckoned vertical speed to -descent_speed."""

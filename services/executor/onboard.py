@@ -51,8 +51,8 @@ def follow(ref: RefSample, ahead: RefSample | None, estimator: PoseEstimator, no
 
 def descent(est: Estimate, accel: float, estimator: PoseEstimator, faults: FaultParams, now: float) -> PositionSetpoint:
     """One step of the emergency descent: vertical acceleration `accel` (`FaultParams.descent_accel_cmd`),
-    the horizontal speed braked at `descent_gain`; the dead-reckoned state as the setpoint."""
-    ax, ay = -faults.descent_gain * est.vx, -faults.descent_gain * est.vy
+    the horizontal speed braked (`FaultParams.descent_brake`); the dead-reckoned state as the setpoint."""
+    ax, ay = faults.descent_brake(est.vx, est.vy)
     estimator.set_input((ax, ay, accel), now)
     return PositionSetpoint(x=est.x, y=est.y, z=est.z, vx=est.vx, vy=est.vy, vz=est.vz, ax=ax, ay=ay, az=accel,
                             yaw=est.yaw)

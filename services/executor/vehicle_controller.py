@@ -489,8 +489,9 @@ class VehicleController:
         self.machine.request(Mode.DRIVING if nxt == Mode.LANDING else nxt, now, "touchdown")
 
     def _emergency(self, now: float, est: Estimate) -> Setpoint:
-        """Level descent on the dead-reckoned state (the estimator integrates the accelerations
-        commanded here); the thrust keeps the bias the flight integrators learned (settled, and
+        """Descent on the dead-reckoned state, its horizontal speed braked, then level (the
+        estimator integrates the accelerations commanded here; a level descent drifted 1.6-2 m from
+        cruise speed on a slow loop with poses coming and going); the thrust keeps the bias the flight integrators learned (settled, and
         within what a thrust model can be wrong by: `FaultParams.descent_bias_max`). Motors off
         after the predicted descent time again plus a margin (see `FaultParams`). With poses back
         the flight controller lands it where it is (`_land_in_place`): the prediction assumed every
@@ -511,11 +512,14 @@ class VehicleController:
         accel = faults.descent_accel_cmd(est.vz)
         if on_board:
             return onboard.descent(est, accel, self.estimator, faults, now)
+        ax, ay = faults.descent_brake(est.vx, est.vy)
+        c, s = math.cos(est.yaw), math.sin(est.yaw)
+        pitch, roll = (ax * c + ay * s) / G, (ax * s - ay * c) / G  # (v'x = g pitch, v'y = -g roll, yawed frame)
         d = self.lqr.model.drag_rate  # the thrust also makes up for the drag of the descent
-        self.estimator.set_input((-d * est.vx, -d * est.vy, accel), now)
+        self.estimator.set_input((ax - d * est.vx, ay - d * est.vy, accel), now)
         bias = min(max(self.lqr.settled_bias, -faults.descent_bias_max), faults.descent_bias_max)
-        thrust = self.model.mass * (G + bias + accel + d * est.vz)
-        return to_flight_setpoint(0.0, 0.0, 0.0, thrust_command(thrust))
+        thrust = self.model.mass * (G + bias + accel + d * est.vz) / (math.cos(roll) * math.cos(pitch))
+        return to_flight_setpoint(roll, pitch, 0.0, thrust_command(thrust))
 
     def _land_in_place(self, now: float, est: Estimate, descent: EmergencyDescent) -> Setpoint:
         """An emergency landing with poses: the LQR, its integrators reset (a stalled loop may have
