@@ -180,6 +180,12 @@ HANDLINGS: tuple[Handling, ...] = (
               "        if not self._failed and self._open_loop is None and now - self.pose_at"),),
         "tests/test_gateway_landing.py::test_poses_back_during_a_blind_descent_that_climbs_land_it_in_place"),
     Handling(
+        "the reflex's allowance for a held vehicle's time unseen",
+        "executor: `yield_to` ignores how long the held vehicle went unseen",
+        (Edit("services/executor/vehicle_controller.py", "        unseen = min(max(unseen_s, 0.0) *",
+              "        unseen = 0.0 * min(max(unseen_s, 0.0) *"),),
+        "tests/test_tracking_guard.py::test_a_vehicle_held_unseen_for_a_while_is_given_the_way_it_may_have_gone"),
+    Handling(
         "re-stopping on a status that shows the motors running",
         "gateway: no `motors_restopped`",
         (Edit("services/radio_gateway/vehicle.py",

@@ -177,6 +177,23 @@ def test_a_vehicle_whose_plan_goes_where_another_is_held_holds_too() -> None:
         assert math.dist(held, (sim.x, sim.y, sim.z)) < 0.05  # it stays there
 
 
+def test_a_vehicle_held_unseen_for_a_while_is_given_the_way_it_may_have_gone() -> None:
+    """Held on a stale pose, a vehicle may have driven on blind past its last pose: the others
+    yield to where it may be (its last pose, widened by the time unseen at its fastest speed), not
+    only to that pose. (A 32-vehicle soak: held 14 cm past its last pose, a neighbour whose plan
+    passed clear of that pose drove into it.)"""
+    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    ctrl = VehicleController("cf1", MODEL, owner="test")
+    ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
+    run(ctrl, sim, T0 + 0.2)
+    ahead = ctrl.trajectory.plan_position(sim.t - T0 + 2.0)
+    near = (ahead[0] + 0.3 / math.sqrt(2), ahead[1] - 0.3 / math.sqrt(2), ahead[2])  # 0.28 m off the path
+    assert not ctrl.yield_to("cf9", near, sim.t)
+    assert not ctrl.yield_to("cf9", near, sim.t, unseen_s=0.1)
+    assert ctrl.yield_to("cf9", near, sim.t, unseen_s=1.0)
+    assert ctrl.held is None and ctrl.tick(sim.t)[0] and ctrl.held is not None
+
+
 def test_a_vehicle_stopped_by_a_stale_pose_is_held_for_good_once_its_plan_moved_on() -> None:
     """Stopped on the ground by a stale pose while its plan runs on, a vehicle is where the others'
     plans no longer expect it: once its reference is 3x the margin away it is held for good (and

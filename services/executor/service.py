@@ -304,11 +304,12 @@ class ExecutorService(Service):
         seen = self.last_seen.get(event.vid)
         if event.kind != "tracking_hold" or seen is None:
             return
-        pos = (seen[1].x, seen[1].y, seen[1].z)
+        frame, pose = seen
+        pos, unseen_s = (pose.x, pose.y, pose.z), event.t - frame.t  # (held on a stale pose: unseen a while)
         now = time.time()
         for vid, ctl in self.controllers.items():
             if vid != event.vid:
-                ctl.yield_to(event.vid, pos, now)
+                ctl.yield_to(event.vid, pos, now, unseen_s)
 
     # ---- the loop -------------------------------------------------------------------------------
     async def _control_loop(self, frames: Subscription[PoseFrame]) -> None:

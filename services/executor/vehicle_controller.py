@@ -38,6 +38,8 @@ log = logging.getLogger(__name__)
 
 YIELD_STEP_S = 0.05
 """s between the plan positions `VehicleController.yield_to` looks at (0.05 s is at most 1.5 cm of flight)."""
+YIELD_UNSEEN_MAX = 0.5
+"""m: the most `yield_to` widens its reach for a held vehicle's time unseen."""
 YIELD_BEHIND_S = 1.0
 """s of its plan behind now that `yield_to` looks at too: a vehicle may lag its reference by up to
 the guard's burst (3x a 3 cm margin: 0.9 s of driving)."""
@@ -350,19 +352,23 @@ class VehicleController:
             self.machine.request(Mode.HOLDING, now, why)
         log.warning("%s: held by the tracking guard: %s", self.vid, why)
 
-    def yield_to(self, vid: str, pos: tuple[float, float, float], now: float) -> bool:
+    def yield_to(self, vid: str, pos: tuple[float, float, float], now: float, unseen_s: float = 0.0) -> bool:
         """The fleet's reflex to `vid`, held by the tracking guard at `pos` (issue 15): this vehicle
         holds too (at its next tick, reported as `tracking_hold`) if its plan brings its body within
         reach of `vid`'s in the next `yield_s` s: both envelopes, plus the guard's allowance for this
-        one's tracking. Whether it will hold."""
+        one's tracking, plus the way `vid` may have gone in the `unseen_s` s between its pose `pos`
+        and its hold (stopped on a stale pose, it drove on blind: 14 cm past its last pose in a
+        32-vehicle soak, where a neighbour drove into it), at the fastest of its speeds, up to
+        `YIELD_UNSEEN_MAX`. Whether it will hold."""
         f = self.params.faults
         traj = self._active
         if (not f.guard or f.yield_s <= 0.0 or traj is None or self.t0 is None or self.held or self._yield
                 or self._fault_landing or self._abort or self.machine.mode in (Mode.DONE, Mode.EMERGENCY_LANDING)):
             return False
         m = self.model
-        reach_xy = 2.0 * m.radius + f.guard_factor * m.margin
-        reach_z = m.height + f.guard_factor * m.margin
+        unseen = min(max(unseen_s, 0.0) * max(m.speed.drive, m.speed.fly), YIELD_UNSEEN_MAX)
+        reach_xy = 2.0 * m.radius + f.guard_factor * m.margin + unseen
+        reach_z = m.height + f.guard_factor * m.margin + unseen
         est = self.estimator.estimate(now)
         rel = now - self.t0
         # where it is, then its plan from a little behind (it may lag its reference) to `yield_s` ahead
