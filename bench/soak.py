@@ -154,9 +154,10 @@ async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], sec
             result = runner.result
             assert result is not None
             log.missions.append(result)
-            if runner.plan is not None:
-                log.flights += sum(any(runner.plan.graph.nodes[e.node].kind == "air" for e in path)
-                                   for path in runner.plan.paths.values())
+            first = runner.first_plan  # (`runner.plan` is the last replan's: the vehicles that stayed)
+            if first is not None:
+                log.flights += sum(any(first.graph.nodes[e.node].kind == "air" for e in path)
+                                   for path in first.paths.values())
             print(f"[{time.time() - log.started:6.0f} s] {result.summary().splitlines()[0]}; "
                   f"{sum(r.arrived for r in result.vehicles.values())}/{len(tasks)} arrived, "
                   f"contacts {result.contacts}", flush=True)
