@@ -176,8 +176,8 @@ HANDLINGS: tuple[Handling, ...] = (
     Handling(
         "poses back during the gateway's blind descent",
         "gateway: once blind, the safety landing descends open loop to its end",
-        (Edit("services/radio_gateway/landing.py", "        if not self._failed and now - self.pose_at",
-              "        if not self._failed and self._open_loop is None and now - self.pose_at"),),
+        (Edit("services/radio_gateway/landing.py", "(self._open_loop is None or est.vz > _CLIMBING)",
+              "self._open_loop is None"),),
         "tests/test_gateway_landing.py::test_poses_back_during_a_blind_descent_that_climbs_land_it_in_place"),
     Handling(
         "the reflex's allowance for a held vehicle's time unseen",

@@ -17,8 +17,8 @@ one in the air when its executor goes silent).
   from the vertical speed it had, to `speed` at `accel`, then coast at `speed` onto the ground
   below the last known height (or `blind_height` if no pose was ever seen), where the coast
   thrust, below the weight, keeps it; motors off a margin after the predicted touchdown. Poses
-  that come back end it: the position control lands the vehicle from where they show it (a hover
-  thrust too high makes the blind descent climb: in a 32-vehicle soak, to 12 m).
+  that come back and show it climbing end it: the position control lands the vehicle from where
+  they show it (a hover thrust too high makes the blind descent climb: in a 32-vehicle soak, to 12 m).
 """
 
 from __future__ import annotations
@@ -47,6 +47,10 @@ _CUT_SLACK = 0.25
 hover thrust are estimates) before the motors stop."""
 _CUT_MARGIN_S = 0.3
 """Open loop: and this much more (s)."""
+_CLIMBING = 0.1
+"""m/s: a blind descent that poses show climbing faster than this hands over to position control
+(its hover thrust was too high); one that descends goes on blind (switching back and forth on a
+loaded machine's intermittent poses made the descent jerk: 0.45 m/s at times)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,8 +128,8 @@ class SafeLanding:
         if not self._failed and now - self.pose_at <= self.params.pose_timeout_s:
             try:
                 est = self.estimator.estimate(now)
-                if not est.stale:
-                    if self._open_loop is not None:  # poses back in the blind descent: land from here
+                if not est.stale and (self._open_loop is None or est.vz > _CLIMBING):
+                    if self._open_loop is not None:  # the blind descent climbs: land from here
                         self._open_loop, self._anchor = None, None
                     return self._closed_loop(now, est)
             except Exception:  # the borrowed flight stack failed: the open-loop descent still lands
