@@ -1,8 +1,15 @@
-"""Landing in place on motion capture: the vertical reference of a descent and the watch that says
-it has touched down. Shared by the gateway's safety landing (services/radio_gateway/landing.py) and
-the executor's emergency descent once poses are back (services/executor/vehicle_controller.py)."""
+"""Landing in place on motion capture: the vertical reference of a descent, the watch that says it
+has touched down, and the flight controller that follows one to the other. Shared by the gateway's
+safety landing (services/radio_gateway/landing.py) and the executor's emergency descent once poses
+are back (services/executor/vehicle_controller.py)."""
 
 from __future__ import annotations
+
+from common.bus.messages import FlightSetpoint
+from common.flight.estimator import Estimate, PoseEstimator
+from common.flight.lqr import FlightLqr
+from common.flight.modes import Mode
+from common.flight.reference import RefSample
 
 REST_SPEED = 0.05
 """m/s: slower than this counts as resting."""
@@ -33,3 +40,45 @@ class RestWatch:
             return now - self._since >= self.rest_s
         self._since = None
         return False
+
+
+class LandInPlace:
+    """Lands a flying vehicle where it is, on motion capture: the flight LQR, its integrators reset
+    when the landing begins (a stalled loop may have wound them up), holds the x, y and yaw of that
+    moment and follows `descent_ref` down at `speed` onto `ground`; done once `RestWatch` says it
+    rests there (or on anything higher: a helipad, another vehicle's roof). It tells `estimator`
+    what it commands, as the flight controller does."""
+
+    def __init__(self, lqr: FlightLqr, estimator: PoseEstimator, speed: float, touchdown_height: float,
+                 rest_s: float, liftoff_height: float, mode: Mode) -> None:
+        self.lqr = lqr
+        self.estimator = estimator
+        self.speed = speed
+        self.touchdown_height = touchdown_height
+        self.liftoff_height = liftoff_height
+        self.mode = mode
+        self.anchor: tuple[float, float, float, float, float] | None = None
+        """t, x, y, z, yaw where the landing began; None until it has (or after `release`)."""
+        self._rests = RestWatch(touchdown_height, rest_s)
+
+    def release(self) -> None:
+        """The poses are gone: the next `step` begins the landing afresh from where they show it."""
+        self.anchor = None
+
+    def step(self, now: float, est: Estimate, ground: float = 0.0, not_before: float = -float("inf")
+             ) -> FlightSetpoint | None:
+        """The setpoint at `now` for the fresh estimate `est`, None once it rests. The descent
+        begins at `not_before` at the earliest (until then it holds its height)."""
+        if self.anchor is None:
+            self.anchor = (max(now, not_before), est.x, est.y, est.z, est.yaw)
+            self.lqr.reset()
+        t0, x0, y0, z0, yaw0 = self.anchor
+        z_ref, vz_ref = descent_ref(self.speed, self.touchdown_height, t0, z0, now, ground=ground)
+        if self._rests(now, est.z - z_ref, est.vz):
+            return None
+        ref = RefSample(t=now, x=x0, y=y0, z=z_ref, vx=0.0, vy=0.0, vz=vz_ref, ax=0.0, ay=0.0, az=0.0,
+                        yaw=yaw0, yaw_rate=0.0, mode=self.mode)
+        aloft = est.z - ground > self.liftoff_height
+        sp = self.lqr.command(est, ref, integrate=aloft)
+        self.estimator.set_input(self.lqr.expected_accel if aloft else (0.0, 0.0, 0.0), now)
+        return sp

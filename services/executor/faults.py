@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 from common.bus.messages import PlanStep, Telemetry
 from common.domain.vehicle_model import VehicleModel
-from common.flight.landing import RestWatch
+from common.flight.landing import LandInPlace
 
 _MIN_DESCENT = 0.01
 """m: the descent of a safe landing is timed as at least this long, so that its last two entries are
@@ -40,7 +40,7 @@ class FaultParams:
     thrust-model error (m/s^2) the blind descent takes over from the flight integrators (their
     settled bias: a flight learns up to 0.2 m/s^2, a slow loop 1.1; a stalled loop winds them up to
     5.5, which the descent used to keep: climbs to 30 m in a 32-vehicle soak); rest_s: with poses,
-    the landing in place rests that long on the ground (`common.flight.landing.RestWatch`) before
+    the landing in place rests that long on the ground (`common.flight.landing.LandInPlace`) before
     the motors stop; descent_brake_max: the largest horizontal deceleration (m/s^2) braking the
     descent's horizontal speed (at `descent_gain`). Tracking guard
     (issue 15): a plan is collision-free only while every vehicle stays within the margin it was
@@ -99,13 +99,12 @@ class FaultParams:
 @dataclass(slots=True)
 class EmergencyDescent:
     """One emergency landing (`VehicleController._emergency`): when it began (or went blind again);
-    blind, when its motors may stop (set at the predicted touchdown); with poses, where its landing
-    in place began (t, x, y, z, yaw; None while blind) and the watch for its touchdown."""
+    blind, when its motors may stop (set at the predicted touchdown); with poses, the landing in
+    place (`common.flight.landing.LandInPlace`)."""
 
     start: float
-    rests: RestWatch
+    landing: LandInPlace
     cut: float | None = None
-    anchor: tuple[float, float, float, float, float] | None = None
 
 
 class FaultMonitor:

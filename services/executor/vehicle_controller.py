@@ -26,7 +26,7 @@ from common.bus.messages import (
 from common.crazyflie.thrust import WheelBase, thrust_command, to_flight_setpoint
 from common.domain.vehicle_model import G, VehicleModel
 from common.flight.estimator import Estimate, EstimatorParams, KalmanBank, PoseEstimator
-from common.flight.landing import REST_SPEED, RestWatch, descent_ref
+from common.flight.landing import REST_SPEED, LandInPlace
 from common.flight.lqr import FlightLqr, LqrWeights
 from common.flight.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
 from services.executor import onboard
@@ -194,7 +194,7 @@ class VehicleController:
         if mode in AIRBORNE:
             self.lqr.reset()
         if mode == Mode.EMERGENCY_LANDING:
-            self._descent = EmergencyDescent(now, RestWatch(self.params.touchdown_height, self.params.faults.rest_s))
+            self._descent = self._emergency_descent(now)
         elif rel is not None and fault_landing:
             self._begin_safe_landing(now, rel, self.estimator.estimate(now), "landing continued after take-over")
         elif rel is not None and mode == Mode.LANDING:
@@ -266,7 +266,7 @@ class VehicleController:
         if m.airborne:
             if est.stale:
                 if m.request(Mode.EMERGENCY_LANDING, now, "pose stale in the air"):
-                    self._descent = EmergencyDescent(now, RestWatch(self.params.touchdown_height, self.params.faults.rest_s))
+                    self._descent = self._emergency_descent(now)
                 return
             reason = "low battery" if low else "link lost" if link else self._abort
             if reason and not self._fault_landing:
@@ -500,16 +500,22 @@ class VehicleController:
         cruise speed on a slow loop with poses coming and going); the thrust keeps the bias the flight integrators learned (settled, and
         within what a thrust model can be wrong by: `FaultParams.descent_bias_max`). Motors off
         after the predicted descent time again plus a margin (see `FaultParams`). With poses back
-        the flight controller lands it where it is (`_land_in_place`): the prediction assumed every
+        the flight controller lands it where it is (`LandInPlace`): the prediction assumed every
         command arrived, which a lost router or radio makes false (the gateway may have been
         landing it its own way), and a stalled loop's wound-up integrators made it climb blind."""
         faults, descent = self.params.faults, self._descent
         assert descent is not None
         on_board = onboard.onboard(self.faults.last_telemetry)
-        if not est.stale and not on_board:
-            return self._land_in_place(now, est, descent)
-        if descent.anchor is not None:  # blind again: predict afresh from here
-            descent.anchor, descent.start = None, now
+        if not est.stale and not on_board:  # (a blind prediction of the touchdown is void: it is here)
+            descent.cut = None
+            sp = descent.landing.step(now, est, ground=self._ground_z)
+            if sp is None:
+                self.machine.request(Mode.DONE, now, "emergency descent complete")
+                return StopSetpoint()
+            return sp
+        if descent.landing.anchor is not None:  # blind again: predict afresh from here
+            descent.landing.release()
+            descent.start = now
         if descent.cut is None and est.z <= self._ground_z:  # predicted touchdown
             descent.cut = now + faults.descent_slack * (now - descent.start) + faults.descent_margin_s
         if descent.cut is not None and now >= descent.cut and (est.stale or abs(est.vz) < REST_SPEED):
@@ -527,26 +533,10 @@ class VehicleController:
         thrust = self.model.mass * (G + bias + accel + d * est.vz) / (math.cos(roll) * math.cos(pitch))
         return to_flight_setpoint(roll, pitch, 0.0, thrust_command(thrust))
 
-    def _land_in_place(self, now: float, est: Estimate, descent: EmergencyDescent) -> Setpoint:
-        """An emergency landing with poses: the LQR, its integrators reset (a stalled loop may have
-        wound them up), lands the vehicle where the poses came back, down at the descent speed onto
-        the ground below; motors off once it rests there, or on anything higher (the gateway's
-        safety landing does the same: `common.flight.landing`)."""
+    def _emergency_descent(self, now: float) -> EmergencyDescent:
         p = self.params
-        if descent.anchor is None:  # (a blind prediction of the touchdown is void: it is here)
-            descent.anchor, descent.cut = (now, est.x, est.y, est.z, est.yaw), None
-            self.lqr.reset()
-        t0, x0, y0, z0, yaw0 = descent.anchor
-        z_ref, vz_ref = descent_ref(p.faults.descent_speed, p.touchdown_height, t0, z0, now, ground=self._ground_z)
-        if descent.rests(now, est.z - z_ref, est.vz):
-            self.machine.request(Mode.DONE, now, "emergency descent complete")
-            return StopSetpoint()
-        ref = RefSample(t=now, x=x0, y=y0, z=z_ref, vx=0.0, vy=0.0, vz=vz_ref, ax=0.0, ay=0.0, az=0.0, yaw=yaw0,
-                        yaw_rate=0.0, mode=Mode.EMERGENCY_LANDING)
-        aloft = est.z - self._ground_z > p.liftoff_height
-        sp = self.lqr.command(est, ref, integrate=aloft)
-        self.estimator.set_input(self.lqr.expected_accel if aloft else (0.0, 0.0, 0.0), now)
-        return sp
+        return EmergencyDescent(now, LandInPlace(self.lqr, self.estimator, p.faults.descent_speed, p.touchdown_height,
+                                                 p.faults.rest_s, p.liftoff_height, Mode.EMERGENCY_LANDING))
 
     # ---- accounting and state -------------------------------------------------------------
 

@@ -33,10 +33,9 @@ from common.crazyflie.thrust import DRAG, thrust_command, thrust_newtons, to_fli
 from common.deploy.radios import LandingParams
 from common.domain.vehicle_model import G
 from common.flight.estimator import Estimate, PoseEstimator
-from common.flight.landing import RestWatch, descent_ref
+from common.flight.landing import LandInPlace, RestWatch, descent_ref
 from common.flight.lqr import FlightLqr
 from common.flight.modes import Mode
-from common.flight.reference import RefSample
 
 log = logging.getLogger(__name__)
 
@@ -109,8 +108,8 @@ class SafeLanding:
         self.last_z: float | None = None
         self._vertical: tuple[float, float, float] | None = None  # t, z, vz of the last estimate used
         self.closed_loop = False
-        self._anchor: tuple[float, float, float, float, float] | None = None  # t, x, y, z, yaw
-        self._rests = RestWatch(params.touchdown_height, params.rest_s)
+        self._in_place = LandInPlace(self.lqr, self.estimator, params.speed, params.touchdown_height, params.rest_s,
+                                     _LIFTOFF_HEIGHT, Mode.LANDING)
         self._open_loop: tuple[float, OpenLoopDescent] | None = None
         self._failed = False  # the flight stack raised: open loop to the end
 
@@ -130,7 +129,8 @@ class SafeLanding:
                 est = self.estimator.estimate(now)
                 if not est.stale and (self._open_loop is None or est.vz > _CLIMBING):
                     if self._open_loop is not None:  # the blind descent climbs: land from here
-                        self._open_loop, self._anchor = None, None
+                        self._open_loop = None
+                        self._in_place.release()
                     return self._closed_loop(now, est)
             except Exception:  # the borrowed flight stack failed: the open-loop descent still lands
                 log.exception("safety landing: position control failed, descending open loop")
@@ -141,22 +141,9 @@ class SafeLanding:
         return self._level(0.0)  # hovering while the first poses come in
 
     def _closed_loop(self, now: float, est: Estimate) -> FlightSetpoint | None:
-        p = self.params
-        if self._anchor is None:
-            self._anchor = (max(now, self.descent_start), est.x, est.y, est.z, est.yaw)
-            self.lqr.reset()
         self.closed_loop = True
-        t0, x0, y0, z0, yaw0 = self._anchor
-        z_ref, vz_ref = descent_ref(p.speed, p.touchdown_height, t0, z0, now)
-        if self._rests(now, est.z - z_ref, est.vz):
-            return None
-        ref = RefSample(t=now, x=x0, y=y0, z=z_ref, vx=0.0, vy=0.0, vz=vz_ref, ax=0.0, ay=0.0, az=0.0,
-                        yaw=yaw0, yaw_rate=0.0, mode=Mode.LANDING)
-        aloft = est.z > _LIFTOFF_HEIGHT
         self._vertical = (now, est.z, est.vz)
-        sp = self.lqr.command(est, ref, integrate=aloft)
-        self.estimator.set_input(self.lqr.expected_accel if aloft else (0.0, 0.0, 0.0), now)
-        return sp
+        return self._in_place.step(now, est, not_before=self.descent_start)
 
     def _descend_open_loop(self, now: float) -> FlightSetpoint | None:
         if self._open_loop is None:
