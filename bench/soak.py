@@ -200,9 +200,9 @@ def report(log: SoakLog, seconds: float) -> str:
              f"{arrived}/{flights} vehicle trips arrived ({log.flights} with flights), contacts {sum(m.contacts for m in log.missions)}, "
              f"closest bodies {100 * gap:.1f} cm; machine load average {min(log.load, default=0):.1f}-"
              f"{max(log.load, default=0):.1f} on {os.cpu_count()} cores"]
-    sim = log.sim_figures()
-    lines.append(f"at the end (ground truth): {len(log.final) - len(log.not_at_rest())}/{log.vehicles} vehicles at rest "
-                 f"on the ground{' (not: ' + ', '.join(log.not_at_rest()) + ')' if log.not_at_rest() else ''}; "
+    sim, aloft = log.sim_figures(), log.not_at_rest()
+    lines.append(f"at the end (ground truth): {len(log.final) - len(aloft)}/{log.vehicles} vehicles at rest "
+                 f"on the ground{' (not: ' + ', '.join(aloft) + ')' if aloft else ''}; "
                  f"hardest touchdowns (m/s) {sim.get('hardest') or '-'}; motors cut in the air "
                  f"{sim.get('watchdog_cuts', 0):.0f}x")
     for m in log.missions:
@@ -247,6 +247,7 @@ def summary(log: SoakLog) -> dict:
     """What a test checks: each mission's verdict and each process's memory growth (MB/min)."""
     executors = [st.figures for st in log.stats.values() if st.service == "executor"]
     gateways = [st.figures for st in log.stats.values() if st.service == "gateway"]
+    sim = log.sim_figures()
     return {"missions": [{"mission": m.mission, "ok": m.ok, "reason": m.reason, "contacts": m.contacts}
                          for m in log.missions],
             "flights": log.flights,
@@ -257,8 +258,7 @@ def summary(log: SoakLog) -> dict:
                for name in ("pose_to_radio_p50", "pose_to_radio_p99", "frame_to_radio_p50", "frame_to_radio_p99")},
             "growth_mb_per_min": {name: mb_per_min(points) for name, points in log.series.items()},
             "vehicles": log.vehicles, "heard_at_end": sorted(log.final), "not_at_rest": log.not_at_rest(),
-            "touchdown_max_mps": log.sim_figures().get("touchdown_max_mps", 0.0),
-            "watchdog_cuts": log.sim_figures().get("watchdog_cuts", 0.0),
+            "touchdown_max_mps": sim["touchdown_max_mps"], "watchdog_cuts": sim["watchdog_cuts"],
             "drops": {name: st.drops for name, st in log.stats.items()}}
 
 
