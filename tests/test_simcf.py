@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import asyncio
 import socket
+import threading
 import time
 
 import pytest
 
+from common.bus.messages import FlightSetpoint
 from common.crazyflie import crtp
 from common.deploy.radios import LinkModel, free_udp_ports
 from services.sim.crazyflie.endpoint import SimCrazyflie, reliable
@@ -42,7 +44,7 @@ def test_what_cflib_waits_for_is_reliable_and_streams_are_not() -> None:
 async def _vehicle(loss: float = 0.0) -> tuple[SimCrazyflie, int]:
     port = free_udp_ports(1)[0]
     cf = SimCrazyflie(SimFlyingCar("v1", t=time.time()), SimRadio("r", LinkModel(loss=loss)))
-    await asyncio.get_running_loop().create_datagram_endpoint(lambda: cf, local_addr=("127.0.0.1", port))
+    cf.listen(("127.0.0.1", port))
     return cf, port
 
 
@@ -96,7 +98,7 @@ def test_a_stock_crazyflie_has_no_app_and_malformed_packets_are_counted() -> Non
     async def main() -> None:
         port = free_udp_ports(1)[0]
         cf = SimCrazyflie(SimFlyingCar("v1", t=time.time()), SimRadio("r", LinkModel(loss=0.0)), wheels=False)
-        await asyncio.get_running_loop().create_datagram_endpoint(lambda: cf, local_addr=("127.0.0.1", port))
+        cf.listen(("127.0.0.1", port))
         client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         client.connect(("127.0.0.1", port))
         try:
@@ -105,6 +107,48 @@ def test_a_stock_crazyflie_has_no_app_and_malformed_packets_are_counted() -> Non
             client.send(bytes((0x7C, 7, 0)))  # a truncated position setpoint
             await asyncio.sleep(0.2)
             assert cf.firmware.malformed == 2 and cf.firmware.app is None and cf.received == 3
+        finally:
+            client.close()
+            cf.close()
+
+    asyncio.run(main())
+
+
+def test_a_busy_simulator_takes_every_waiting_setpoint_at_once_at_the_time_it_arrived() -> None:
+    """Setpoints that arrive while the simulator's event loop is busy wait in the kernel; once it
+    looks, it takes them all, in order, each at the time the kernel received it (module docstring of
+    `endpoint`): the setpoint in force is the last one sent, stamped when it was sent. (Read one per
+    loop iteration, as asyncio's datagram transport does, a loop kept busy took them seconds late.)"""
+    async def main() -> None:
+        cf, port = await _vehicle()
+        client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        client.connect(("127.0.0.1", port))
+        loop = asyncio.get_running_loop()
+        thrusts = [0] + [20000 + 100 * i for i in range(100)]  # (a zero first: the RPYT thrust lock)
+
+        def send() -> None:
+            for thrust in thrusts:
+                client.send(crtp.encode_setpoint(FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=thrust)))
+                time.sleep(0.004)
+
+        busy = True
+
+        def churn() -> None:  # a simulator with much to do: every loop iteration takes 5 ms
+            if busy:
+                time.sleep(0.005)
+                loop.call_soon(churn)
+
+        try:
+            sender = threading.Thread(target=send)
+            sender.start()
+            sender.join()  # the event loop is stalled while they arrive
+            last_sent = time.time()
+            loop.call_soon(churn)
+            await asyncio.sleep(0.05)
+            busy = False
+            assert cf.received == len(thrusts)
+            assert cf.firmware.commander.setpoint.thrust == thrusts[-1]
+            assert last_sent - 0.05 < cf.firmware.commander.timestamp < last_sent + 0.01
         finally:
             client.close()
             cf.close()

@@ -12,9 +12,17 @@ streams (setpoints, external positions, log data, pings, the app channel) are lo
 rate. A 1-byte 0xFF (cflib's scan) is answered with 0xFF. A vehicle switched off (`switch_off`,
 fault injection) answers nothing at all until it is switched on again.
 
-The physics advances in steps of `PhysicsParams.max_substep` (2 ms) up to the wall clock whenever a
-packet arrives and whenever the simulator publishes truth, running the firmware's periodic work at
-each 10 ms boundary; a setpoint takes effect at the step it arrives in.
+The physics advances in steps of `PhysicsParams.max_substep` (2 ms) up to the wall clock whenever the
+simulator publishes truth, and up to a packet's delivery time when one is delivered, running the
+firmware's periodic work at each 10 ms boundary; a setpoint takes effect at the step it arrives in.
+
+Every datagram waiting at the vehicle's socket is read as soon as the event loop looks, each with the
+time the kernel received it (Linux `SO_TIMESTAMPNS`), which the link model and the physics use. (The
+endpoint used to be an asyncio datagram protocol, whose transport reads one datagram per socket per
+loop iteration: a busy simulator of 32 vehicles let the kernel queue up to 177 kB, one to two seconds
+of setpoints, which the vehicles then obeyed that late; a take-off's thrust held for five seconds sent
+nine of them 25 m up. No Crazyradio delays a packet so: cflib's radio driver sends one at a time and
+waits for its acknowledgement.)
 """
 
 from __future__ import annotations
@@ -22,6 +30,9 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import socket
+import struct
+import sys
 import time
 from collections.abc import Callable
 
@@ -37,6 +48,13 @@ EventCallback = Callable[[str, str, str], None]
 
 Address = tuple[str, int]
 
+_SO_TIMESTAMPNS = 35
+"""Linux `SO_TIMESTAMPNS` (include/uapi/asm-generic/socket.h; Python's socket module does not name
+it): each datagram comes with the kernel's receive time (CLOCK_REALTIME) as a `struct timespec`."""
+_TIMESPEC = struct.Struct("@qq")
+_MAX_DATAGRAM = 64
+"""Bytes: a CRTP packet is at most 32 (cflib's UDP driver sends header + payload)."""
+
 _RELIABLE_PORTS = {crtp.PORT_PARAM, crtp.PORT_MEM, crtp.PORT_HIGH_LEVEL, crtp.PORT_SUPERVISOR}
 
 
@@ -47,9 +65,10 @@ def reliable(raw: bytes) -> bool:
             or (port == crtp.PORT_PLATFORM and ch in (0, 1)) or (port == crtp.PORT_LINK and ch in (1, 3)))
 
 
-class SimCrazyflie(asyncio.DatagramProtocol):
-    """One simulated vehicle behind `radio`. `clock` is wall time (epoch s): the car's clock too.
-    `wheels`: the wheel app is fitted (a flying car; False for a stock Crazyflie)."""
+class SimCrazyflie:
+    """One simulated vehicle behind `radio`, at the UDP address given to `listen`. `clock` is wall
+    time (epoch s): the car's clock too. `wheels`: the wheel app is fitted (a flying car; False for
+    a stock Crazyflie)."""
 
     def __init__(self, car: SimFlyingCar, radio: SimRadio, on_event: EventCallback | None = None,
                  clock: Callable[[], float] = time.time, platform: Platform = CF21, wheels: bool = True) -> None:
@@ -76,7 +95,10 @@ class SimCrazyflie(asyncio.DatagramProtocol):
         self._switch_on_at: float | None = None
         self._next_tick = car.t + TICK_S
         self._peer: Address | None = None
-        self._transport: asyncio.DatagramTransport | None = None
+        self._sock: socket.socket | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.unsent = 0
+        """Replies the socket could not take (its send buffer full): lost, as on a congested link."""
 
     # ---- what tests and the service read ----------------------------------------------------------
     @property
@@ -89,8 +111,31 @@ class SimCrazyflie(asyncio.DatagramProtocol):
         return self.firmware.received
 
     # ---- transport ------------------------------------------------------------------------
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self._transport = transport  # type: ignore[assignment]  # a datagram endpoint's transport
+    def listen(self, addr: Address) -> None:
+        """Take cflib's datagrams at `addr` (module docstring), on the running event loop."""
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.setblocking(False)
+        if sys.platform == "linux":
+            sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+        sock.bind(addr)
+        self._sock, self._loop = sock, asyncio.get_running_loop()
+        self._loop.add_reader(sock.fileno(), self._read)
+
+    def _read(self) -> None:
+        """Every datagram waiting, in order, each at the time the kernel received it."""
+        assert self._sock is not None
+        while True:
+            try:
+                data, ancillary, _flags, addr = self._sock.recvmsg(_MAX_DATAGRAM, socket.CMSG_SPACE(_TIMESPEC.size))
+            except (BlockingIOError, InterruptedError):
+                return
+            now = self.clock()
+            at = now
+            for level, kind, value in ancillary:
+                if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(value) >= _TIMESPEC.size:
+                    sec, nsec = _TIMESPEC.unpack_from(value)
+                    at = min(sec + nsec * 1e-9, now)
+            self.datagram_received(data, addr, at)
 
     def blackout(self, until: float) -> None:
         """Fault injection (docs/reliability.md): the vehicle is out of the radio's range until `until`
@@ -119,10 +164,11 @@ class SimCrazyflie(asyncio.DatagramProtocol):
     def powered(self) -> bool:
         return self.firmware.powered
 
-    def datagram_received(self, data: bytes, addr: Address) -> None:
+    def datagram_received(self, data: bytes, addr: Address, at: float | None = None) -> None:
+        """A datagram from `addr` that reached the vehicle's radio at `at` (default: now)."""
         if not data or not self.firmware.powered:  # switched off: not even the radio chip answers
             return
-        now = self.clock()
+        now = self.clock() if at is None else at
         if now < self._blackout_until:
             self.blacked_out += 1
             if reliable(data):  # cflib resends it until acknowledged: it arrives once the blackout ends
@@ -132,17 +178,24 @@ class SimCrazyflie(asyncio.DatagramProtocol):
             self.firmware.heard(now)
             self._reply(crtp.NULL_PACKET, addr)
             return
-        at = self.radio.uplink(now, reliable(data))
-        if at is not None:
-            asyncio.get_running_loop().call_later(max(at - now, 0.0), self._deliver, data, addr)
+        due = self.radio.uplink(now, reliable(data))
+        if due is not None:
+            asyncio.get_running_loop().call_later(max(due - self.clock(), 0.0), self._deliver, data, addr, due)
 
     def close(self) -> None:
-        if self._transport is not None:
-            self._transport.close()
+        if self._sock is not None and self._loop is not None:
+            if not self._loop.is_closed():
+                self._loop.remove_reader(self._sock.fileno())
+            self._sock.close()
+            self._sock = None
 
     def _send(self, raw: bytes, addr: Address) -> None:
-        if self._transport is not None and not self._transport.is_closing():
-            self._transport.sendto(raw, addr)
+        if self._sock is None:
+            return
+        try:
+            self._sock.sendto(raw, addr)
+        except (BlockingIOError, InterruptedError):
+            self.unsent += 1
 
     def _reply(self, raw: bytes, addr: Address) -> None:
         now = self.clock()
@@ -175,8 +228,10 @@ class SimCrazyflie(asyncio.DatagramProtocol):
             self.car.step(steps * self.step_s)
             self.hardest_touchdown = max(self.hardest_touchdown, self.car.last_impact_speed)
 
-    def _deliver(self, data: bytes, addr: Address) -> None:
-        self.advance(self.clock())
+    def _deliver(self, data: bytes, addr: Address, at: float) -> None:
+        """The packet reaches the firmware at `at` (in the past if the simulator was busy: the physics
+        runs on the setpoints before it up to then)."""
+        self.advance(at)
         port = data[0] >> 4
         if port != crtp.PORT_LINK or data[0] & 0x03 != 3:
             self._peer = addr

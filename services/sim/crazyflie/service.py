@@ -75,7 +75,6 @@ class SimService(Service):
                 cf.close()
 
     async def _open(self) -> None:
-        loop = asyncio.get_running_loop()
         now = time.time()
         for name in self.selected:
             spec = self.spec.radios[name]
@@ -88,7 +87,7 @@ class SimService(Service):
                 platform = CF21_BRUSHLESS if link.firmware == "cf21-brushless" else CF21
                 cf = self.vehicles[vid] = SimCrazyflie(car, radio, self._on_event, platform=platform,
                                                        wheels=link.wheels)
-                await loop.create_datagram_endpoint(lambda cf=cf: cf, local_addr=udp_address(link.uri))
+                cf.listen(udp_address(link.uri))
         log.info("sim: %d vehicles on radios %s", len(self.vehicles), ", ".join(self.selected))
 
     async def _publish_truth(self) -> None:
