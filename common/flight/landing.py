@@ -5,7 +5,11 @@ are back (services/executor/vehicle_controller.py)."""
 
 from __future__ import annotations
 
+import msgspec
+
 from common.bus.messages import FlightSetpoint
+from common.crazyflie.thrust import thrust_command
+from common.domain.vehicle_model import G
 from common.flight.estimator import Estimate, PoseEstimator
 from common.flight.lqr import FlightLqr
 from common.flight.modes import Mode
@@ -13,6 +17,13 @@ from common.flight.reference import RefSample
 
 REST_SPEED = 0.05
 """m/s: slower than this counts as resting."""
+
+SETTLE_HEIGHT = 0.1
+"""m: with its descent's reference on the floor, a vehicle this close to the ground settles on it
+(`SETTLE_THRUST`): a fall from here at that thrust touches down at 0.63 m/s at most."""
+SETTLE_THRUST = 0.8
+"""Of its weight: the most thrust a settling vehicle gets (on a 12.5 Hz loop's 0.2 s old poses the
+flight controller kept a landed vehicle hopping 2-5 cm for 10 s, motors on, never at rest)."""
 
 
 def descent_ref(speed: float, touchdown_height: float, t0: float, z0: float, now: float,
@@ -45,8 +56,9 @@ class RestWatch:
 class LandInPlace:
     """Lands a flying vehicle where it is, on motion capture: the flight LQR, its integrators reset
     when the landing begins (a stalled loop may have wound them up), holds the x, y and yaw of that
-    moment and follows `descent_ref` down at `speed` onto `ground`; done once `RestWatch` says it
-    rests there (or on anything higher: a helipad, another vehicle's roof). It tells `estimator`
+    moment and follows `descent_ref` down at `speed` onto `ground`, where it settles (`SETTLE_THRUST`);
+    done once `RestWatch` says it rests there (or on anything higher: a helipad, another vehicle's
+    roof). It tells `estimator`
     what it commands, as the flight controller does."""
 
     def __init__(self, lqr: FlightLqr, estimator: PoseEstimator, speed: float, touchdown_height: float,
@@ -80,5 +92,14 @@ class LandInPlace:
                         yaw=yaw0, yaw_rate=0.0, mode=self.mode)
         aloft = est.z - ground > self.liftoff_height
         sp = self.lqr.command(est, ref, integrate=aloft)
-        self.estimator.set_input(self.lqr.expected_accel if aloft else (0.0, 0.0, 0.0), now)
+        ax, ay, az = self.lqr.expected_accel
+        floor = ground - 2.0 * self.touchdown_height
+        if z_ref <= floor and est.z - ground < SETTLE_HEIGHT:
+            cap = thrust_command(SETTLE_THRUST * self.lqr.mass * G)
+            if sp.thrust > cap:
+                sp = msgspec.structs.replace(sp, thrust=cap)
+                az = min(az, (SETTLE_THRUST - 1.0) * G)
+        # on the ground the ground holds it: only thrust above its weight moves it, up (an estimate
+        # that took none fell on through the floor, and the LQR's thrust to climb back relaunched it)
+        self.estimator.set_input((ax, ay, az) if aloft else (0.0, 0.0, max(az, 0.0)), now)
         return sp
