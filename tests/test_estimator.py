@@ -230,3 +230,20 @@ def test_late_poses_and_changing_commands_keep_the_estimate_on_the_truth() -> No
         est.set_input((0.0, 0.0, a), t)
         z, vz = z + vz * dt + 0.5 * a * dt * dt, vz + a * dt
     assert worst_z < 0.01 and worst_vz < 0.05
+
+
+def test_the_dead_reckoning_stops_at_the_floor_it_is_given() -> None:
+    """A vehicle last seen 2 cm up, falling at 0.6 m/s: 0.2 s on, with its floor given (its
+    controller does near the ground), it is estimated on the floor, not sinking; without one, 10 cm
+    under it (and a controller acting on that climbs back: a relaunch)."""
+    def last_seen_falling(floor: float | None) -> PoseEstimator:
+        est = PoseEstimator()
+        est.floor = floor
+        for k in range(20):
+            t = 0.01 * k
+            est.update(Pose(vid="v", t=t, x=0.0, y=0.0, z=0.02 + 0.6 * (0.19 - t), yaw=0.0))
+        return est
+
+    grounded = last_seen_falling(0.0).estimate(0.39)
+    assert grounded.z == 0.0 and grounded.vz >= 0.0
+    assert last_seen_falling(None).estimate(0.39).z < -0.09

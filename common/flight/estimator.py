@@ -177,6 +177,11 @@ class PoseEstimator:
         self._accel: Accel = (0.0, 0.0, 0.0)
         self._input_base: Accel = (0.0, 0.0, 0.0)  # the command in force before the first of `_inputs`
         self._inputs: list[tuple[float, Accel]] = []  # (from when, acceleration), since the last pose
+        self.floor: float | None = None
+        """Height (m) the vehicle cannot be below, set by its controller near the ground (where it
+        takes off or lands): the dead reckoning stops there. (Without it a vehicle that touched down
+        falling, or bounced in a take-off on late poses, was estimated falling on through the floor
+        until poses came, and controllers acted on that: climbs, motors stopped in the air.)"""
         self._dr_t = 0.0  # dead reckoning since the last pose: time, position, velocity
         self._dr = [0.0] * 6
         self._yaw = (0.0, 0.0)  # yaw and its rate at the last pose
@@ -200,12 +205,18 @@ class PoseEstimator:
             self._input_base = self._inputs.pop(0)[1]
         a = self._input_base
         for t, accel in self._inputs:
-            self._dr, self._dr_t, a = _reckoned(self._dr, a, t - self._dr_t), t, accel
+            self._dr, self._dr_t, a = self._floored(_reckoned(self._dr, a, t - self._dr_t)), t, accel
         self._accel = a
+
+    def _floored(self, x: list[float]) -> list[float]:
+        """Dead-reckoned `x` held at `floor`: on it, not sinking."""
+        if self.floor is not None and x[2] < self.floor:
+            x[2], x[5] = self.floor, max(x[5], 0.0)
+        return x
 
     def _reckon(self, now: float) -> list[float]:
         """Position and velocity dead-reckoned from the last pose to `now` (no change of state)."""
-        return _reckoned(self._dr, self._accel, now - self._dr_t)
+        return self._floored(_reckoned(self._dr, self._accel, now - self._dr_t))
 
     def mean_input(self, until: float) -> Accel:
         """The commanded acceleration averaged over the time from the last pose to `until`."""

@@ -36,6 +36,10 @@ from services.executor.trajectory import RefSample, Trajectory, TrajectoryParams
 
 log = logging.getLogger(__name__)
 
+NEAR_GROUND = frozenset({Mode.TAKING_OFF, Mode.LANDING, Mode.EMERGENCY_LANDING})
+"""Modes whose ground (`VehicleController._ground_z`: where it took off, the node it lands on) is the
+floor of its estimate (`PoseEstimator.floor`)."""
+
 YIELD_STEP_S = 0.05
 """s between the plan positions `VehicleController.yield_to` looks at (0.05 s is at most 1.5 cm of flight)."""
 YIELD_UNSEEN_MAX = 0.5
@@ -240,6 +244,7 @@ class VehicleController:
 
     def tick(self, now: float) -> tuple[Cmd, VehicleState]:
         """One control step at `now`: supervise the mode, run its controller, account the charge."""
+        self.estimator.floor = self._ground_z if self.machine.mode in NEAR_GROUND else None
         est = self.estimator.estimate(now)
         dt = 0.0 if self._last_tick is None else min(max(now - self._last_tick, 0.0), 0.1)
         self._last_tick = now

@@ -99,6 +99,7 @@ class SafeLanding:
         self.params = params
         self.start = start
         self.estimator = PoseEstimator()
+        self.estimator.floor = 0.0  # (the ground its descents end on)
         self.lqr = FlightLqr(params.mass, dt=dt)
         self.hover_newtons = params.mass * G
         if last is not None and last.thrust >= FIRMWARE_MIN_THRUST:
