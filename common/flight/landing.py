@@ -58,8 +58,7 @@ class LandInPlace:
     when the landing begins (a stalled loop may have wound them up), holds the x, y and yaw of that
     moment and follows `descent_ref` down at `speed` onto `ground`, where it settles (`SETTLE_THRUST`);
     done once `RestWatch` says it rests there (or on anything higher: a helipad, another vehicle's
-    roof). It tells `estimator`
-    what it commands, as the flight controller does."""
+    roof). It tells `estimator` what it commands, as the flight controller does."""
 
     def __init__(self, lqr: FlightLqr, estimator: PoseEstimator, speed: float, touchdown_height: float,
                  rest_s: float, liftoff_height: float, mode: Mode) -> None:
