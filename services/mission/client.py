@@ -14,7 +14,8 @@ The skeleton, one short-lived service (`alive/mission/<id>`):
    while the mission runs (zenoh keeps no history: late joiners and take-overs need them);
 5. every `TICK_S` ask the variant whether the mission is over; a fault ends it too, unless the
    variant handles it (`on_fault`: a flying-car mission plans the others on around the vehicle) or
-   the mission keeps going on faults: a fault event (`FAULT_EVENTS`), a vehicle in emergency
+   the mission keeps going on faults: a fault event (`FAULT_EVENTS`; a gateway's stale-command
+   landing only if the commands do not come back: `stale_commands.py`), a vehicle in emergency
    landing, or no state from a vehicle for `contact_timeout_s` (its executor or the router is gone);
 6. on failure or SIGINT/SIGTERM publish `MissionAbort` and wait (up to `LAND_WAIT_S`) until every
    vehicle has come to rest.
@@ -32,6 +33,7 @@ from typing import Generic, TypeVar
 from common.bus.messages import MissionAbort, MissionStart, PlanReply, PlanRequest, VehicleEvent, VehicleState
 from common.bus.pubsub import SERVICE_START_S, QueryError, QueryTimeout, query
 from common.bus.service import Service
+from services.mission.stale_commands import StaleCommands
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +90,8 @@ class MissionClient(Service, Generic[R]):
         """vid -> arrival time of its latest state."""
         self.t0: float | None = None
         self.started = 0.0
+        self.stale = StaleCommands()
+        """Vehicles their gateways took over for stale commands, a fault only if it lasts."""
 
     # ---- hooks ------------------------------------------------------------------------------------
     async def prepare(self) -> str | None:
@@ -216,6 +220,7 @@ class MissionClient(Service, Generic[R]):
                 if reason is not None:
                     return reason
                 self._check_contact(now)
+                self._check_stale(now)
                 if self.fault and self.timing.abort_on_fault:
                     return f"aborted on fault: {self.fault}"
         except asyncio.CancelledError:
@@ -250,13 +255,31 @@ class MissionClient(Service, Generic[R]):
             if silent > self.timing.contact_timeout_s:
                 self.fault = self.fault or f"{vid}: lost contact (no state for {silent:.1f} s)"
 
+    def _check_stale(self, now: float) -> None:
+        """A vehicle whose commands did not come back within the grace after its gateway took it
+        over is a fault (`stale_commands.py`)."""
+        for event in self.stale.overdue(now):
+            self._fault(event, f"{event.vid}: {event.kind}: no command came back within {self.stale.grace_s:.1f} s")
+
     def _on_event(self, event: VehicleEvent, _key: str) -> None:
         if event.vid not in self.vehicles:
             return
         text = f"{event.vid}: {event.kind} {event.detail}".strip()
         self.events.append(text)
         log.warning("vehicle event: %s", text)
-        if event.kind in FAULT_EVENTS and not self.on_fault(event.vid, event.kind, text, event.node):
+        now = time.time()
+        if event.kind == "stale_cmd_landing":  # a fault only if the commands do not come back
+            self.stale.took_over(event, now)
+        elif event.kind == "cmd_resumed" and (away := self.stale.resumed(event.vid, now)) is not None:
+            self.events.append(f"{event.vid}: its commands came back after {away:.2f} s: it flies on")
+        elif event.kind == "landed" and (took_over := self.stale.landed(event.vid)) is not None:
+            self._fault(took_over, f"{event.vid}: {took_over.kind}: landed by its gateway, no command came back")
+        elif event.kind in FAULT_EVENTS:
+            self._fault(event, text)
+
+    def _fault(self, event: VehicleEvent, text: str) -> None:
+        """A fault of one vehicle: the variant's to handle (`on_fault`), or the mission's."""
+        if not self.on_fault(event.vid, event.kind, text, event.node):
             self.fault = self.fault or text
 
     def elapsed(self) -> float:

@@ -11,9 +11,9 @@ vehicle that came down on it) stops at the nearest node it can reach (`Replan.st
 then ends when every other vehicle arrived (not a success: a vehicle left or stopped short). A
 vehicle on the ground that cannot be placed (it drives into the space a vehicle that left closed)
 is stopped where it is, alone (`MissionAbort.vehicles`), and leaves too. A fault the others cannot be planned around (the planner finds no plan, or does
-not answer in time), a fault that is not one vehicle's own (`stale_cmd_landing`, an executor's
-`aborted` after losing its router; a crash, a controller that failed) or `on_fault="abort"` ends
-it, landing every vehicle (`client.FAULT_EVENTS`).
+not answer in time), a fault that is not one vehicle's own (`stale_cmd_landing` whose commands
+did not come back: `stale_commands.py`; an executor's `aborted` after losing its router; a crash,
+a controller that failed) or `on_fault="abort"` ends it, landing every vehicle (`client.FAULT_EVENTS`).
 """
 
 from __future__ import annotations
@@ -101,7 +101,8 @@ class VehicleReport:
 ARRIVED = "every vehicle arrived"
 REPLAN_KINDS = frozenset({"low_battery", "link_lost", "emergency_landing", "tracking_hold"})
 """Faults of one vehicle that the others are planned around (it lands, stops or hovers on its own).
-Not these: `stale_cmd_landing` (its gateway hears no executor: the bus, not the vehicle, failed),
+Not these: `stale_cmd_landing` whose commands did not come back (its gateway hears no executor:
+the bus, not the vehicle, failed; one that came back is no fault: `stale_commands.py`),
 `aborted` (an executor that lost its router aborted its vehicles' plans), a crash, a failed controller."""
 LEFT_CLEARANCE = 0.5
 """m: a lifelong goal is no parking spot this close to where a vehicle that left rests."""
