@@ -125,6 +125,32 @@ def test_lqr_with_the_simulator_settles_a_step_and_learns_a_thrust_error() -> No
     assert lqr.accel_bias() == pytest.approx(G * (1 / 0.92 - 1), rel=0.15)  # the missing 8 % of thrust
 
 
+@pytest.mark.parametrize("wound", [-1.0, 1.0])
+def test_the_expected_acceleration_is_the_commands_also_with_the_integrator_wound_up(wound: float) -> None:
+    """The estimator predicts with `expected_accel`: what the thrust sent does, less the thrust-model
+    error the flight learned (`settled_bias`), not the integrator's wind-up of the moment (with
+    which a soak vehicle falling at 5 m/s^2 was estimated at 0.5). Compared with the simulator's
+    steady response to the command; 1.5 m/s^2 allows for the additive bias of a 92 % thrust."""
+    sim = SimFlyingCar("cf1", MODEL, PhysicsParams(thrust_scale=0.92), pos=(0.0, 0.0, 1.5))
+    sim.thrust = MODEL.mass * G
+    lqr = FlightLqr(MODEL.mass)
+    target = ref(z=1.5)
+    _hover_loop(lqr, sim, target, 8.0)
+    lqr.integral[2] = wound * lqr.integral_limit  # a transient wound it to its limit
+    s = sim.truth()
+    sp = lqr.command(estimate(s.x, s.y, s.z, s.yaw, s.vx, s.vy, s.vz), target, integrate=False)
+    for _ in range(20):  # the motors settle on the command
+        sim.apply(sp, sim.t)
+        sim.step(0.01)
+    vz = sim.truth().vz
+    for _ in range(5):
+        sim.apply(sp, sim.t)
+        sim.step(0.01)
+    actual = (sim.truth().vz - vz) / 0.05
+    assert abs(lqr.accel_bias()) > 5.0  # wound up: the old prediction was off by that much
+    assert lqr.expected_accel[2] == pytest.approx(actual, abs=1.5), (lqr.expected_accel, actual)
+
+
 # ---- pure pursuit ---------------------------------------------------------------------------
 
 def test_on_the_path_and_aligned_both_wheels_run_at_the_reference_speed() -> None:

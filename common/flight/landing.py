@@ -55,7 +55,8 @@ class RestWatch:
 
 class LandInPlace:
     """Lands a flying vehicle where it is, on motion capture: the flight LQR, its integrators reset
-    when the landing begins (a stalled loop may have wound them up), holds the x, y and yaw of that
+    when the landing begins (a stalled loop may have wound them up; the thrust-model error the
+    flight learned, `settled_bias`, stays for the estimator's prediction), holds the x, y and yaw of that
     moment and follows `descent_ref` down at `speed` onto `ground`, where it settles (`SETTLE_THRUST`);
     done once `RestWatch` says it rests there (or on anything higher: a helipad, another vehicle's
     roof). It tells `estimator` what it commands, as the flight controller does."""
@@ -82,7 +83,7 @@ class LandInPlace:
         begins at `not_before` at the earliest (until then it holds its height)."""
         if self.anchor is None:
             self.anchor = (max(now, not_before), est.x, est.y, est.z, est.yaw)
-            self.lqr.reset()
+            self.lqr.reset(keep_settled=True)
         t0, x0, y0, z0, yaw0 = self.anchor
         z_ref, vz_ref = descent_ref(self.speed, self.touchdown_height, t0, z0, now, ground=ground)
         if self._rests(now, est.z - z_ref, est.vz):

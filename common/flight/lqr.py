@@ -134,15 +134,18 @@ class FlightLqr:
         self.integral_limit = integral_limit
         self.max_tilt = math.radians(MAX_TILT_DEG)
         self.max_accel = max_thrust() / mass * math.cos(self.max_tilt) - G
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget the integrators and the propagated attitude (call when a flight starts)."""
-        self.integral = [0.0, 0.0, 0.0]
         self.settled_bias = 0.0
         """`accel_bias` low-passed over `BIAS_SETTLE_S` of flight on the reference: the thrust-model
         error the flight learned, without the wind-up of the last moments (a stalled loop's
         commands that never arrived wind the integrator to its limit, 5.5 m/s^2, in under a second)."""
+        self.reset()
+
+    def reset(self, keep_settled: bool = False) -> None:
+        """Forget the integrators and the propagated attitude (call when a flight starts; with
+        `keep_settled`, within a flight: the thrust-model error it learned stays)."""
+        self.integral = [0.0, 0.0, 0.0]
+        if not keep_settled:
+            self.settled_bias = 0.0
         self.roll = self.pitch = self.yaw_rate = 0.0
         self.expected_accel = (0.0, 0.0, 0.0)  # world frame, m/s^2, of the last command
 
@@ -187,9 +190,11 @@ class FlightLqr:
         self.pitch += (pitch - self.pitch) * kr
         self.yaw_rate += (yaw_rate - self.yaw_rate) * ky
         # what the vehicle should do now, for the estimator's prediction: tilt accelerates it
-        # (v'x = g pitch, v'y = -g roll in the yawed frame), the thrust beyond the learned bias lifts it
+        # (v'x = g pitch, v'y = -g roll in the yawed frame), the thrust less the thrust-model error
+        # the flight learned lifts it: the settled bias, not the integrator's of the moment (wound up
+        # in a transient, 4.4 m/s^2 in a soak, it made a vehicle falling at 5 m/s^2 estimated at 0.5)
         bx, by = G * self.pitch, -G * self.roll
         d = self.model.drag_rate
         self.expected_accel = (bx * c - by * s - d * est.vx, bx * s + by * c - d * est.vy,
-                               accel - self.accel_bias() - d * est.vz)
+                               accel - self.settled_bias - d * est.vz)
         return to_flight_setpoint(roll, pitch, yaw_rate, thrust_command(thrust))
