@@ -141,7 +141,9 @@ class ExecutorService(Service):
         self._told_held: set[str] = set()
         """Vehicles whose hold (`VehicleController.held`) was reported."""
         self._told_aborted: list[str] = []
-        """Vehicles whose mission this executor aborted while the router was lost: told once it is back."""
+        """Vehicles whose mission this executor aborted while the router was lost: told once it is
+        back, and again `ROUTER_SETTLE_S` later (clients reconnect one by one: a mission that came
+        back after the first was never told, and waited for its time limit)."""
         self._executors: AliveSet | None = None
         self._router_lost_at: float | None = None
         self._router_back_at: float | None = None
@@ -200,14 +202,19 @@ class ExecutorService(Service):
         if self._router_back_at is None:
             self._router_back_at = now
             log.warning("%s: the router is back after %.1f s", self.instance, now - self._router_lost_at)
-            for vid in self._told_aborted:  # the mission must know: nobody flies its plan on
-                self._event.put(vid, VehicleEvent(vid=vid, t=now, kind="aborted",
-                                                  detail="the executor lost its router: mission aborted"))
-            self._told_aborted.clear()
+            self._tell_aborted(now)
         elif now - self._router_back_at >= ROUTER_SETTLE_S:
             self._router_lost_at = self._router_back_at = None
+            self._tell_aborted(now)  # again: the mission's own session may have reconnected only since
+            self._told_aborted.clear()
             assert self._executors is not None
             self._reassign(self._executors.instances)
+
+    def _tell_aborted(self, now: float) -> None:
+        """The missions must know whose vehicles this executor aborted: nobody flies their plans on."""
+        for vid in self._told_aborted:
+            self._event.put(vid, VehicleEvent(vid=vid, t=now, kind="aborted",
+                                              detail="the executor lost its router: mission aborted"))
 
     def _reassign(self, live: frozenset[str]) -> None:
         """Take the vehicles that hash to us, release the others (rendezvous hashing)."""
