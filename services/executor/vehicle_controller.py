@@ -38,7 +38,14 @@ log = logging.getLogger(__name__)
 
 NEAR_GROUND = frozenset({Mode.TAKING_OFF, Mode.LANDING, Mode.EMERGENCY_LANDING})
 """Modes whose ground (`VehicleController._ground_z`: where it took off, the node it lands on) is the
-floor of its estimate (`PoseEstimator.floor`)."""
+floor of its estimate (`PoseEstimator.floor`); in the others the floor is the lowest ground there is
+(`VehicleController._lowest_ground`)."""
+
+
+def lowest_ground(plan: VehiclePlan | None) -> float:
+    """The lowest height (m) the ground under a vehicle can have: the motion-capture frame's floor
+    (z = 0, where the maps put their ground) or the lowest point of its plan, if lower."""
+    return min([0.0] + ([s.pos[2] for s in plan.steps] if plan is not None else []))
 
 YIELD_STEP_S = 0.05
 """s between the plan positions `VehicleController.yield_to` looks at (0.05 s is at most 1.5 cm of flight)."""
@@ -95,6 +102,7 @@ class VehicleController:
         self.pursuit = PurePursuit(self.params.wheels, self.params.pursuit)
         self.machine = ModeMachine(vid)
         self.plan: VehiclePlan | None = None
+        self._lowest_ground = lowest_ground(None)
         self.trajectory: Trajectory | None = None
         self.t0: float | None = None
         self.seq = 0
@@ -131,6 +139,7 @@ class VehicleController:
             log.warning("%s: plan %r refused while %s; load it once landed", self.vid, plan.mission, self.mode)
             return False
         self.plan = plan
+        self._lowest_ground = lowest_ground(plan)
         self.model = self.faults.model = plan.model
         self.lqr = FlightLqr(plan.model.mass, self.params.dt, self.params.lqr)
         est = self.estimator.estimate(self.estimator.t or 0.0)
@@ -168,6 +177,7 @@ class VehicleController:
             log.warning("%s: new plan of %r refused: %s", self.vid, plan.mission, why)
             return False
         self.plan, self.trajectory, self._active = plan, new, new
+        self._lowest_ground = lowest_ground(plan)
         log.info("%s: switched to a new plan of %r at %.2f s", self.vid, plan.mission, rel)
         return True
 
@@ -244,7 +254,7 @@ class VehicleController:
 
     def tick(self, now: float) -> tuple[Cmd, VehicleState]:
         """One control step at `now`: supervise the mode, run its controller, account the charge."""
-        self.estimator.floor = self._ground_z if self.machine.mode in NEAR_GROUND else None
+        self.estimator.floor = self._ground_z if self.machine.mode in NEAR_GROUND else self._lowest_ground
         est = self.estimator.estimate(now)
         dt = 0.0 if self._last_tick is None else min(max(now - self._last_tick, 0.0), 0.1)
         self._last_tick = now
