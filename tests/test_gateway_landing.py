@@ -27,14 +27,17 @@ def _hovering(z: float, params: PhysicsParams | None = None) -> SimFlyingCar:
 
 def _land(car: SimFlyingCar, poses_until: float, last: FlightSetpoint | None = HOVER,
           params: LandingParams | None = None, limit: float = 12.0,
-          poses_from: float = -math.inf) -> tuple[SafeLanding, float]:
+          poses_from: float = -math.inf, throw: tuple[float, float] | None = None) -> tuple[SafeLanding, float]:
     """Run the landing from the car's clock; poses (1 mm noise) are fed while poses_from <= t <
-    poses_until. Returns the landing and the time the motors were stopped."""
+    poses_until; `throw`: (s into the landing, vz) the car is thrown up at. Returns the landing and
+    the time the motors were stopped."""
     rng = random.Random(1)
     landing = SafeLanding(car.t, last, params or LandingParams(), DT)
     start = car.t
     while car.t < start + limit:
         t = car.t
+        if throw is not None and t - start >= throw[0]:
+            car.vz, throw = throw[1], None
         if poses_from <= t < poses_until:
             truth = car.truth()
             landing.on_pose(Pose(vid="v1", t=t, x=truth.x + rng.gauss(0, 0.001), y=truth.y + rng.gauss(0, 0.001),
@@ -58,6 +61,17 @@ def test_position_controlled_landing_is_gentle_and_holds_position(physics: Physi
     assert car.last_impact_speed < 0.35
     assert math.hypot(car.x - 0.3, car.y + 0.2) < 0.05
     assert took == pytest.approx(0.5 + 0.6 / 0.2, abs=1.0)
+
+
+def test_a_vehicle_thrown_up_near_the_ground_descends_afresh_and_touches_down_gently() -> None:
+    """Near the ground, its descent's reference already on the floor, the vehicle is thrown up at
+    2 m/s (it bounced off the ground on late poses, in a soak): it descends again from where it is
+    instead of diving at the flight controller's full 0.5 g (2.15 m/s at touchdown in that soak)."""
+    car = _hovering(0.3)
+    landing, _took = _land(car, poses_until=math.inf, throw=(1.9, 2.0))
+    assert landing.closed_loop
+    assert car.z == 0.0 and not car.airborne
+    assert car.last_impact_speed < 0.7, car.last_impact_speed
 
 
 def test_open_loop_when_the_poses_stop_mid_descent() -> None:

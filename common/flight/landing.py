@@ -21,6 +21,10 @@ REST_SPEED = 0.05
 SETTLE_HEIGHT = 0.1
 """m: with its descent's reference on the floor, a vehicle this close to the ground settles on it
 (`SETTLE_THRUST`): a fall from here at that thrust touches down at 0.63 m/s at most."""
+REANCHOR_GAP = 0.1
+"""m: a vehicle this far above its descent's reference (it bounced off the ground, or was thrown up)
+descends afresh from where it is: with the reference left on the floor, the flight controller
+dived at its full 0.5 g from 0.47 m and a soak vehicle touched down at 2.15 m/s."""
 SETTLE_THRUST = 0.8
 """Of its weight: the most thrust a settling vehicle gets (on a 12.5 Hz loop's 0.2 s old poses the
 flight controller kept a landed vehicle hopping 2-5 cm for 10 s, motors on, never at rest)."""
@@ -57,7 +61,8 @@ class LandInPlace:
     """Lands a flying vehicle where it is, on motion capture: the flight LQR, its integrators reset
     when the landing begins (a stalled loop may have wound them up; the thrust-model error the
     flight learned, `settled_bias`, stays for the estimator's prediction), holds the x, y and yaw of that
-    moment and follows `descent_ref` down at `speed` onto `ground`, where it settles (`SETTLE_THRUST`);
+    moment and follows `descent_ref` down at `speed` onto `ground` (afresh from where it is if it rose
+    `REANCHOR_GAP` above it), where it settles (`SETTLE_THRUST`);
     done once `RestWatch` says it rests there (or on anything higher: a helipad, another vehicle's
     roof). It tells `estimator` what it commands, as the flight controller does."""
 
@@ -86,6 +91,10 @@ class LandInPlace:
             self.lqr.reset(keep_settled=True)
         t0, x0, y0, z0, yaw0 = self.anchor
         z_ref, vz_ref = descent_ref(self.speed, self.touchdown_height, t0, z0, now, ground=ground)
+        if est.z - z_ref > REANCHOR_GAP and est.z - ground > SETTLE_HEIGHT:  # down afresh from there
+            t0 = max(now, t0)
+            self.anchor = (t0, x0, y0, est.z, yaw0)
+            z_ref, vz_ref = descent_ref(self.speed, self.touchdown_height, t0, est.z, now, ground=ground)
         if self._rests(now, est.z - z_ref, est.vz):
             return None
         ref = RefSample(t=now, x=x0, y=y0, z=z_ref, vx=0.0, vy=0.0, vz=vz_ref, ax=0.0, ay=0.0, az=0.0,

@@ -17,7 +17,8 @@ gateway (`gateway/<instance>/cmd`; a vehicle's gateway is the one its telemetry 
 for owned vehicles besides the commands: `vehicle/<vid>/state` at the state rate,
 `vehicle/<vid>/event` on faults (team plans of ground-air teams, paper 002:
 `services/executor/team_robots.py`); `stats/executor/<instance>`: counters, late cycles (a command
-sent more than a period after its frame's capture), pose-to-command latency, cycle cost.
+sent more than a period after its frame's capture), pose-to-command latency, cycle cost, the poses
+its estimators rejected as outliers and their restarts (of the vehicles it owns now).
 
 Losing the router (docs/bus.md) makes every remote token vanish at once: that is not the death of
 the other executors, so ownership stands still until the router is back and the others have had
@@ -172,7 +173,10 @@ class ExecutorService(Service):
         await self._control_loop(frames)
 
     def _figures(self) -> dict[str, float]:
-        return {"vehicles": len(self.controllers), **self.stats.figures()}
+        estimators = [ctl.estimator for ctl in self.controllers.values()]
+        return {"vehicles": len(self.controllers), **self.stats.figures(),
+                "poses_rejected": sum(e.rejected for e in estimators),
+                "estimator_restarts": sum(e.restarts for e in estimators)}
 
     # ---- ownership ------------------------------------------------------------------------------
     def _on_executors(self) -> None:
