@@ -460,10 +460,16 @@ class VehicleController:
                 return onboard.follow(ref, self.reference(now + onboard.ACCEL_LEAD_S), self.estimator, now,
                                       not self.faults.link_lost(now))
             # commands over a lost link do not reach the vehicle: neither learn from them (the
-            # integrators wound up and threw it up on reconnection) nor predict with them
-            effective = est.z - self._ground_z > self.params.liftoff_height and not self.faults.link_lost(now)
-            sp = self.lqr.command(est, ref, integrate=effective)
-            self.estimator.set_input(self.lqr.expected_accel if effective else (0.0, 0.0, 0.0), now)
+            # integrators wound up and threw it up on reconnection) nor predict with them; on the
+            # ground the ground holds it: only thrust above its weight moves it, up (with no input
+            # there, a held vehicle that fell to the ground was estimated on it while its LQR's
+            # full thrust climbed it at 0.9 m/s)
+            link = not self.faults.link_lost(now)
+            aloft = est.z - self._ground_z > self.params.liftoff_height
+            sp = self.lqr.command(est, ref, integrate=aloft and link)
+            ax, ay, az = self.lqr.expected_accel
+            self.estimator.set_input((0.0, 0.0, 0.0) if not link else (ax, ay, az) if aloft else (0.0, 0.0, max(az, 0.0)),
+                                     now)
             return sp
         if mode == Mode.EMERGENCY_LANDING:
             return self._emergency(now, est)
