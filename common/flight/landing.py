@@ -30,14 +30,19 @@ SETTLE_THRUST = 0.8
 flight controller kept a landed vehicle hopping 2-5 cm for 10 s, motors on, never at rest)."""
 
 
+def descent_end(touchdown_height: float, ground: float = 0.0) -> float:
+    """Where a descent's reference ends and stays: twice `touchdown_height` below `ground` (the
+    vehicle settles on the ground at the descent speed instead of being held just above it)."""
+    return ground - 2.0 * touchdown_height
+
+
 def descent_ref(speed: float, touchdown_height: float, t0: float, z0: float, now: float,
                 ground: float = 0.0) -> tuple[float, float]:
     """The vertical reference (z, vz) at `now` of a descent from `z0` starting at `t0`: down at
-    `speed` to twice `touchdown_height` below `ground`, where it stays (the vehicle settles on the
-    ground at the descent speed instead of being held just above it)."""
-    floor = ground - 2.0 * touchdown_height
-    z_ref = max(z0 - speed * max(now - t0, 0.0), floor)
-    return z_ref, (-speed if floor < z_ref < z0 else 0.0)
+    `speed` to its end (`descent_end`)."""
+    end = descent_end(touchdown_height, ground)
+    z_ref = max(z0 - speed * max(now - t0, 0.0), end)
+    return z_ref, (-speed if end < z_ref < z0 else 0.0)
 
 
 class RestWatch:
@@ -102,8 +107,7 @@ class LandInPlace:
         aloft = est.z - ground > self.liftoff_height
         sp = self.lqr.command(est, ref, integrate=aloft)
         ax, ay, az = self.lqr.expected_accel
-        floor = ground - 2.0 * self.touchdown_height
-        if z_ref <= floor and est.z - ground < SETTLE_HEIGHT:
+        if z_ref <= descent_end(self.touchdown_height, ground) and est.z - ground < SETTLE_HEIGHT:
             cap = thrust_command(SETTLE_THRUST * self.lqr.mass * G)
             if sp.thrust > cap:
                 sp = msgspec.structs.replace(sp, thrust=cap)
