@@ -240,7 +240,8 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("common/flight/landing.py",
               "        if z_ref <= descent_end(self.touchdown_height, ground) and est.z - ground < SETTLE_HEIGHT:",
               "        if False:"),),
-        "tests/test_closed_loop.py::test_an_emergency_descent_on_a_slow_loop_with_poses_coming_and_going_lands_gently"),
+        "tests/test_closed_loop.py::test_an_emergency_descent_on_a_slow_loop_with_poses_coming_and_going_lands_gently",
+        disabled="pass"),
     Handling(
         "the landing in place descending afresh after a bounce",
         "landing in place: the descent's reference stays where its time put it",
