@@ -43,6 +43,13 @@ after the last has a prediction too uncertain to matter)."""
 Accel = tuple[float, float, float]
 
 
+def felt(accel: Accel, aloft: bool) -> Accel:
+    """The part of a commanded acceleration that moves the vehicle: all of it aloft; on the ground,
+    which holds it, only thrust above its weight, up (an estimate that took none stayed on the
+    ground while the vehicle climbed; one that took all fell on through the floor)."""
+    return accel if aloft else (0.0, 0.0, max(accel[2], 0.0))
+
+
 def _reckoned(x: Sequence[float], a: Accel, dt: float) -> list[float]:
     """Position and velocity `x` (x, y, z, vx, vy, vz) after `dt` s at constant acceleration `a`."""
     if dt <= 0.0:

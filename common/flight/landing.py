@@ -10,7 +10,7 @@ import msgspec
 from common.bus.messages import FlightSetpoint
 from common.crazyflie.thrust import thrust_command
 from common.domain.vehicle_model import G
-from common.flight.estimator import Estimate, PoseEstimator
+from common.flight.estimator import Estimate, PoseEstimator, felt
 from common.flight.lqr import FlightLqr
 from common.flight.modes import Mode
 from common.flight.reference import RefSample
@@ -112,7 +112,5 @@ class LandInPlace:
             if sp.thrust > cap:
                 sp = msgspec.structs.replace(sp, thrust=cap)
                 az = min(az, (SETTLE_THRUST - 1.0) * G)
-        # on the ground the ground holds it: only thrust above its weight moves it, up (an estimate
-        # that took none fell on through the floor, and the LQR's thrust to climb back relaunched it)
-        self.estimator.set_input((ax, ay, az) if aloft else (0.0, 0.0, max(az, 0.0)), now)
+        self.estimator.set_input(felt((ax, ay, az), aloft), now)  # (on the ground: only thrust above its weight)
         return sp

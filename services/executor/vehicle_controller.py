@@ -25,7 +25,7 @@ from common.bus.messages import (
 )
 from common.crazyflie.thrust import WheelBase, thrust_command, to_flight_setpoint
 from common.domain.vehicle_model import G, VehicleModel
-from common.flight.estimator import Estimate, EstimatorParams, KalmanBank, PoseEstimator
+from common.flight.estimator import Estimate, EstimatorParams, KalmanBank, PoseEstimator, felt
 from common.flight.landing import REST_SPEED, LandInPlace
 from common.flight.lqr import FlightLqr, LqrWeights
 from common.flight.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
@@ -461,15 +461,11 @@ class VehicleController:
                                       not self.faults.link_lost(now))
             # commands over a lost link do not reach the vehicle: neither learn from them (the
             # integrators wound up and threw it up on reconnection) nor predict with them; on the
-            # ground the ground holds it: only thrust above its weight moves it, up (with no input
-            # there, a held vehicle that fell to the ground was estimated on it while its LQR's
-            # full thrust climbed it at 0.9 m/s)
+            # ground only thrust above its weight moves it (`felt`)
             link = not self.faults.link_lost(now)
             aloft = est.z - self._ground_z > self.params.liftoff_height
             sp = self.lqr.command(est, ref, integrate=aloft and link)
-            ax, ay, az = self.lqr.expected_accel
-            self.estimator.set_input((0.0, 0.0, 0.0) if not link else (ax, ay, az) if aloft else (0.0, 0.0, max(az, 0.0)),
-                                     now)
+            self.estimator.set_input(felt(self.lqr.expected_accel, aloft) if link else (0.0, 0.0, 0.0), now)
             return sp
         if mode == Mode.EMERGENCY_LANDING:
             return self._emergency(now, est)
