@@ -168,11 +168,11 @@ HANDLINGS: tuple[Handling, ...] = (
         "tests/test_closed_loop.py::test_an_emergency_descent_on_a_slow_loop_with_poses_coming_and_going_lands_gently",
         disabled="pass"),
     Handling(
-        "the blind descent's settled thrust bias",
-        "executor: the blind descent takes the flight integrators' last bias (bounded)",
-        (Edit("services/executor/vehicle_controller.py", "bias = min(max(self.lqr.settled_bias,",
-              "bias = min(max(self.lqr.accel_bias(),"),),
-        "tests/test_closed_loop.py::test_an_emergency_descent_after_a_wound_up_integrator_neither_climbs_nor_falls"),
+        "the blind descent's learned lift error",
+        "executor: the blind descent's thrust as the model says, whatever the estimator learned of its error",
+        (Edit("services/executor/vehicle_controller.py", "        k = max(self.estimator.lift_error, 0.0)  #",
+              "        k = 0.0  #"),),
+        "tests/test_closed_loop.py::test_a_vehicle_stronger_or_weaker_than_its_model_that_loses_its_poses_in_the_climb_lands_blind"),
     Handling(
         "poses back during the gateway's blind descent",
         "gateway: once blind, the safety landing descends open loop to its end",
@@ -230,9 +230,9 @@ HANDLINGS: tuple[Handling, ...] = (
               "    reacquire_after: int = 10\n    reacquire_s: float = 0.0\n"),),
         "tests/test_estimator.py::test_a_prediction_gone_wrong_is_reacquired_within_a_tenth_of_a_second_also_on_few_poses"),
     Handling(
-        "the estimator's input less the settled thrust-model error",
+        "the estimator's input is the thrust commanded",
         "flight LQR: the expected acceleration less the integrator's bias of the moment",
-        (Edit("common/flight/lqr.py", "accel - self.settled_bias - d * est.vz)", "accel - self.accel_bias() - d * est.vz)"),),
+        (Edit("common/flight/lqr.py", "by * c - d * est.vy, accel - d * est.vz)", "by * c - d * est.vy, accel - self.accel_bias() - d * est.vz)"),),
         "tests/test_controllers.py::test_the_expected_acceleration_is_the_commands_also_with_the_integrator_wound_up"),
     Handling(
         "the landing in place settling on the ground",

@@ -127,10 +127,10 @@ def test_lqr_with_the_simulator_settles_a_step_and_learns_a_thrust_error() -> No
 
 @pytest.mark.parametrize("wound", [-1.0, 1.0])
 def test_the_expected_acceleration_is_the_commands_also_with_the_integrator_wound_up(wound: float) -> None:
-    """The estimator predicts with `expected_accel`: what the thrust sent does, less the thrust-model
-    error the flight learned (`settled_bias`), not the integrator's wind-up of the moment (with
-    which a soak vehicle falling at 5 m/s^2 was estimated at 0.5). Compared with the simulator's
-    steady response to the command; 1.5 m/s^2 allows for the additive bias of a 92 % thrust."""
+    """The estimator predicts with `expected_accel`: what the thrust sent does, not less the
+    integrator's wind-up of the moment (with which a soak vehicle falling at 5 m/s^2 was estimated
+    at 0.5). Compared with the simulator's steady response to the command; 1.5 m/s^2 allows for the
+    92 % thrust (the estimator's `lift_error` to learn)."""
     sim = SimFlyingCar("cf1", MODEL, PhysicsParams(thrust_scale=0.92), pos=(0.0, 0.0, 1.5))
     sim.thrust = MODEL.mass * G
     lqr = FlightLqr(MODEL.mass)

@@ -13,6 +13,7 @@ from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
 from common.bus.messages import Pose
+from common.domain.vehicle_model import G
 from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
 
 
@@ -289,3 +290,27 @@ def test_poses_on_the_floor_after_a_fall_are_taken_not_rejected() -> None:
     assert rejected == 0 and worst < 0.01, (rejected, worst)
     rejected, worst = fall_and_rest(None)
     assert rejected > 0
+
+
+@pytest.mark.parametrize("error", [0.1, -0.1])
+def test_a_thrust_model_off_by_a_tenth_is_learned_aloft_in_a_second(error: float) -> None:
+    """The vehicle gets (1 + error) times the thrust its controller commands (battery, propellers):
+    a controller's thrust commands aloft (`command`), changing every 50 ms, teach `lift_error`
+    within 0.02 in a second and a half, and the estimate then predicts the truth; inputs that are
+    not thrust commands (`set_input`) teach nothing."""
+    est, told = PoseEstimator(), PoseEstimator()
+    dt, z, vz = 0.01, 0.5, 0.0
+    for k in range(150):
+        t = k * dt
+        for e in (est, told):
+            e.update(Pose(vid="v", t=t, x=0.0, y=0.0, z=z, yaw=0.0))
+        a = 1.0 if (k // 5) % 2 == 0 else -1.0  # what the controller expects
+        est.command((0.0, 0.0, a), t, aloft=True)
+        told.set_input((0.0, 0.0, a), t)
+        true = (1.0 + error) * (G + a) - G
+        z, vz = z + vz * dt + 0.5 * true * dt * dt, vz + true * dt
+    assert est.lift_error == pytest.approx(error, abs=0.02)
+    assert told.lift_error == 0.0
+    dead_reckoned = est.estimate(1.49 + 0.3)  # 0.3 s without poses at the last command
+    true_z = z + vz * 0.29 + 0.5 * ((1.0 + error) * (G + a) - G) * 0.29**2
+    assert dead_reckoned.z == pytest.approx(true_z, abs=0.01)

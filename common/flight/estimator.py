@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.bus.messages import Pose
+from common.domain.vehicle_model import G
 from common.flight.reference import wrap_angle
 
 INPUT_HISTORY_S = 1.0
@@ -41,6 +42,11 @@ INPUT_HISTORY_S = 1.0
 after the last has a prediction too uncertain to matter)."""
 
 Accel = tuple[float, float, float]
+
+LIFT_LEARN_S = 0.5
+"""s: time constant of `PoseEstimator.lift_error`."""
+LIFT_ERROR_MAX = 0.2
+"""The largest lift error learned (a thrust model a fifth off is a fault, not a model's error)."""
 
 
 def felt(accel: Accel, aloft: bool) -> Accel:
@@ -201,6 +207,17 @@ class PoseEstimator:
         self._dr = [0.0] * 6
         self._yaw = (0.0, 0.0)  # yaw and its rate at the last pose
         self._pos_cov: list[tuple[float, float, float]] = []  # per axis: P_pp, P_pv, P_vv at the last pose
+        self.lift_error = 0.0
+        """The fraction of its thrust a thrust command gives beyond what its controller expects
+        (`command`): the thrust model's error (battery, propellers, payload), learned aloft from the
+        vertical velocity corrections the poses make (each adds itself over `LIFT_LEARN_S`: with a
+        thrust a fraction k off the corrections come to k g' per second, g' the thrust's
+        acceleration). The predictions add it. A fraction, not an acceleration: a take-off's thrust
+        is 1.5 times a hover's, and its error with it. (The flight
+        controller's own estimate of it, its settled integrator, learns only on its reference: a
+        vehicle 10 % stronger than its model that lost its poses 1.5 s after a take-off on a slow loop
+        descended blind on a thrust that climbed, to 4-7 m, motors cut there.)"""
+        self._learn = False  # the input in force is a thrust command aloft (`command`)
 
     def reset(self, pose: Pose, velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
         """Start over at `pose`, at rest or at `velocity` (m/s)."""
@@ -247,24 +264,38 @@ class PoseEstimator:
         span = until - start
         return tuple((s + ai * (until - t0)) / span for s, ai in zip(sums, a, strict=True))  # type: ignore[return-value]
 
-    def set_input(self, accel: Accel, now: float) -> None:
-        """The acceleration (world frame, m/s^2) the vehicle is commanded from `now` on."""
+    def set_input(self, accel: Accel, now: float, learn: bool = False) -> None:
+        """The acceleration (world frame, m/s^2) the vehicle is commanded from `now` on; with
+        `learn`, the poses that follow teach `lift_error`."""
         if self.t is not None and now > self._dr_t:
             self._dr, self._dr_t = self._reckon(now), now
         self._accel = accel
+        self._learn = learn
         self._inputs.append((now, accel))
         while self._inputs and self._inputs[0][0] < now - INPUT_HISTORY_S:
             self._input_base = self._inputs.pop(0)[1]
+
+    def command(self, accel: Accel, now: float, aloft: bool) -> None:
+        """The acceleration a thrust command is expected to give from `now` on (a flight
+        controller's), with the lift error learned added; on the ground only what lifts it (`felt`)."""
+        ax, ay, az = accel
+        self.set_input(felt((ax, ay, az + self.lift_error * (G + az)), aloft), now, learn=aloft)
 
     def update(self, pose: Pose) -> bool:
         """Fuse one pose; False if it was dropped (out of order) or rejected by the gate."""
         return fuse_poses([self], [pose])[0]
 
-    def _fused(self, pose: Pose, accepted: bool, x: list[list[float]], p: list[list[float]]) -> None:
-        """After the bank fused `pose` into this slot (state `x`, covariance `p` now): counts, and
-        the restart after `reacquire_after` rejected poses in a row."""
+    def _fused(self, pose: Pose, accepted: bool, x: list[list[float]], p: list[list[float]], dvz: float,
+               lift: float) -> None:
+        """After the bank fused `pose` into this slot (state `x`, covariance `p` now, `dvz` the
+        vertical velocity correction it made, `lift` the thrust's acceleration, m/s^2, it was
+        predicted with): counts, the lift error, and the restart after `reacquire_after` rejected
+        poses in a row."""
         self.t = pose.t
         if accepted:
+            if self._learn and lift > 0.5 * G and (self.floor is None or x[2][0] > self.floor):
+                k = self.lift_error + dvz / (lift * LIFT_LEARN_S)
+                self.lift_error = min(max(k, -LIFT_ERROR_MAX), LIFT_ERROR_MAX)
             self._rejected_run = 0
             self._rejected_first = None
             self.accepted += 1
@@ -323,9 +354,11 @@ def fuse_poses(estimators: Sequence[PoseEstimator], poses: Sequence[Pose]) -> li
         dt = np.fromiter((p.t - (e.t or 0.0) for e, p in zip(ests, ps, strict=True)), float, len(ests))
         z = np.array([(p.x, p.y, p.z, p.yaw) for p in ps])
         u = np.array([e.mean_input(p.t) for e, p in zip(ests, ps, strict=True)])
+        prior_vz = bank.x[slots, 2, 1] + u[:, 2] * dt
         accepted = bank.update(slots, dt, z, u).tolist()
         xs, covs = bank.x[slots].tolist(), bank.p[slots].tolist()
+        dvz = (bank.x[slots, 2, 1] - prior_vz).tolist()
         for k, i in enumerate(members):
-            estimators[i]._fused(poses[i], accepted[k], xs[k], covs[k])
+            estimators[i]._fused(poses[i], accepted[k], xs[k], covs[k], dvz[k], G + float(u[k, 2]))
             out[i] = accepted[k]
     return out

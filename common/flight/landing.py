@@ -10,7 +10,7 @@ import msgspec
 from common.bus.messages import FlightSetpoint
 from common.crazyflie.thrust import thrust_command
 from common.domain.vehicle_model import G
-from common.flight.estimator import Estimate, PoseEstimator, felt
+from common.flight.estimator import Estimate, PoseEstimator
 from common.flight.lqr import FlightLqr
 from common.flight.modes import Mode
 from common.flight.reference import RefSample
@@ -64,8 +64,7 @@ class RestWatch:
 
 class LandInPlace:
     """Lands a flying vehicle where it is, on motion capture: the flight LQR, its integrators reset
-    when the landing begins (a stalled loop may have wound them up; the thrust-model error the
-    flight learned, `settled_bias`, stays for the estimator's prediction), holds the x, y and yaw of that
+    when the landing begins (a stalled loop may have wound them up), holds the x, y and yaw of that
     moment and follows `descent_ref` down at `speed` onto `ground` (afresh from where it is if it rose
     `REANCHOR_GAP` above it), where it settles (`SETTLE_THRUST`);
     done once `RestWatch` says it rests there (or on anything higher: a helipad, another vehicle's
@@ -93,7 +92,7 @@ class LandInPlace:
         begins at `not_before` at the earliest (until then it holds its height)."""
         if self.anchor is None:
             self.anchor = (max(now, not_before), est.x, est.y, est.z, est.yaw)
-            self.lqr.reset(keep_settled=True)
+            self.lqr.reset()
         t0, x0, y0, z0, yaw0 = self.anchor
         z_ref, vz_ref = descent_ref(self.speed, self.touchdown_height, t0, z0, now, ground=ground)
         if est.z - z_ref > REANCHOR_GAP and est.z - ground > SETTLE_HEIGHT:  # down afresh from there
@@ -112,5 +111,5 @@ class LandInPlace:
             if sp.thrust > cap:
                 sp = msgspec.structs.replace(sp, thrust=cap)
                 az = min(az, (SETTLE_THRUST - 1.0) * G)
-        self.estimator.set_input(felt((ax, ay, az), aloft), now)  # (on the ground: only thrust above its weight)
+        self.estimator.command((ax, ay, az), now, aloft)  # (on the ground: only thrust above its weight)
         return sp

@@ -115,14 +115,6 @@ def lqr_gain(model: FlightModel = FlightModel(), weights: LqrWeights = LqrWeight
     return k
 
 
-BIAS_SETTLE_S = 2.0
-"""s: time constant of `FlightLqr.settled_bias`."""
-BIAS_LEARN_ERROR = 0.05
-"""m: `FlightLqr.settled_bias` learns only while the height error is below this (a take-off on a
-loaded machine's late poses lags its reference by 10-30 cm and winds the integrator up, then
-overshoots: the bias then is the transient's, not the thrust model's)."""
-
-
 class FlightLqr:
     """Roll, pitch, yaw rate and thrust setpoints for one vehicle of `mass` kg."""
 
@@ -134,18 +126,11 @@ class FlightLqr:
         self.integral_limit = integral_limit
         self.max_tilt = math.radians(MAX_TILT_DEG)
         self.max_accel = max_thrust() / mass * math.cos(self.max_tilt) - G
-        self.settled_bias = 0.0
-        """`accel_bias` low-passed over `BIAS_SETTLE_S` of flight on the reference: the thrust-model
-        error the flight learned, without the wind-up of the last moments (a stalled loop's
-        commands that never arrived wind the integrator to its limit, 5.5 m/s^2, in under a second)."""
         self.reset()
 
-    def reset(self, keep_settled: bool = False) -> None:
-        """Forget the integrators and the propagated attitude (call when a flight starts; with
-        `keep_settled`, within a flight: the thrust-model error it learned stays)."""
+    def reset(self) -> None:
+        """Forget the integrators and the propagated attitude (when a flight or a landing in place starts)."""
         self.integral = [0.0, 0.0, 0.0]
-        if not keep_settled:
-            self.settled_bias = 0.0
         self.roll = self.pitch = self.yaw_rate = 0.0
         self.expected_accel = (0.0, 0.0, 0.0)  # world frame, m/s^2, of the last command
 
@@ -161,8 +146,6 @@ class FlightLqr:
         if integrate:
             lim = self.integral_limit
             self.integral = [min(max(i + e * dt, -lim), lim) for i, e in zip(self.integral, (ex, ey, ez), strict=True)]
-            if abs(ez) < BIAS_LEARN_ERROR:  # flying on its reference, not a transient's wind-up
-                self.settled_bias += (self.accel_bias() - self.settled_bias) * min(dt / BIAS_SETTLE_S, 1.0)
         c, s = math.cos(est.yaw), math.sin(est.yaw)
         ix, iy, iz = self.integral
         # reference acceleration in the yawed frame, fed forward as attitude (v'x = g pitch, ...)
@@ -190,11 +173,11 @@ class FlightLqr:
         self.pitch += (pitch - self.pitch) * kr
         self.yaw_rate += (yaw_rate - self.yaw_rate) * ky
         # what the vehicle should do now, for the estimator's prediction: tilt accelerates it
-        # (v'x = g pitch, v'y = -g roll in the yawed frame), the thrust less the thrust-model error
-        # the flight learned lifts it: the settled bias, not the integrator's of the moment (wound up
-        # in a transient, 4.4 m/s^2 in a soak, it made a vehicle falling at 5 m/s^2 estimated at 0.5)
+        # (v'x = g pitch, v'y = -g roll in the yawed frame), the thrust commanded lifts it (the
+        # thrust model's error is the estimator's to learn, `PoseEstimator.lift_error`; the
+        # integrator's bias is no measure of it: wound up in a transient, 4.4 m/s^2 in a soak, it
+        # made a vehicle falling at 5 m/s^2 estimated at 0.5)
         bx, by = G * self.pitch, -G * self.roll
         d = self.model.drag_rate
-        self.expected_accel = (bx * c - by * s - d * est.vx, bx * s + by * c - d * est.vy,
-                               accel - self.settled_bias - d * est.vz)
+        self.expected_accel = (bx * c - by * s - d * est.vx, bx * s + by * c - d * est.vy, accel - d * est.vz)
         return to_flight_setpoint(roll, pitch, yaw_rate, thrust_command(thrust))

@@ -37,9 +37,9 @@ class FaultParams:
     giving up the plan; emergency descent: speed (m/s), gain on its error (1/s), acceleration
     limit (m/s^2), and the wait past the predicted touchdown before the motors stop, as a
     fraction of the predicted descent time plus a margin (s); descent_bias_max: the largest
-    thrust-model error (m/s^2) the blind descent takes over from the flight integrators (their
-    settled bias: a flight learns up to 0.2 m/s^2, a slow loop 1.1; a stalled loop winds them up to
-    5.5, which the descent used to keep: climbs to 30 m in a 32-vehicle soak); rest_s: with poses,
+    thrust-model error (m/s^2) the blind descent allows for (`PoseEstimator.lift_error`; the flight
+    integrators' bias, which a stalled loop winds up to 5.5, the descent used to keep: climbs to
+    30 m in a 32-vehicle soak); rest_s: with poses,
     the landing in place rests that long on the ground (`common.flight.landing.LandInPlace`) before
     the motors stop; descent_brake_max: the largest horizontal deceleration (m/s^2) braking the
     descent's horizontal speed (at `descent_gain`). Tracking guard

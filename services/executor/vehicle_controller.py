@@ -25,7 +25,7 @@ from common.bus.messages import (
 )
 from common.crazyflie.thrust import WheelBase, thrust_command, to_flight_setpoint
 from common.domain.vehicle_model import G, VehicleModel
-from common.flight.estimator import Estimate, EstimatorParams, KalmanBank, PoseEstimator, felt
+from common.flight.estimator import Estimate, EstimatorParams, KalmanBank, PoseEstimator
 from common.flight.landing import REST_SPEED, LandInPlace
 from common.flight.lqr import FlightLqr, LqrWeights
 from common.flight.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
@@ -465,7 +465,10 @@ class VehicleController:
             link = not self.faults.link_lost(now)
             aloft = est.z - self._ground_z > self.params.liftoff_height
             sp = self.lqr.command(est, ref, integrate=aloft and link)
-            self.estimator.set_input(felt(self.lqr.expected_accel, aloft) if link else (0.0, 0.0, 0.0), now)
+            if link:
+                self.estimator.command(self.lqr.expected_accel, now, aloft)
+            else:
+                self.estimator.set_input((0.0, 0.0, 0.0), now)
             return sp
         if mode == Mode.EMERGENCY_LANDING:
             return self._emergency(now, est)
@@ -514,8 +517,9 @@ class VehicleController:
     def _emergency(self, now: float, est: Estimate) -> Setpoint:
         """Descent on the dead-reckoned state, its horizontal speed braked, then level (the
         estimator integrates the accelerations commanded here; a level descent drifted 1.6-2 m from
-        cruise speed on a slow loop with poses coming and going); the thrust keeps the bias the flight integrators learned (settled, and
-        within what a thrust model can be wrong by: `FaultParams.descent_bias_max`). Motors off
+        cruise speed on a slow loop with poses coming and going); the thrust allows for the thrust
+        model's error the estimator learned (`PoseEstimator.lift_error`; within what a thrust model
+        can be wrong by, `FaultParams.descent_bias_max`). Motors off
         after the predicted descent time again plus a margin (see `FaultParams`). With poses back
         the flight controller lands it where it is (`LandInPlace`): the prediction assumed every
         command arrived, which a lost router or radio makes false (the gateway may have been
@@ -545,8 +549,9 @@ class VehicleController:
         c, s = math.cos(est.yaw), math.sin(est.yaw)
         pitch, roll = (ax * c + ay * s) / G, (ax * s - ay * c) / G  # (v'x = g pitch, v'y = -g roll, yawed frame)
         d = self.lqr.model.drag_rate  # the thrust also makes up for the drag of the descent
-        self.estimator.set_input((ax - d * est.vx, ay - d * est.vy, accel), now)
-        bias = min(max(self.lqr.settled_bias, -faults.descent_bias_max), faults.descent_bias_max)
+        k = max(self.estimator.lift_error, 0.0)  # the thrust model's error learned: (1 + k)(g + bias + accel) = g + accel
+        bias = min(max((G + accel) / (1.0 + k) - G - accel, -faults.descent_bias_max), faults.descent_bias_max)
+        self.estimator.command((ax - d * est.vx, ay - d * est.vy, accel + bias), now, aloft=True)
         thrust = self.model.mass * (G + bias + accel + d * est.vz) / (math.cos(roll) * math.cos(pitch))
         return to_flight_setpoint(roll, pitch, 0.0, thrust_command(thrust))
 
