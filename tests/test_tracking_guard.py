@@ -196,8 +196,9 @@ def test_a_vehicle_held_unseen_for_a_while_is_given_the_way_it_may_have_gone() -
 
 def test_a_vehicle_stopped_by_a_stale_pose_is_held_for_good_once_its_plan_moved_on() -> None:
     """Stopped on the ground by a stale pose while its plan runs on, a vehicle is where the others'
-    plans no longer expect it: once its reference is 3x the margin away it is held for good (and
-    reported, so the others yield and are replanned), even before its pose comes back."""
+    plans no longer expect it: once its reference is 2x the margin away it is held for good (and
+    reported, so the others yield and are replanned), even before its pose comes back. (At 3x, in
+    a 32-vehicle soak a neighbour on time drove into it while the report travelled.)"""
     sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
     ctrl = VehicleController("cf1", MODEL, owner="test")
     ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
@@ -205,6 +206,7 @@ def test_a_vehicle_stopped_by_a_stale_pose_is_held_for_good_once_its_plan_moved_
     run(ctrl, sim, lost + 3.0, Mocap(MocapNoise(pos_std=0.001, dropouts=((lost, lost + 2.0),)), seed=3))
     assert ctrl.machine.sequence() == [Mode.PARKED, Mode.DRIVING, Mode.HOLDING], ctrl.machine.sequence()
     assert ctrl.held is not None and ctrl.held.startswith("its plan moved on"), ctrl.held
+    assert float(ctrl.held.split()[4]) < 2.5 * MODEL.margin, ctrl.held
     held_at = next(tr.t for tr in ctrl.machine.history if tr.dst == Mode.HOLDING)
     assert lost < held_at < lost + 2.0  # before the pose came back, after it went stale
 

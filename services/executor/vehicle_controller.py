@@ -345,14 +345,16 @@ class VehicleController:
 
     def _left_behind(self, now: float, est: Estimate, ref: RefSample | None) -> None:
         """Stopped on the ground for a fault that may clear (stale pose, lost link) while its plan
-        runs on: once the plan's reference is `guard_burst` x the margin away from where the
-        vehicle stopped (known without fresh poses: it does not move), the others' plans no longer
-        fit it, so it is held for good and reported like any vehicle the guard holds."""
+        runs on: once the plan's reference is `guard_factor` x the margin away from where the
+        vehicle stopped (known without fresh poses: it does not move, so no tracking noise to
+        allow for, and no `guard_s` to wait), the others' plans no longer fit it, so it is held for
+        good and reported like any vehicle the guard holds. (At `guard_burst` x, 9 cm, in a
+        32-vehicle soak a neighbour on time drove into it while the report travelled.)"""
         f, margin = self.params.faults, self.model.margin
         if not f.guard or margin <= 0.0 or ref is None or self._stopped_at is None or now < self._guard_from:
             return  # (taken over: the guard waits for it to get back onto its reference)
         error = math.dist(self._stopped_at, (ref.x, ref.y, ref.z))
-        if error > f.guard_burst * margin:
+        if error > f.guard_factor * margin:
             self._hold(now, est, ref, f"its plan moved on {error:.3f} m while it was stopped "
                                       f"({self.machine.history[-1].reason if self.machine.history else 'holding'})")
 
