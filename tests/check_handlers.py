@@ -168,6 +168,12 @@ HANDLINGS: tuple[Handling, ...] = (
         "tests/test_closed_loop.py::test_an_emergency_descent_on_a_slow_loop_with_poses_coming_and_going_lands_gently",
         disabled="pass"),
     Handling(
+        "the flight LQR's attitude over the time its commands held",
+        "flight LQR: the attitude propagated one period per command, however long it held",
+        (Edit("common/flight/lqr.py", "            if late > 0.0:  # the last command held",
+              "            if late > 99.0:  # the last command held"),),
+        "tests/test_controllers.py::test_on_a_slow_loop_the_propagated_attitude_is_the_vehicles"),
+    Handling(
         "the blind descent's learned lift error",
         "executor: the blind descent's thrust as the model says, whatever the estimator learned of its error",
         (Edit("services/executor/vehicle_controller.py", "        k = max(self.estimator.lift_error, 0.0)  #",

@@ -15,6 +15,7 @@ from services.sim.crazyflie.physics import (
     PhysicsParams,
     SimFlyingCar,
     open_circuit_voltage,
+    unit_thrust,
 )
 
 MODEL = VehicleModel()
@@ -188,6 +189,15 @@ def test_mass_and_thrust_perturbations_change_the_hover_balance() -> None:
     heavy.thrust = MODEL.mass * G
     fly(heavy, FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=HOVER), 0.5)
     assert heavy.vz < -0.3
+
+
+def test_units_differ_in_thrust_within_the_spread_each_the_same_every_run() -> None:
+    """`fleet sim --thrust-spread`: each unit's thrust scale, fixed by its id, spread over the range."""
+    scales = [unit_thrust(f"cf{i:02d}", 0.05) for i in range(1, 33)]
+    assert all(0.95 <= s <= 1.05 for s in scales)
+    assert min(scales) < 0.97 and max(scales) > 1.03  # spread over the range, not bunched
+    assert scales == [unit_thrust(f"cf{i:02d}", 0.05) for i in range(1, 33)]
+    assert unit_thrust("cf01", 0.0) == 1.0
 
 
 def test_rejects_what_is_not_a_setpoint() -> None:

@@ -210,13 +210,15 @@ class PoseEstimator:
         self.lift_error = 0.0
         """The fraction of its thrust a thrust command gives beyond what its controller expects
         (`command`): the thrust model's error (battery, propellers, payload), learned aloft from the
-        vertical velocity corrections the poses make (each adds itself over `LIFT_LEARN_S`: with a
-        thrust a fraction k off the corrections come to k g' per second, g' the thrust's
-        acceleration). The predictions add it. A fraction, not an acceleration: a take-off's thrust
-        is 1.5 times a hover's, and its error with it. (The flight
-        controller's own estimate of it, its settled integrator, learns only on its reference: a
-        vehicle 10 % stronger than its model that lost its poses 1.5 s after a take-off on a slow loop
-        descended blind on a thrust that climbed, to 4-7 m, motors cut there.)"""
+        vertical velocity corrections the poses make (each, divided by g, adds itself over
+        `LIFT_LEARN_S`: with a thrust a fraction k off the corrections come to k g' per second, g'
+        the thrust's acceleration, and they sum to nothing once k is learned; divided by each
+        interval's own g' instead, corrections that follow the thrust's swings, late by the motors'
+        lag, did not, and a slow loop learned a 10 % error as 3-6 %). The predictions add it. A
+        fraction, not an acceleration: a take-off's thrust is 1.5 times a hover's, and its error
+        with it. (The flight controller's settled integrator stood in for it, learned only on its
+        reference: a vehicle 10 % stronger than its model that lost its poses a second or two after
+        lift-off descended blind on a thrust that climbed, to 2-7 m, its motors stopped there.)"""
         self._learn = False  # the input in force is a thrust command aloft (`command`)
 
     def reset(self, pose: Pose, velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
@@ -294,7 +296,7 @@ class PoseEstimator:
         self.t = pose.t
         if accepted:
             if self._learn and lift > 0.5 * G and (self.floor is None or x[2][0] > self.floor):
-                k = self.lift_error + dvz / (lift * LIFT_LEARN_S)
+                k = self.lift_error + dvz / (G * LIFT_LEARN_S)
                 self.lift_error = min(max(k, -LIFT_ERROR_MAX), LIFT_ERROR_MAX)
             self._rejected_run = 0
             self._rejected_first = None

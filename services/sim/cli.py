@@ -26,6 +26,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--config", help="radios file (YAML, docs/radio.md): simulate its udp:// vehicles")
     sim.add_argument("--radio", action="append", help="simulate only this radio's vehicles (repeatable)")
     sim.add_argument("--truth-hz", type=float, default=100.0, help="ground-truth rate on sim/truth/<vid> (Hz)")
+    sim.add_argument("--thrust-spread", type=float, default=0.0, metavar="FRACTION",
+                     help="units' thrust differs from the model by up to this fraction, fixed by each id (default 0)")
     add_zenoh_args(sim, default_instance="sim")
     sim.set_defaults(handler=_crazyflies)
     ssub = sim.add_subparsers(dest="sim_command", metavar="ACTION")
@@ -94,8 +96,10 @@ def _crazyflies(args: argparse.Namespace) -> int:
     spec = load_radios_for(args.config, args.radio or [])
     if args.truth_hz <= 0:
         raise InputError("--truth-hz", "", "must be positive")
+    if not 0.0 <= args.thrust_spread < 0.5:
+        raise InputError("--thrust-spread", "", "must be at least 0 and below 0.5")
     return run_service(SimService(spec, zconfig_from_args(args), instance=args.instance, keys=keys_from_args(args),
-                                  radios=args.radio, truth_hz=args.truth_hz))
+                                  radios=args.radio, truth_hz=args.truth_hz, thrust_spread=args.thrust_spread))
 
 
 def _team(args: argparse.Namespace) -> int:

@@ -23,6 +23,7 @@ Clock: `t` is the simulator's own clock (s); pass the same clock to `apply(…, 
 from __future__ import annotations
 
 import math
+import zlib
 from dataclasses import dataclass
 
 from common.bus.messages import FlightSetpoint, Setpoint, SimTruth, StopSetpoint, WheelSetpoint
@@ -60,6 +61,15 @@ class PhysicsParams:
     r_internal: float = 0.15
     wheel_watchdog_s: float = 0.5
     max_substep: float = 0.002
+
+
+def unit_thrust(vid: str, spread: float) -> float:
+    """The thrust scale of simulated unit `vid` when units differ by up to `spread` (a fraction)
+    from the model the controllers are designed on: propellers, motors and what each carries
+    (decks, markers) differ, and the firmware's battery compensation keeps only each unit's own
+    thrust steady over its battery (Bitcraze docs, "Battery Compensation"). Fixed by the id, spread
+    evenly over [1 - spread, 1 + spread]."""
+    return 1.0 + spread * (2.0 * (zlib.crc32(vid.encode()) % 10007) / 10006 - 1.0)
 
 
 @dataclass(frozen=True, slots=True)

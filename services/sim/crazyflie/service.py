@@ -20,6 +20,7 @@ import asyncio
 import logging
 import time
 from collections.abc import Collection
+from dataclasses import replace
 
 from common.bus.keys import Keys
 from common.bus.messages import MocapFrame, SimFault, SimTruth, VehicleEvent
@@ -31,7 +32,7 @@ from common.domain.vehicle_model import VehicleModel
 from services.sim.crazyflie.endpoint import SimCrazyflie
 from services.sim.crazyflie.firmware.system import CF21, CF21_BRUSHLESS
 from services.sim.crazyflie.mocap import SimMocap
-from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
+from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar, unit_thrust
 from services.sim.crazyflie.radio import SimRadio
 
 log = logging.getLogger(__name__)
@@ -43,13 +44,16 @@ class SimService(Service):
     def __init__(self, spec: RadiosFile, zconfig: ZenohConfig, instance: str = "sim", keys: Keys | None = None,
                  radios: Collection[str] | None = None, truth_hz: float = 100.0,
                  params: PhysicsParams | None = None, model: VehicleModel | None = None,
-                 mocap: MocapModel | None = None) -> None:
+                 mocap: MocapModel | None = None, thrust_spread: float = 0.0) -> None:
         super().__init__("sim", instance, zconfig, keys)
         unknown = set(radios or ()) - set(spec.radios)
         if unknown:
             raise ValueError(f"no radio {sorted(unknown)} in the radios file")
         if truth_hz <= 0:
             raise ValueError("truth_hz must be positive")
+        if not 0.0 <= thrust_spread < 0.5:
+            raise ValueError("thrust_spread must be in [0, 0.5)")
+        self.thrust_spread = thrust_spread
         self.spec = spec
         self.selected = [r for r in spec.radios if radios is None or r in radios]
         self.period = 1.0 / truth_hz
@@ -83,7 +87,8 @@ class SimService(Service):
                 if not link.uri.startswith("udp://"):
                     log.info("sim: %s is a real vehicle (%s), not simulated", vid, link.uri)
                     continue
-                car = SimFlyingCar(vid, self.model, self.params, pos=link.start, yaw=link.yaw, t=now)
+                params = replace(self.params, thrust_scale=self.params.thrust_scale * unit_thrust(vid, self.thrust_spread))
+                car = SimFlyingCar(vid, self.model, params, pos=link.start, yaw=link.yaw, t=now)
                 platform = CF21_BRUSHLESS if link.firmware == "cf21-brushless" else CF21
                 cf = self.vehicles[vid] = SimCrazyflie(car, radio, self._on_event, platform=platform,
                                                        wheels=link.wheels)
