@@ -168,6 +168,13 @@ HANDLINGS: tuple[Handling, ...] = (
         "tests/test_closed_loop.py::test_an_emergency_descent_on_a_slow_loop_with_poses_coming_and_going_lands_gently",
         disabled="pass"),
     Handling(
+        "a take-off left among the vehicles on the ground",
+        "tracking guard: a take-off's height lag is never judged",
+        (Edit("services/executor/vehicle_controller.py",
+              "if height < self.model.height < planned - f.guard_burst * margin and now",
+              "if False and now"),),
+        "tests/test_tracking_guard.py::test_a_take_off_left_among_the_vehicles_on_the_ground_is_held"),
+    Handling(
         "the flight LQR's attitude over the time its commands held",
         "flight LQR: the attitude propagated one period per command, however long it held",
         (Edit("common/flight/lqr.py", "            if late > 0.0:  # the last command held",

@@ -28,7 +28,7 @@ from services.executor.faults import FaultParams
 from services.executor.vehicle_controller import ControlParams, VehicleController
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
-from services.sim.crazyflie.physics import SimFlyingCar
+from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
 from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
 from tests.support.fleet_faults import NO_RECORDER, TOWN_TASKS, Watch, airborne, until
 from tests.support.fleet_faults import fly as fly_mission
@@ -149,6 +149,27 @@ def test_a_vehicle_held_in_the_air_hovers_and_lands_safely_on_abort() -> None:
     ctrl.abort("operator")
     ctrl.tick(off.t + 0.5)
     assert ctrl.mode == Mode.LANDING or ctrl.reference(off.t + 0.6).mode != Mode.HOVERING
+
+
+@pytest.mark.parametrize(("thrust_scale", "held"), [(0.7, True), (1.0, False)])
+def test_a_take_off_left_among_the_vehicles_on_the_ground_is_held(thrust_scale: float, held: bool) -> None:
+    """The guard judges a take-off's horizontal error only (late inside its own column is
+    harmless), but once its plan has it 3x the margin above the ground layer (a body's height: the
+    plan lets others cross its spot from then on) while it is still in it, it is held and reported,
+    so that the vehicles whose plans cross there yield. (In 32-vehicle soaks cf16, late in its climb
+    after a stalled loop, came down onto cf20 crossing its take-off node on time, three times.)
+    Motors too weak to lift it (70 % of the model's thrust) stand for the stall; a take-off at
+    20 Hz on 0.15 s old poses is not held."""
+    sim = SimFlyingCar("cf1", MODEL, PhysicsParams(thrust_scale=thrust_scale), pos=STEPS[0].pos, yaw=0.0)
+    ctrl = VehicleController("cf1", MODEL, owner="test")
+    ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
+    takeoff = next(s.t for s in STEPS if s.edge == "takeoff")
+    run(ctrl, sim, T0 + takeoff + 1.0, Mocap(MocapNoise(pos_std=0.001), seed=1), every=5, delay_s=0.15)
+    if held:
+        assert ctrl.held is not None and "among the vehicles on the ground" in ctrl.held, ctrl.held
+        assert ctrl.mode == Mode.HOVERING
+    else:
+        assert ctrl.held is None and ctrl.mode == Mode.FLYING, (ctrl.held, ctrl.mode)
 
 
 # ---- in the fleet: one executor starved of CPU ----------------------------------------------------

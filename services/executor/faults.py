@@ -57,7 +57,9 @@ class FaultParams:
     plan there, by up to 9 cm in a 32-vehicle soak on city934. In a take-off it judges the
     horizontal error only: the plan gives the climbing vehicle its spot's column, and a climb that
     starts late (a loaded machine's pose stalls: 9 cm behind at once in a CI run) is late inside
-    it; the first edge after the climb is judged in full. The fleet's reflex to a held
+    it, unless its plan has it `guard_burst` x the margin above the ground layer (a body's height)
+    while it is still in it: others may cross its spot by then, so it is held; the first edge after
+    the climb is judged in full. The fleet's reflex to a held
     vehicle (`VehicleController.yield_to`): a vehicle whose plan brings it within reach of where
     another is held in the next `yield_s` s holds too, before a replan could steer it around (the
     mission's replan switches a second after it hears of the hold, or 3 s when its planner had to

@@ -327,6 +327,12 @@ class VehicleController:
             return False
         if self.machine.mode == Mode.TAKING_OFF:  # (climbing late in its own spot's column: harmless)
             error = math.dist((est.x, est.y), (ref.x, ref.y))
+            height, planned = est.z - self._ground_z, ref.z - self._ground_z
+            if height < self.model.height < planned - f.guard_burst * margin and now >= self._guard_from:
+                # ... unless its plan has it well clear of the ground layer, which others may now cross
+                self._hold(now, est, ref, f"{height:.3f} m up in its take-off, its plan {planned:.3f} m: "
+                                          "still among the vehicles on the ground")
+                return True
         else:
             error = math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z))
         limit = f.guard_factor * margin
