@@ -314,3 +314,25 @@ def test_a_thrust_model_off_by_a_tenth_is_learned_aloft_in_a_second(error: float
     dead_reckoned = est.estimate(1.49 + 0.3)  # 0.3 s without poses at the last command
     true_z = z + vz * 0.29 + 0.5 * ((1.0 + error) * (G + a) - G) * 0.29**2
     assert dead_reckoned.z == pytest.approx(true_z, abs=0.01)
+
+
+def test_the_lift_error_learns_only_from_recent_poses_of_thrust_commands_clear_of_the_floor() -> None:
+    """A hovering vehicle told it is accelerating up at 1 m/s^2: its poses' corrections teach the
+    lift error only from commands that are to teach it (not a blind descent's, not a capped
+    settling thrust's: `learn=False`), from poses that follow the last within 0.1 s (a gap's
+    prediction holds more than the thrust model's error), and 5 cm or more above the floor (ground
+    effect)."""
+    def hover(z: float, learn: bool, every: int = 1, floor: float = 0.0) -> float:
+        est = PoseEstimator()
+        est.floor = floor
+        for k in range(100):
+            t = 0.01 * k
+            if k % every == 0:
+                est.update(Pose(vid="v", t=t, x=0.0, y=0.0, z=z, yaw=0.0))
+            est.command((0.0, 0.0, 1.0), t, aloft=True, learn=learn)
+        return est.lift_error
+
+    assert hover(0.5, learn=True) < -0.05  # learned: it lifts less than told
+    assert hover(0.5, learn=False) == 0.0
+    assert hover(0.5, learn=True, every=20) == 0.0  # poses 0.2 s apart
+    assert hover(0.03, learn=True) == 0.0  # in the ground effect

@@ -47,6 +47,12 @@ LIFT_LEARN_S = 0.5
 """s: time constant of `PoseEstimator.lift_error`."""
 LIFT_ERROR_MAX = 0.2
 """The largest lift error learned (a thrust model a fifth off is a fault, not a model's error)."""
+LIFT_LEARN_HEIGHT = 0.05
+"""m above its floor from which the lift error learns (nearer the ground its lift is the ground
+effect's too)."""
+LIFT_LEARN_GAP_S = 0.1
+"""s: a pose later than this after the last teaches no lift error (a gap's prediction holds more
+than the thrust model's error)."""
 
 
 def felt(accel: Accel, aloft: bool) -> Accel:
@@ -196,6 +202,7 @@ class PoseEstimator:
         self._accel: Accel = (0.0, 0.0, 0.0)
         self._input_base: Accel = (0.0, 0.0, 0.0)  # the command in force before the first of `_inputs`
         self._inputs: list[tuple[float, Accel]] = []  # (from when, acceleration), since the last pose
+        self._unlearned_until = math.inf  # the end of the last input that teaches no lift error (inf: in force)
         self.floor: float | None = None
         """Height (m) the vehicle cannot be below, set by its controller (the ground where it takes
         off or lands; else the lowest ground there is): the dead reckoning and the filter's state
@@ -219,7 +226,6 @@ class PoseEstimator:
         with it. (The flight controller's settled integrator stood in for it, learned only on its
         reference: a vehicle 10 % stronger than its model that lost its poses a second or two after
         lift-off descended blind on a thrust that climbed, to 2-7 m, its motors stopped there.)"""
-        self._learn = False  # the input in force is a thrust command aloft (`command`)
 
     def reset(self, pose: Pose, velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
         """Start over at `pose`, at rest or at `velocity` (m/s)."""
@@ -272,16 +278,21 @@ class PoseEstimator:
         if self.t is not None and now > self._dr_t:
             self._dr, self._dr_t = self._reckon(now), now
         self._accel = accel
-        self._learn = learn
+        if self._unlearned_until == math.inf:  # the input it replaces taught nothing until now
+            self._unlearned_until = now
+        if not learn:
+            self._unlearned_until = math.inf
         self._inputs.append((now, accel))
         while self._inputs and self._inputs[0][0] < now - INPUT_HISTORY_S:
             self._input_base = self._inputs.pop(0)[1]
 
-    def command(self, accel: Accel, now: float, aloft: bool) -> None:
+    def command(self, accel: Accel, now: float, aloft: bool, learn: bool = True) -> None:
         """The acceleration a thrust command is expected to give from `now` on (a flight
-        controller's), with the lift error learned added; on the ground only what lifts it (`felt`)."""
+        controller's), with the lift error learned added; on the ground only what lifts it (`felt`).
+        The poses that follow teach the lift error if it is `aloft` and `learn`s (not a command
+        sent blind, or at a cap its model does not know)."""
         ax, ay, az = accel
-        self.set_input(felt((ax, ay, az + self.lift_error * (G + az)), aloft), now, learn=aloft)
+        self.set_input(felt((ax, ay, az + self.lift_error * (G + az)), aloft), now, learn=aloft and learn)
 
     def update(self, pose: Pose) -> bool:
         """Fuse one pose; False if it was dropped (out of order) or rejected by the gate."""
@@ -293,9 +304,11 @@ class PoseEstimator:
         vertical velocity correction it made, `lift` the thrust's acceleration, m/s^2, it was
         predicted with): counts, the lift error, and the restart after `reacquire_after` rejected
         poses in a row."""
+        learns = (self._unlearned_until <= (self.t or -math.inf) and pose.t - (self.t or -math.inf) <= LIFT_LEARN_GAP_S
+                  and lift > 0.5 * G and x[2][0] > (self.floor or 0.0) + LIFT_LEARN_HEIGHT)
         self.t = pose.t
         if accepted:
-            if self._learn and lift > 0.5 * G and (self.floor is None or x[2][0] > self.floor):
+            if learns:  # every input since the last pose taught it, and that pose was recent
                 k = self.lift_error + dvz / (G * LIFT_LEARN_S)
                 self.lift_error = min(max(k, -LIFT_ERROR_MAX), LIFT_ERROR_MAX)
             self._rejected_run = 0

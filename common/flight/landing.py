@@ -106,10 +106,13 @@ class LandInPlace:
         aloft = est.z - ground > self.liftoff_height
         sp = self.lqr.command(est, ref, integrate=aloft)
         ax, ay, az = self.lqr.expected_accel
+        capped = False
         if z_ref <= descent_end(self.touchdown_height, ground) and est.z - ground < SETTLE_HEIGHT:
             cap = thrust_command(SETTLE_THRUST * self.lqr.mass * G)
             if sp.thrust > cap:
                 sp = msgspec.structs.replace(sp, thrust=cap)
-                az = min(az, (SETTLE_THRUST - 1.0) * G)
-        self.estimator.command((ax, ay, az), now, aloft)  # (on the ground: only thrust above its weight)
+                az, capped = min(az, (SETTLE_THRUST - 1.0) * G), True
+        # (on the ground only thrust above its weight; settling on something higher than `ground`,
+        # a capped thrust against a vehicle at rest teaches no lift error)
+        self.estimator.command((ax, ay, az), now, aloft, learn=not capped)
         return sp

@@ -139,6 +139,7 @@ class SafeLanding:
                 return self._descend_open_loop(now)
         if self.closed_loop or now >= self.descent_start:
             return self._descend_open_loop(now)
+        self.estimator.set_input((0.0, 0.0, 0.0), now)  # (its own thrust model: it teaches no lift error)
         return self._level(0.0)  # hovering while the first poses come in
 
     def _closed_loop(self, now: float, est: Estimate) -> FlightSetpoint | None:
@@ -151,6 +152,7 @@ class SafeLanding:
             self._open_loop = (now, self._plan_descent(now))
         start, plan = self._open_loop
         accel = plan.accel_at(now - start)
+        self.estimator.set_input((0.0, 0.0, accel or 0.0), now)  # (as planned; it teaches no lift error)
         # the thrust also makes up for the drag of the planned descent (common.crazyflie.thrust.DRAG)
         return None if accel is None else self._level(accel - DRAG / self.params.mass * plan.speed_at(now - start))
 
