@@ -304,7 +304,9 @@ class PoseEstimator:
         vertical velocity correction it made, `lift` the thrust's acceleration, m/s^2, it was
         predicted with): counts, the lift error, and the restart after `reacquire_after` rejected
         poses in a row."""
-        learns = (self._unlearned_until <= (self.t or -math.inf) and pose.t - (self.t or -math.inf) <= LIFT_LEARN_GAP_S
+        last = self.t
+        assert last is not None  # fuse_poses resets an estimator on its first pose instead
+        learns = (self._unlearned_until <= last and pose.t - last <= LIFT_LEARN_GAP_S
                   and lift > 0.5 * G and x[2][0] > (self.floor or 0.0) + LIFT_LEARN_HEIGHT)
         self.t = pose.t
         if accepted:
