@@ -21,6 +21,7 @@ import asyncio
 import logging
 import signal
 import threading
+import time
 from collections.abc import Awaitable, Callable, Coroutine, Mapping
 from typing import Any, Generic, TypeVar
 
@@ -167,11 +168,14 @@ class Service:
         loop = asyncio.get_running_loop()
         while True:
             due = loop.time() + LOOP_PROBE_S
+            thread_from, process_from = time.thread_time(), time.process_time()
             await asyncio.sleep(LOOP_PROBE_S)
             late = loop.time() - due
             if late > LOOP_STALL_S:
                 self.counters.inc("loop_stall")
-                log.warning("%s/%s: event loop stalled for %.2f s", self.name, self.instance, late)
+                log.warning("%s/%s: event loop stalled for %.2f s (of its %.2f s the loop's thread ran %.2f s, "
+                            "the process's threads %.2f s)", self.name, self.instance, late, LOOP_PROBE_S + late,
+                            time.thread_time() - thread_from, time.process_time() - process_from)
 
     async def _shutdown(self) -> None:
         self._stop.set()
