@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
+from pathlib import Path
 
 import msgspec
 import pytest
@@ -224,25 +225,28 @@ CITY_32 = ("cf01:P2_3_0>P7_8_0 cf02:P9_6_1>P9_7_0 cf03:P1_0_1>P3_7_0 cf04:P4_3_1
 one flight came down, hit the crossing of a prefix's last step."""
 
 
-def test_a_replan_whose_vehicles_cross_a_prefix_is_planned_again_in_another_order() -> None:
+def test_a_replan_whose_vehicles_cross_a_prefix_is_planned_again_in_another_order(tmp_path: Path) -> None:
     """SIPP reserves a prefix's last step only once its vehicle is placed, so one placed earlier
     may cross it; the validator finds the contact and SIPP plans again with the later of the two
     first (a 32-vehicle soak's replan failed this way)."""
     from services.mission.sweeps import left_vehicle
+    from services.planner.maps.generate import VEHICLE, city934, to_yaml
     from services.planner.maps.loading import load_graph
     from services.planner.registry import _replan_with
 
+    city = tmp_path / "city934.yaml"  # as the soak planned it: no turns budgeted at corners (sipp/turns.py)
+    city.write_text(to_yaml(msgspec.structs.replace(city934(), vehicle=VEHICLE)))
     tasks = {v: Task(start=a, goal=b) for v, a, b in (x.replace(">", ":").split(":") for x in CITY_32.split())}
-    reply = solve(PlanRequest(map="city934", tasks=tasks, time_limit=60))
+    reply = solve(PlanRequest(map=str(city), tasks=tasks, time_limit=60))
     assert reply.ok and reply.plan is not None, reply.error
     plan, sweeps = reply.plan, []
     for vid, t, kind in (("cf19", 3.367, "tracking_hold"), ("cf11", 4.385, "tracking_hold"),
                          ("cf04", 5.479, "emergency_landing"), ("cf15", 5.721, "tracking_hold"),
                          ("cf30", 6.539, "tracking_hold")):
         sweeps += left_vehicle(vid, kind, plan.position(vid, t), t, 0.0, None)
-        req = PlanRequest(map="city934", tasks={}, time_limit=1.0,
+        req = PlanRequest(map=str(city), tasks={}, time_limit=1.0,
                           replan=Replan(base=plan, at=t + 1.0, left=[vid], sweeps=sweeps, strand=True))
-        once, later = _replan_with(load_graph("city934"), req, "sipp", 1.0)
+        once, later = _replan_with(load_graph(city), req, "sipp", 1.0)
         reply = solve(req)
         assert reply.ok and reply.plan is not None, reply.error
         assert validate_plan(reply.plan).ok

@@ -24,11 +24,13 @@ from common.domain.mapfile import (
 from common.domain.planfile import Task, read_plan
 from services.cli import main as fleet_main
 from services.planner.graph.fleet_graph import FleetGraph, build_graph
+from services.planner.maps.generate import town
 from services.planner.maps.loading import load_graph, load_scenario
 from services.planner.maps.movingai_graph import load_movingai, load_scen
 from services.planner.result import PlanResult, to_plan
 from services.planner.sipp.planner import plan_sipp
 from services.planner.sipp.safe_intervals import carve
+from services.planner.sipp.turns import edge_headings, turn_time
 from services.planner.sipp.windows import edge_pair_windows
 from services.planner.validate import validate_plan
 
@@ -206,6 +208,47 @@ def test_mu_switches_between_flying_and_driving() -> None:
     assert airborne(graph, visited(fast, "cf1"))
     assert not airborne(graph, visited(frugal, "cf1"))
     assert fast.paths["cf1"][-1].t < frugal.paths["cf1"][-1].t
+
+
+# -- turns at corners (sipp/turns.py) -----------------------------------------------------------------
+
+
+def test_a_turn_is_budgeted_nose_or_tail_first_above_the_free_angle() -> None:
+    assert turn_time(0.0, math.pi / 2, 3.0) == pytest.approx(math.pi / 6)
+    assert turn_time(0.0, 0.75 * math.pi, 3.0) == pytest.approx(math.pi / 12)  # 135 deg: 45 tail first
+    assert turn_time(0.5, 0.5 - math.pi, 3.0) == 0.0  # doubling back: tail first, no turn
+    assert turn_time(0.0, math.radians(25.0), 3.0) == 0.0  # pure pursuit steers through it
+    assert turn_time(0.0, math.pi / 2, 0.0) == 0.0  # no turn rate: none budgeted (paper 000)
+    assert turn_time(math.nan, math.pi / 2, 3.0) == turn_time(0.0, math.nan, 3.0) == 0.0  # a flight's edge
+
+
+def corner_waits(graph: FleetGraph, result: PlanResult) -> list[tuple[float, float]]:
+    """(planned wait, turn budget) at every node a path passes on drive edges in and out."""
+    headings = edge_headings(graph)
+    out = []
+    for path in result.paths.values():
+        moves = [(a, b) for a, b in zip(path, path[1:], strict=False) if a.node != b.node]
+        for (a, b), (c, d) in zip(moves, moves[1:], strict=False):
+            e_in, e_out = graph.edge_index[graph.index[a.node], graph.index[b.node]], graph.edge_index[graph.index[c.node], graph.index[d.node]]
+            out.append((c.t - b.t, turn_time(headings[e_in], headings[e_out], graph.model.speed.turn)))
+    return out
+
+
+@pytest.mark.parametrize("turn", [0.0, 3.0])
+def test_a_path_waits_at_each_corner_for_the_turn_onto_its_next_road(turn: float) -> None:
+    """town's vehicles cross its roads' corners; with a turn rate every corner a path turns at is a
+    wait at least as long as the turn (the executor turns in it), without one none is."""
+    spec = town()
+    graph = build_graph(msgspec.structs.replace(spec, vehicle=msgspec.structs.replace(
+        spec.vehicle, speed=msgspec.structs.replace(spec.vehicle.speed, turn=turn))))
+    tasks = load_scenario(MAPS_DIR / "scenarios" / "town_8.yaml", graph)
+    waits = corner_waits(graph, plan_valid(graph, tasks))
+    turns = [(w, b) for w, b in waits if b > 0.0]
+    if turn == 0.0:
+        assert not turns
+        return
+    assert len(turns) >= 4 and all(w >= b - 1e-9 for w, b in turns), turns
+    assert {round(b, 3) for _, b in turns} >= {round(math.pi / 6, 3)}  # a right-angle corner: 90 deg at 3 rad/s
 
 
 # -- MovingAI and the command line ------------------------------------------------------------------------

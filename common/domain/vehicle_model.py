@@ -28,12 +28,16 @@ CAPABLE_EDGES: dict[Capabilities, frozenset[EdgeKind]] = {
 
 
 class Speeds(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Nominal speed per edge kind in m/s (Table II: driving 0.1, flying 0.3)."""
+    """Nominal speed per edge kind in m/s (Table II: driving 0.1, flying 0.3), and `turn`: the rate
+    (rad/s) at which plans budget a driving vehicle's turn in place where its road bends, 0 for
+    none (paper 000 times a path by its edges alone; a differential drive stops at a sharp corner to
+    turn, and fell behind its plan by the turn's time: `services/planner/sipp/turns.py`)."""
 
     drive: float = 0.1
     takeoff: float = 0.2
     fly: float = 0.3
     land: float = 0.2
+    turn: float = 0.0
 
 
 class Powers(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -76,6 +80,8 @@ class VehicleModel(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         for kind in EDGE_KINDS:
             if getattr(self.speed, kind) <= 0:
                 raise msgspec.ValidationError(f"`speed.{kind}` must be positive")
+        if self.speed.turn < 0:
+            raise msgspec.ValidationError("`speed.turn` must not be negative")
         if not 0 <= self.reserve_ah < self.capacity_ah:
             raise msgspec.ValidationError("`reserve_ah` must be in [0, capacity_ah)")
         if self.margin < 0:

@@ -482,6 +482,9 @@ class VehicleController:
             return self._emergency(now, est)
         if mode == Mode.DRIVING and ref is not None and not est.stale:
             assert self._active is not None
+            turn = self._turn_in_wait(est, ref)
+            if turn is not None:
+                return turn
             goal = self._active.sample(ref.t + self.pursuit.lookahead(ref))
             return self.pursuit.command(est, ref, goal)
         if mode == Mode.PARKED and ref is not None and not est.stale and self._active is not None:
@@ -497,15 +500,36 @@ class VehicleController:
         run had 3 vehicles held by the tracking guard in their first drives). At a mission's start
         the turn happens in the start's lead (`MissionTiming.start_lead_s`); after a mission the
         planner allows its time (`replanning.TURN_ALLOWANCE_S`)."""
+        heading = self._next_drive_heading(ref.t, ref.t + PRE_TURN_S)
+        return None if heading is None else self.pursuit.turn_towards(est, heading)
+
+    def _turn_in_wait(self, est: Estimate, ref: RefSample) -> WheelSetpoint | None:
+        """Driving, at a node where the plan waits: turn in place to face the drive that follows
+        (the planner budgets the turn at a corner as a wait there: `services/planner/sipp/turns.py`)."""
         traj = self._active
         assert traj is not None
-        ahead = traj.sample(ref.t + PRE_TURN_S)
-        if traj.modes[traj.segment(ref.t + PRE_TURN_S)] != Mode.DRIVING:
-            return None
-        dx, dy = ahead.x - ref.x, ahead.y - ref.y
-        if math.hypot(dx, dy) < 0.01:
-            return None
-        return self.pursuit.turn_towards(est, math.atan2(dy, dx))
+        seg = traj.segment(ref.t)
+        if not 0 < seg < len(traj.times) or any(traj.vel[seg - 1]):
+            return None  # not in a wait
+        node = traj.nodes[seg - 1]
+        if math.hypot(est.x - node[0], est.y - node[1]) > self.pursuit.params.hold_radius:
+            return None  # not there yet: pure pursuit brings it
+        heading = self._next_drive_heading(ref.t, traj.times[seg])
+        return None if heading is None else self.pursuit.turn_towards(est, heading)
+
+    def _next_drive_heading(self, t: float, latest: float) -> float | None:
+        """The direction of the plan's next move after `t` if it is a drive that starts by `latest`."""
+        traj = self._active
+        assert traj is not None
+        for k in range(traj.segment(t) - 1, len(traj.vel)):
+            vx, vy, _ = traj.vel[k] if k >= 0 else (0.0, 0.0, 0.0)
+            if math.hypot(vx, vy) > 1e-9:
+                if traj.times[k] > latest or traj.modes[k + 1] != Mode.DRIVING:
+                    return None
+                return math.atan2(vy, vx)
+            if k >= 0 and traj.vel[k][2] != 0.0:
+                return None  # a take-off or landing comes first
+        return None
 
     def _touched_down(self, est: Estimate, ref: RefSample) -> bool:
         h = self.params.touchdown_height

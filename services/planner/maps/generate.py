@@ -22,10 +22,14 @@ from common.domain.mapfile import (
     RoadNode,
     Roads,
 )
-from common.domain.vehicle_model import VehicleModel
+from common.domain.vehicle_model import Speeds, VehicleModel
 
 SPOT_OFFSET = 0.17  # m from the road: more than an envelope diameter (0.15 m) so parked cars never block it
 VEHICLE = VehicleModel(margin=0.03)  # Table II defaults; 3 cm clearance for tracking error
+FLEET_VEHICLE = VehicleModel(margin=0.03, speed=Speeds(turn=3.0))
+"""The maps the fleet flies (town, city934) also budget each turn at a corner, at half the 6 rad/s
+a wheel base turns at (its lag, a slow link's late commands: `services/planner/sipp/turns.py`);
+grid125 and fig6 reproduce paper 000's planning figures, which do not."""
 
 
 class _Roads:
@@ -92,7 +96,7 @@ def town() -> MapSpec:
             NoFlyZone(name="north", polygon=[(-0.1, corridor[1]), (4.3, corridor[1]), (4.3, 2.2), (-0.1, 2.2)]),
         ],
         obstacles=[Obstacle(name="building", min=(2.0, 0.95, 0.0), max=(2.2, 1.15, 0.15))],
-        vehicle=VEHICLE,
+        vehicle=FLEET_VEHICLE,
         time_step=2.0,
     )
 
@@ -217,7 +221,7 @@ def city934() -> MapSpec:
         parking=r.spots,
         air=AirRegion(bounds=(0.0, 0.0, side, side), layers=[0.5, 0.9], spacing=0.25),
         no_fly=[square("hospital", 0.6, 0.6, 0.5), square("school", 3.1, 1.1, 0.5), square("park", 1.6, 3.1, 0.5)],
-        vehicle=VEHICLE,
+        vehicle=FLEET_VEHICLE,
         time_step=2.0,
     )
 

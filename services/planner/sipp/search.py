@@ -27,6 +27,7 @@ from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.graph.memo import per_graph
 from services.planner.sipp.heuristic import spot_mask
 from services.planner.sipp.safe_intervals import Reservations
+from services.planner.sipp.turns import edge_headings, turn_time
 
 INF = math.inf
 DEADLINE_EVERY = 512  # expansions between clock checks
@@ -46,12 +47,15 @@ class TimedPath(NamedTuple):
 @dataclass(frozen=True)
 class SearchGraph:
     """Adjacency for one mu: out[u] = [(edge, head, duration, eq. 3 cost, charge)], per-node wait
-    cost and charge rates (per second), and which nodes may be passed through."""
+    cost and charge rates (per second), which nodes may be passed through, and for the turns at
+    corners (`turns.py`) each edge's heading and the rate turns are budgeted at."""
 
     out: list[list[tuple[int, int, float, float, float]]]
     wait_cost: list[float]
     wait_charge: list[float]
     passable: list[bool]
+    heading: list[float]
+    turn_rate: float
 
     @staticmethod
     def of(graph: FleetGraph, mu: float, capabilities: Capabilities = "fly+drive") -> SearchGraph:
@@ -73,6 +77,8 @@ def _build_search_graph(graph: FleetGraph, mu: float, capabilities: Capabilities
         wait_cost=graph.wait_cost_rate(mu).tolist(),
         wait_charge=graph.wait_charge_rate().tolist(),
         passable=(~spot_mask(graph)).tolist(),
+        heading=edge_headings(graph),
+        turn_rate=graph.model.speed.turn,
     )
 
 
@@ -97,6 +103,7 @@ def sipp(
     edge_s, edge_e = res.edge_start, res.edge_end
     closed_n, closed_e = res.node_closed, res.edge_closed
     out, wait_cost, wait_charge, passable = sg.out, sg.wait_cost, sg.wait_charge, sg.passable
+    heading, turn_rate = sg.heading, sg.turn_rate
     n_nodes = len(out)
 
     k0 = bisect_right(node_s[start], t_start) - 1
@@ -133,6 +140,7 @@ def sipp(
             raise SearchTimeout
         c, q = a_c[aid], a_q[aid]
         wc, wq = wait_cost[u], wait_charge[u]
+        arrived_along = heading[a_edge[aid]] if turn_rate and a_edge[aid] >= 0 else math.nan
         for e, v, d, ce, qe in out[u]:
             if closed_e[e] or closed_n[v] or not (passable[v] or v == goal):
                 continue
@@ -143,13 +151,14 @@ def sipp(
             es, ee = edge_s[e], edge_e[e]
             if not ev or not ee:
                 continue  # closed for ever, from time 0 (a body at rest there all along)
+            ready = t + turn_time(arrived_along, heading[e], turn_rate) if turn_rate else t  # turned onto e
             # first safe interval of v ending at or after the earliest arrival
-            j = 0 if ev[0] >= t + d else bisect_left(ev, t + d)
+            j = 0 if ev[0] >= ready + d else bisect_left(ev, ready + d)
             n_v = len(sv)
             while j < n_v:
                 tau = sv[j] - d
-                if tau < t:
-                    tau = t
+                if tau < ready:
+                    tau = ready
                 if tau > end_u:
                     break
                 # first free departure interval ending at or after tau
