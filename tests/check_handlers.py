@@ -291,11 +291,6 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/pure_pursuit.py", "        if abs(err) > flip_beyond:\n",
               "        if False:\n"),),
         "tests/test_controllers.py::test_a_path_that_doubles_back_at_a_node_is_driven_within_the_margin"),
-    Handling(
-        "the yaw estimate through a wheel base's turns",
-        "estimator `yaw_accel_std` 150 -> 30 rad/s^2",
-        (Edit("common/flight/estimator.py", "    yaw_accel_std: float = 150.0\n", "    yaw_accel_std: float = 30.0\n"),),
-        "tests/test_estimator.py::test_a_wheel_base_reversing_its_turn_in_place_is_followed_not_rejected[default]"),
 )
 
 

@@ -74,8 +74,9 @@ def _reckoned(x: Sequence[float], a: Accel, dt: float) -> list[float]:
 class EstimatorParams:
     """pos_std / yaw_std: mocap noise (m, rad); accel_std / yaw_accel_std: process noise (m/s^2,
     rad/s^2; a wheel base turning in place reaches 120 rad/s^2, 6 rad/s through its wheels' 0.05 s
-    lag, and twice that reversing a turn: at 30 a slow loop's turns had their poses rejected and
-    the yaw estimated 1 rad off); gate: chi-square threshold on
+    lag, and twice that reversing a turn, but 150, on the wheels alone or everywhere, made the yaw
+    rate too noisy to extrapolate over a slow loop's old poses: the slow flights of
+    tests/test_tracking_guard.py tracked worse); gate: chi-square threshold on
     the 4-dof innovation (99.9 % -> 18.47); stale_std: predicted position std (m) above which the
     pose is stale (about 0.4 s without poses: 3 m/s^2 of process noise is conservative, and the
     closed loop stayed within 2 cm of its reference through 0.5 s dropouts in the air, so a 0.3 s
@@ -90,7 +91,7 @@ class EstimatorParams:
     pos_std: float = 0.002
     yaw_std: float = math.radians(1.0)
     accel_std: float = 3.0
-    yaw_accel_std: float = 150.0
+    yaw_accel_std: float = 30.0
     gate: float = 18.47
     stale_std: float = 0.25
     reacquire_after: int = 3
