@@ -92,6 +92,9 @@ def test_commands_refuse_bad_input_before_starting(tmp_path: Path) -> None:
     args = _command("sim", "--config", str(good), "--thrust-spread", "0.7")
     with pytest.raises(InputError, match="below 0.5"):
         args.handler(args)
+    args = _command("sim", "--config", str(good), "--priority", "25")
+    with pytest.raises(InputError, match="0 to 19"):
+        args.handler(args)
     args = _command("gateway", "--config", str(tmp_path / "missing.yaml"), "--radio", "r0")
     with pytest.raises(InputError, match="cannot read"):
         args.handler(args)

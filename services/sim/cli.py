@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, get_args
 
 from common.bus.args import add_zenoh_args, keys_from_args, lazy_handler, run_service, zconfig_from_args
 from common.bus.messages import SimFaultKind
+from common.bus.process_priority import raise_priority
 from common.domain.team_plan import parse_vec3
 from common.errors import InputError
 
@@ -28,6 +29,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--truth-hz", type=float, default=100.0, help="ground-truth rate on sim/truth/<vid> (Hz)")
     sim.add_argument("--thrust-spread", type=float, default=0.0, metavar="FRACTION",
                      help="units' thrust differs from the model by up to this fraction, fixed by each id (default 0)")
+    sim.add_argument("--priority", type=int, default=5, metavar="N",
+                     help="raise its CPU priority by N nice levels where the system allows it (root or "
+                          "CAP_SYS_NICE): the simulated world should not wait for a CPU the fleet's services "
+                          "want (default 5; 0: leave it)")
     add_zenoh_args(sim, default_instance="sim")
     sim.set_defaults(handler=_crazyflies)
     ssub = sim.add_subparsers(dest="sim_command", metavar="ACTION")
@@ -98,6 +103,9 @@ def _crazyflies(args: argparse.Namespace) -> int:
         raise InputError("--truth-hz", "", "must be positive")
     if not 0.0 <= args.thrust_spread < 0.5:
         raise InputError("--thrust-spread", "", "must be at least 0 and below 0.5")
+    if not 0 <= args.priority <= 19:
+        raise InputError("--priority", "", "must be 0 to 19")
+    raise_priority(args.priority)
     return run_service(SimService(spec, zconfig_from_args(args), instance=args.instance, keys=keys_from_args(args),
                                   radios=args.radio, truth_hz=args.truth_hz, thrust_spread=args.thrust_spread))
 
