@@ -29,10 +29,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--truth-hz", type=float, default=100.0, help="ground-truth rate on sim/truth/<vid> (Hz)")
     sim.add_argument("--thrust-spread", type=float, default=0.0, metavar="FRACTION",
                      help="units' thrust differs from the model by up to this fraction, fixed by each id (default 0)")
-    sim.add_argument("--priority", type=int, default=5, metavar="N",
+    sim.add_argument("--priority", type=int, default=0, metavar="N",
                      help="raise its CPU priority by N nice levels where the system allows it (root or "
                           "CAP_SYS_NICE): the simulated world should not wait for a CPU the fleet's services "
-                          "want (default 5; 0: leave it)")
+                          "want (default 0: leave it)")
     add_zenoh_args(sim, default_instance="sim")
     sim.set_defaults(handler=_crazyflies)
     ssub = sim.add_subparsers(dest="sim_command", metavar="ACTION")
