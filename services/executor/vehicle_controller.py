@@ -521,13 +521,13 @@ class VehicleController:
         """The direction of the plan's next move after `t` if it is a drive that starts by `latest`."""
         traj = self._active
         assert traj is not None
-        for k in range(traj.segment(t) - 1, len(traj.vel)):
-            vx, vy, _ = traj.vel[k] if k >= 0 else (0.0, 0.0, 0.0)
+        for k in range(max(traj.segment(t) - 1, 0), len(traj.vel)):
+            vx, vy, vz = traj.vel[k]
             if math.hypot(vx, vy) > 1e-9:
                 if traj.times[k] > latest or traj.modes[k + 1] != Mode.DRIVING:
                     return None
                 return math.atan2(vy, vx)
-            if k >= 0 and traj.vel[k][2] != 0.0:
+            if vz != 0.0:
                 return None  # a take-off or landing comes first
         return None
 

@@ -34,8 +34,8 @@ FREE_ANGLE = math.radians(30.0)
 def edge_headings(graph: FleetGraph) -> list[float]:
     """Per edge: its horizontal direction (rad) for a drive edge, NaN for the others (no turn is
     budgeted onto or off them)."""
-    vec = graph.pos[graph.edges[:, 1]] - graph.pos[graph.edges[:, 0]] if graph.n_edges else np.zeros((0, 3))
-    heading = np.arctan2(vec[:, 1], vec[:, 0]) if graph.n_edges else np.zeros(0)
+    vec = graph.pos[graph.edges[:, 1]] - graph.pos[graph.edges[:, 0]]
+    heading = np.arctan2(vec[:, 1], vec[:, 0])
     return [float(h) if k == "drive" else math.nan for h, k in zip(heading.tolist(), graph.edge_kinds, strict=True)]
 
 
