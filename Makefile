@@ -17,7 +17,7 @@ demo: $(STAMP)
 	$(VENV)/bin/fleet demo
 
 test: $(STAMP)
-	$(VENV)/bin/pytest
+	$(VENV)/bin/pytest -n 2 --dist loadgroup
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
