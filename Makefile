@@ -17,7 +17,7 @@ demo: $(STAMP)
 	$(VENV)/bin/fleet demo
 
 test: $(STAMP)
-	$(VENV)/bin/pytest -n 2 --dist loadgroup
+	$(VENV)/bin/pytest
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
