@@ -17,7 +17,7 @@ demo: $(STAMP)
 	$(VENV)/bin/fleet demo
 
 test: $(STAMP)
-	$(VENV)/bin/pytest
+	$(PY) -m tests.lanes
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -23,6 +23,8 @@ from services.planner.sipp.turns import turn_time
 from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
 from tests.support.closed_loop import Mocap, MocapNoise, Record, plan_for, reference_steps, run
 
+pytestmark = pytest.mark.compute
+
 MODEL = VehicleModel()
 STEPS = reference_steps(MODEL)
 T0 = 0.5  # mission start on the simulator's clock

@@ -20,6 +20,8 @@ from services.executor.team_robots import RETRIES, TeamRobot
 from services.planner.collab.planner import TeamPlanner
 from services.sim.team.world import SensingNoise, TeamSim, TeamWorld
 
+pytestmark = pytest.mark.compute
+
 REPO = Path(__file__).resolve().parents[1]
 DRONE, UGV = "drone1", "ugv1"
 LOUD = SensingNoise(0.3, 15.0)

@@ -17,6 +17,8 @@ from services.planner.collab.arastar import weighted_astar
 from services.planner.collab.lattice import Lattice, ugv_area
 from services.planner.collab.pad import HybridGraph, PadConfig, Regions, pad
 
+pytestmark = pytest.mark.compute
+
 # Two rooms the UGV may use, joined through a hallway it may not enter; no optical flow in rooms.
 TWO_ROOMS = [
     "##############",

@@ -19,6 +19,8 @@ from common.team.team_model import TeamModel
 from services.planner.collab.planner import TeamPlanner
 from services.sim.team.world import TeamSim
 
+pytestmark = pytest.mark.compute
+
 # demo-room: the drone starts next to the UGV in the room's corner; the goal is over the middle of
 # the room, out of IR range of every wall and far from the landmark: only the UGV can guide it there.
 PROBLEM = TeamProblem(drone_start=(0, 2, 2), ugv_start=(2, 1, 0), goal=(1, 7, 11))

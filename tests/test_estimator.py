@@ -16,6 +16,8 @@ from common.bus.messages import Pose
 from common.domain.vehicle_model import G
 from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
 
+pytestmark = pytest.mark.compute
+
 
 def track(est: PoseEstimator, t0: float, t1: float, vel: tuple[float, float, float] = (0.2, -0.1, 0.05),
           yaw_rate: float = 0.0, noise: float = 0.001, seed: int = 1, yaw0: float = 0.0) -> None:

@@ -20,6 +20,8 @@ from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
 from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps
 from tests.support.gateway_packets import decode
 
+pytestmark = pytest.mark.compute
+
 MODEL = VehicleModel()
 STEPS = reference_steps(MODEL)
 T0 = 0.5

@@ -16,6 +16,8 @@ from services.planner.maps.generate import GENERATORS, to_yaml
 from services.planner.maps.loading import load_graph
 from services.planner.maps.tasks import load_scenario, random_tasks
 
+pytestmark = pytest.mark.compute
+
 SHIPPED = ["town", "fig6", "grid125", "city934"]
 
 

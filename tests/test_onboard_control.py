@@ -28,6 +28,8 @@ from tests.support.gateway_packets import decode
 from tests.support.onboard_loop import FirmwareCar
 from tests.test_closed_loop import MODEL, NOISE, PERTURBED, STEPS, T0, TAKEOFF, abort_at
 
+pytestmark = pytest.mark.compute
+
 
 def fly_onboard(noise: MocapNoise = NOISE, dropouts: tuple[tuple[float, float], ...] = (), hook=None,
                 until: float | None = None) -> tuple[VehicleController, FirmwareCar, list[Record]]:

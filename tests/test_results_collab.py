@@ -22,6 +22,8 @@ from services.planner.collab.lattice import SlcOptions
 from services.planner.collab.pad import PadConfig
 from services.planner.collab.planner import TeamPlanner
 
+pytestmark = pytest.mark.compute
+
 E, N, W, S = 0, 2, 4, 6
 REPO = Path(__file__).resolve().parents[1]
 

@@ -17,6 +17,8 @@ from services.planner.maps.tasks import load_scenario
 from services.planner.registry import run_planner
 from services.planner.validate import validate_plan
 
+pytestmark = pytest.mark.compute
+
 MU = 0.5
 SCENARIO = MAPS_DIR / "scenarios" / "fig6.yaml"
 

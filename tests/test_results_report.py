@@ -13,6 +13,8 @@ import pytest
 
 from common.domain.mapfile import load_map
 
+pytestmark = pytest.mark.compute
+
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -34,6 +34,8 @@ from services.planner.sipp.turns import edge_headings, turn_time
 from services.planner.sipp.windows import edge_pair_windows
 from services.planner.validate import validate_plan
 
+pytestmark = pytest.mark.compute
+
 MOVINGAI_DIR = Path(__file__).resolve().parents[2] / "shared" / "benchmarks" / "movingai"
 MOVINGAI = str(MOVINGAI_DIR / "random-32-32-10")
 needs_movingai = pytest.mark.skipif(

@@ -16,6 +16,8 @@ from services.executor.vehicle_controller import VehicleController
 from services.sim.crazyflie.physics import SimFlyingCar
 from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
 
+pytestmark = pytest.mark.compute
+
 MODEL = VehicleModel()
 STEPS = reference_steps(MODEL)
 T0 = 0.5

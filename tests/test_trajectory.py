@@ -16,6 +16,8 @@ from common.flight.reference import wrap_angle
 from services.executor.trajectory import Trajectory, TrajectoryParams
 from tests.support.closed_loop import reference_steps
 
+pytestmark = pytest.mark.compute
+
 MODEL = VehicleModel()
 STEPS = reference_steps(MODEL)
 
