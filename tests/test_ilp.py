@@ -25,8 +25,6 @@ from services.planner.registry import run_planner
 from services.planner.result import PlanResult, to_plan
 from services.planner.validate import ValidationReport, validate_plan
 
-pytestmark = pytest.mark.compute
-
 HAVE_SIPP = importlib.util.find_spec("services.planner.sipp.planner") is not None
 
 

@@ -19,8 +19,6 @@ from services.mission.sweeps import DESCENT_S_PER_M, REST_S, descent
 from services.planner.registry import solve
 from services.planner.validate import validate_plan
 
-pytestmark = pytest.mark.compute
-
 TASKS = {
     "cf1": Task(start="WP10", goal="EP8"),
     "cf2": Task(start="EP7", goal="WP9"),
