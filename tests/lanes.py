@@ -11,8 +11,9 @@ within 1 s) is not `compute`: at idle priority it may not get the CPU in time.
 
 Measured on the 2-core CI machine: one lane, 1176 s of pytest (20 min 45 s in all); two lanes, the
 real-time one 1005 s and the compute one 328 s beside it (17 min 46 s in all), no flight slowed or
-rerun. Every non-flight test beside the flights at nice 19 alone (no SCHED_IDLE): five failed and
-eleven flights reran in one run.
+rerun. (pytest-xdist's `loadgroup` would be the usual tool, but with pytest 9.2 its groups do not
+reach its scheduler: one run put flights on both workers at once, five tests failed and eleven
+flights reran.)
 
     python -m tests.lanes [PYTEST_ARGS...]   (extra arguments go to both lanes)
 
