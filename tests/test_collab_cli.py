@@ -14,6 +14,8 @@ from common.domain.team_plan import read_plan
 from common.errors import InputError
 from services.cli import build_parser
 
+pytestmark = pytest.mark.compute
+
 
 def run(*argv: str) -> int:
     args: argparse.Namespace = build_parser().parse_args(argv)

@@ -15,6 +15,8 @@ import pytest
 
 from common.crazyflie import crtp
 
+pytestmark = pytest.mark.compute
+
 HOST = Path(__file__).resolve().parents[1] / "firmware" / "wheels" / "host"
 
 needs_cc = pytest.mark.skipif(

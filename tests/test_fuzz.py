@@ -107,6 +107,7 @@ def _decoded(typ: type, data: bytes) -> None:
         assert isinstance(msg, typ)
 
 
+@pytest.mark.compute
 @pytest.mark.parametrize("typ", MESSAGE_TYPES, ids=lambda t: t.__name__)
 @settings(FUZZ, max_examples=40)
 @given(data=st.data())
@@ -163,6 +164,7 @@ LOADERS: dict[str, tuple[Any, Callable[[Path], object]]] = {
 }
 
 
+@pytest.mark.compute
 @pytest.mark.parametrize("name", LOADERS)
 @FUZZ
 @given(data=st.data())
@@ -179,6 +181,7 @@ def plan_doc() -> Any:
     return json.loads(encode_plan(plan))
 
 
+@pytest.mark.compute
 @FUZZ
 @given(data=st.data())
 def test_plan_decoder_raises_only_plan_file_errors(plan_doc: Any, data: st.DataObject) -> None:
