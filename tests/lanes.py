@@ -28,12 +28,14 @@ import sys
 import tempfile
 from pathlib import Path
 
+from pytest import ExitCode
+
 from common.bus.process_priority import lower_priority
 
 SELECTION = "not soak and not scale"
 REAL_TIME = f"not compute and {SELECTION}"
 COMPUTE = f"compute and {SELECTION}"
-NO_TESTS = 5  # pytest.ExitCode.NO_TESTS_COLLECTED
+NO_TESTS = ExitCode.NO_TESTS_COLLECTED
 
 
 def idle() -> None:
@@ -65,7 +67,7 @@ def main(argv: list[str]) -> int:
 
 
 def lanes_status(*codes: int) -> int:
-    """The first failing lane's exit status; a lane whose selection has no test (pytest's 5: a path
+    """The first failing lane's exit status; a lane whose selection has no test (a path
     given that holds only the other lane's tests) is not a failure unless neither lane had one."""
     failed = [code for code in codes if code not in (0, NO_TESTS)]
     return failed[0] if failed else (NO_TESTS if all(code == NO_TESTS for code in codes) else 0)
