@@ -1,6 +1,7 @@
 """Authentication and access control of the shipped router configuration, over real zenoh sessions:
 sessions without valid credentials are refused; each role may only do what common/deploy/acl.py grants
-(only executors command vehicles, only the planner serves planner/plan, only gateways publish
+(only executors command vehicles, only the planner serves planner/plan and the operator's querier
+sees its queryable, only gateways publish
 telemetry, only executors hold executor tokens); TLS with a CA made at test time."""
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from common.bus.args import credentials
 from common.bus.keys import Keys
 from common.bus.liveliness import declare_alive, watch_alive
 from common.bus.messages import Cmd, PlanReply, PlanRequest, StopSetpoint, Telemetry
-from common.bus.pubsub import Publisher, QueryError, query, serve, subscribe
+from common.bus.pubsub import Publisher, QueryError, find_queryable, query, serve, subscribe
 from common.bus.session import InProcessRouter, ZenohConfig, free_tcp_endpoint, open_session
 from common.deploy.acl import ROUTER_CONFIG, render
 from common.deploy.credentials import Credentials, make_credentials
@@ -134,11 +135,13 @@ def test_only_the_planner_serves_plans(role: Sessions) -> None:
 
     async def scenario() -> None:
         serve(impostor, KEYS.planner_plan, PlanRequest, PlanReply, answer)
-        await asyncio.sleep(0.3)
+        assert not await find_queryable(client, KEYS.planner_plan, 0.3)  # its declaration never passes
         with pytest.raises(QueryError, match="no queryable answered"):
             await query(client, KEYS.planner_plan, request, PlanReply, timeout=2.0)
         serve(role("planner"), KEYS.planner_plan, PlanRequest, PlanReply, answer)
-        await asyncio.sleep(0.3)
+        # the planner's does, to the operator's querier: a client waiting for it (`query(find_s=)`)
+        # asks as soon as it is there instead of waiting out `find_s`
+        assert await find_queryable(client, KEYS.planner_plan, 1.0)
         assert (await query(client, KEYS.planner_plan, request, PlanReply, timeout=2.0)).error == "forged"
         with pytest.raises(QueryError, match="no queryable answered"):  # only the operator asks for plans
             await query(role("gateway"), KEYS.planner_plan, request, PlanReply, timeout=2.0)

@@ -14,7 +14,7 @@ from the router (`ingress`: from the session; `egress`: to it):
 | publish | put | declare_subscriber (a publisher only sends what matches a subscriber) |
 | subscribe | declare_subscriber | put |
 | serve | declare_queryable, reply | query |
-| query | query | reply |
+| query | query | reply, declare_queryable (a querier matches the queryables it can reach) |
 | watch (liveliness) | declare_liveliness_subscriber, liveliness_query | liveliness_token, reply |
 | token | liveliness_token | |
 """
@@ -39,7 +39,7 @@ CAPABILITIES: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
     "publish": (("ingress", ("put",)), ("egress", ("declare_subscriber",))),
     "subscribe": (("ingress", ("declare_subscriber",)), ("egress", ("put",))),
     "serve": (("ingress", ("declare_queryable", "reply")), ("egress", ("query",))),
-    "query": (("ingress", ("query",)), ("egress", ("reply",))),
+    "query": (("ingress", ("query",)), ("egress", ("reply", "declare_queryable"))),
     "watch": (("ingress", ("declare_liveliness_subscriber", "liveliness_query")),
               ("egress", ("liveliness_token", "reply"))),
     "token": (("ingress", ("liveliness_token",)),),
