@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -50,6 +51,9 @@ TICK_S = 0.1
 """How often the mission looks at its vehicles."""
 RESEND_S = 1.0
 """Plans and the start are re-sent this often."""
+RETRY_S = 0.5
+"""Before the start (the plans until they are loaded) and after an abort (the abort until every
+vehicle rests), what is not yet acknowledged is re-sent this often."""
 PROGRESS_S = 2.0
 """How often a progress line is printed."""
 LAND_WAIT_S = 10.0
@@ -228,13 +232,17 @@ class MissionClient(Service, Generic[R]):
             raise
 
     async def _until(self, done: Callable[[], bool], timeout: float, again: Callable[[], None]) -> bool:
-        """Call `again` every half second until `done()` or `timeout`; whether it got done."""
+        """Call `again` every half second until `done()` (checked every tick) or `timeout`; whether it
+        got done."""
         deadline = time.monotonic() + timeout
+        last_again = -math.inf
         while time.monotonic() < deadline:
             if done():
                 return True
-            again()
-            await asyncio.sleep(0.5)
+            if time.monotonic() - last_again >= RETRY_S:
+                last_again = time.monotonic()
+                again()
+            await asyncio.sleep(TICK_S)
         return done()
 
     def _on_state(self, state: VehicleState, _key: str) -> None:
