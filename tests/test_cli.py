@@ -20,3 +20,9 @@ def test_a_lazy_handler_runs_its_command() -> None:
     out = subprocess.run([sys.executable, "-m", "services.cli", "demo", "--scenario", "no/such.yaml"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "no/such.yaml" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_a_demo_without_a_lead_is_refused_before_any_process_starts() -> None:
+    out = subprocess.run([sys.executable, "-m", "services.cli", "demo", "--lead", "0", "--out", "/nonexistent/demo"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "--lead: 0: must be positive" in out.stderr and "Traceback" not in out.stderr

@@ -94,6 +94,9 @@ def _register_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="out/demo")
     p.add_argument("--viewer", action="store_true", help="spawn the rerun viewer")
     p.add_argument("--web", action="store_true", help="serve the rerun web viewer")
+    p.add_argument("--lead", type=float,
+                   help="s from the plans' hand-out (the live view shows the map and the plans) to the start "
+                        "(default: every mission's, 2 s)")
     p.set_defaults(handler=lazy_handler("services.mission.demo:run_demo"))
 
 

@@ -24,6 +24,8 @@ from common.deploy.radios import GatewayParams, LinkModel, RadiosFile, dump_radi
 from common.domain.mapfile import MAPS_DIR, load_map, spot_pose
 from common.domain.planfile import Task
 from common.domain.scenario import read_scenario
+from common.errors import InputError
+from services.mission.client import MissionTiming
 from services.mission.runner import MissionRunner, MissionSpec
 
 DEMO_SCENARIO = MAPS_DIR / "scenarios" / "town_8.yaml"
@@ -99,7 +101,11 @@ def run_demo(args: argparse.Namespace) -> int:
     map_name = scenario.map or "town"
     tasks = dict(scenario.tasks)
     out = Path(args.out)
-    spec = MissionSpec(map=map_name, tasks=tasks, planner=args.planner, mu=args.mu, time_limit=args.time_limit)
+    if args.lead is not None and args.lead <= 0:
+        raise InputError("fleet demo", "--lead", f"{args.lead:g}: must be positive")
+    timing = MissionTiming() if args.lead is None else MissionTiming(start_lead_s=args.lead)
+    spec = MissionSpec(map=map_name, tasks=tasks, planner=args.planner, mu=args.mu, time_limit=args.time_limit,
+                       timing=timing)
     try:
         demo_radios(map_name, tasks, args.per_radio, source=str(path))  # bad starts: an error before any process
         viewer = (["--viewer"] if args.viewer else []) + (["--web"] if args.web else [])
