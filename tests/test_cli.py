@@ -6,6 +6,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 HEAVY = ("filterpy", "scipy", "rerun", "networkx", "highspy", "numpy", "cflib")
 
 
@@ -22,7 +24,8 @@ def test_a_lazy_handler_runs_its_command() -> None:
     assert out.returncode == 2 and "no/such.yaml" in out.stderr and "Traceback" not in out.stderr
 
 
-def test_a_demo_without_a_lead_is_refused_before_any_process_starts() -> None:
-    out = subprocess.run([sys.executable, "-m", "services.cli", "demo", "--lead", "0", "--out", "/nonexistent/demo"],
+@pytest.mark.parametrize("lead", ["0", "nan"])
+def test_a_demo_with_no_positive_lead_is_refused_before_any_process_starts(lead: str) -> None:
+    out = subprocess.run([sys.executable, "-m", "services.cli", "demo", "--lead", lead, "--out", "/nonexistent/demo"],
                          capture_output=True, text=True, timeout=60)
-    assert out.returncode == 2 and "--lead: 0: must be positive" in out.stderr and "Traceback" not in out.stderr
+    assert out.returncode == 2 and f"--lead: {lead}: must be positive" in out.stderr and "Traceback" not in out.stderr

@@ -1,8 +1,8 @@
 """Authentication and access control of the shipped router configuration, over real zenoh sessions:
 sessions without valid credentials are refused; each role may only do what common/deploy/acl.py grants
 (only executors command vehicles, only the planner serves planner/plan and the operator's querier
-sees its queryable, only gateways publish
-telemetry, only executors hold executor tokens); TLS with a CA made at test time."""
+sees its queryable, only gateways publish telemetry, only executors hold executor tokens); TLS with a
+CA made at test time."""
 
 from __future__ import annotations
 

@@ -101,7 +101,7 @@ def run_demo(args: argparse.Namespace) -> int:
     map_name = scenario.map or "town"
     tasks = dict(scenario.tasks)
     out = Path(args.out)
-    if args.lead is not None and args.lead <= 0:
+    if args.lead is not None and not args.lead > 0:
         raise InputError("fleet demo", "--lead", f"{args.lead:g}: must be positive")
     timing = MissionTiming() if args.lead is None else MissionTiming(start_lead_s=args.lead)
     spec = MissionSpec(map=map_name, tasks=tasks, planner=args.planner, mu=args.mu, time_limit=args.time_limit,
