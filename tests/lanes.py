@@ -7,7 +7,11 @@ benchmarks' smoke runs) runs beside it as a second pytest in a session of its ow
 priority (SCHED_IDLE, nice 19, its autogroup at nice 19): it takes only the CPU the real-time lane
 leaves idle, which is most of a core, since a flight mostly waits on real time. A test whose
 result depends on a wall-clock budget (the ILP solved to its gap within its time limit, a replan
-within 1 s) is not `compute`: at idle priority it may not get the CPU in time.
+within 1 s) is not `compute`: at idle priority it may not get the CPU in time. For the same reason
+a compute test's time limits only guard against a hang: the lane's per-test limit is
+`COMPUTE_TIMEOUT_S` (the CI machine, on a slow hour, ran that lane 3 times slower than it runs
+alone, and one benchmark's 120 s subprocess limit ran out), and its tests' subprocess limits are
+minutes.
 
 Measured on the 2-core CI machine: one lane, 1176 s of pytest (20 min 45 s in all); two lanes, the
 real-time one 1005 s and the compute one 328 s beside it (17 min 46 s in all), no flight slowed or
@@ -36,6 +40,8 @@ SELECTION = "not soak and not scale"
 REAL_TIME = f"not compute and {SELECTION}"
 COMPUTE = f"compute and {SELECTION}"
 NO_TESTS = ExitCode.NO_TESTS_COLLECTED
+COMPUTE_TIMEOUT_S = 1200
+"""pytest-timeout's limit per test in the compute lane (pyproject's 300 s elsewhere)."""
 
 
 def idle() -> None:
@@ -51,7 +57,8 @@ def main(argv: list[str]) -> int:
         log = Path(tmp) / "compute.log"
         with log.open("w") as out:
             compute = subprocess.Popen([*pytest, "-m", COMPUTE, "--basetemp", str(Path(tmp) / "basetemp"),
-                                        "-p", "no:cacheprovider", *argv], stdout=out, stderr=subprocess.STDOUT,
+                                        "-p", "no:cacheprovider",
+                                        "-o", f"timeout={COMPUTE_TIMEOUT_S}", *argv], stdout=out, stderr=subprocess.STDOUT,
                                        start_new_session=True, preexec_fn=idle)
             try:
                 print(f"real-time lane ({REAL_TIME}); the compute lane ({COMPUTE}) runs beside it", flush=True)

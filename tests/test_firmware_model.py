@@ -38,8 +38,9 @@ def simulated(firmware: str = "cf21", capabilities: str = "fly") -> Iterator[tup
         sim = SimService(spec, router.client_config())
         thread = threading.Thread(target=lambda: asyncio.run(sim.run()), daemon=True)
         thread.start()
-        deadline = time.monotonic() + 10.0
-        while "cf1" not in sim.vehicles and time.monotonic() < deadline:
+        deadline = time.monotonic() + 30.0
+        while "cf1" not in sim.vehicles:
+            assert time.monotonic() < deadline and thread.is_alive(), "the simulated Crazyflie did not start in 30 s"
             time.sleep(0.02)
         try:
             yield uri, sim

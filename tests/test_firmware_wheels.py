@@ -34,7 +34,7 @@ FLAG_ARMED = 0x10
 
 def _make(build: Path, target: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(["make", "-C", str(HOST), f"BUILD={build}", target], capture_output=True, text=True,
-                          timeout=120, check=False)
+                          timeout=600, check=False)
 
 
 def _wheels(left: int, right: int, version: int = 2) -> bytes:
@@ -47,7 +47,7 @@ def _request(seq: int) -> bytes:
 
 def _filter(build: Path, lines: list[str], *options: str) -> list[list[str]]:
     run = subprocess.run([str(build / "wheels_filter"), *options], input="\n".join(lines) + "\n",
-                         capture_output=True, text=True, timeout=10, check=False)
+                         capture_output=True, text=True, timeout=60, check=False)
     assert run.returncode == 0, run.stderr
     return [line.split() for line in run.stdout.splitlines()]
 

@@ -28,7 +28,7 @@ E, N, W, S = 0, 2, 4, 6
 REPO = Path(__file__).resolve().parents[1]
 
 
-def experiment(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
+def experiment(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess:
     """`python -m bench.collab_experiment ARGS` (tests do not import bench)."""
     return subprocess.run([sys.executable, "-m", "bench.collab_experiment", *args], cwd=REPO, capture_output=True,
                           text=True, timeout=timeout)
@@ -131,5 +131,5 @@ def test_the_experiment_refuses_bad_limits() -> None:
     """The same check as tests/test_collab_cli.py's, run as a process (that one imports bench, which
     the import contracts forbid tests to do)."""
     run = subprocess.run([sys.executable, "-m", "bench.collab_experiment", "--instances", "0"], cwd=REPO,
-                         capture_output=True, text=True, timeout=60)
+                         capture_output=True, text=True, timeout=300)
     assert run.returncode == 2 and "--instances" in run.stderr

@@ -18,7 +18,7 @@ pytestmark = pytest.mark.compute
 REPO = Path(__file__).resolve().parents[1]
 
 
-def bench(module: str, *args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
+def bench(module: str, *args: str, timeout: float = 600.0) -> subprocess.CompletedProcess:
     run = subprocess.run([sys.executable, "-m", f"bench.{module}", *args], cwd=REPO, capture_output=True, text=True,
                          timeout=timeout)
     assert run.returncode == 0, run.stderr[-2000:]

@@ -90,9 +90,9 @@ class SimService(Service):
                 params = replace(self.params, thrust_scale=self.params.thrust_scale * unit_thrust(vid, self.thrust_spread))
                 car = SimFlyingCar(vid, self.model, params, pos=link.start, yaw=link.yaw, t=now)
                 platform = CF21_BRUSHLESS if link.firmware == "cf21-brushless" else CF21
-                cf = self.vehicles[vid] = SimCrazyflie(car, radio, self._on_event, platform=platform,
-                                                       wheels=link.wheels)
+                cf = SimCrazyflie(car, radio, self._on_event, platform=platform, wheels=link.wheels)
                 cf.listen(udp_address(link.uri))
+                self.vehicles[vid] = cf  # listed once its radio endpoint is bound: a client may connect
         log.info("sim: %d vehicles on radios %s", len(self.vehicles), ", ".join(self.selected))
 
     async def _publish_truth(self) -> None:
