@@ -235,6 +235,22 @@ def test_a_vehicle_stopped_by_a_stale_pose_is_held_for_good_once_its_plan_moved_
     assert lost < held_at < lost + 2.0  # before the pose came back, after it went stale
 
 
+def test_a_vehicle_first_seen_shortly_before_the_start_drives_its_plan() -> None:
+    """No pose yet when its plan arrives (motion capture found it late): it holds, stale, and once
+    seen it follows its plan. Where it stopped is not judged from an estimate it never had (it was:
+    the filter's empty state, the origin, 1.1 m from its spot, so the guard held it for good before
+    the start, its plan having "moved on 1.118 m while it was stopped")."""
+    start = 3.0
+    steps = [msgspec.structs.replace(s, pos=(s.pos[0] + 1.0, s.pos[1] + 0.5, s.pos[2])) for s in STEPS]
+    sim = SimFlyingCar("cf1", MODEL, pos=steps[0].pos, yaw=0.0)
+    ctrl = VehicleController("cf1", MODEL, owner="test")
+    assert ctrl.load(plan_for("cf1", steps, MODEL, t0=start))
+    run(ctrl, sim, start + steps[-1].t + 2.0, Mocap(MocapNoise(pos_std=0.001, dropouts=((0.0, start - 1.0),)), seed=3))
+    assert ctrl.held is None, ctrl.held
+    assert ctrl.machine.history[0].reason == "pose stale"
+    assert ctrl.mode == Mode.DONE and math.dist((sim.x, sim.y, sim.z), steps[-1].pos) < 0.05
+
+
 def starve(pid: int, stop: threading.Event) -> None:
     """Stop and continue process `pid` in turns until `stop` is set (it is left running)."""
     try:

@@ -309,7 +309,7 @@ class VehicleController:
         if est.stale or link:
             if m.mode != Mode.HOLDING:
                 self._hold_since = now
-                self._stopped_at = (est.x, est.y, est.z)  # (dead-reckoned since the last pose: it drove there)
+                self._stopped_at = self._stopped_position(est)
                 m.request(Mode.HOLDING, now, "pose stale" if est.stale else "link lost")
             elif now - (self._hold_since or now) > self.params.faults.max_hold_s:
                 m.request(Mode.DONE, now, "held too long, plan given up")
@@ -348,6 +348,16 @@ class VehicleController:
         self._hold(now, est, ref, f"tracking error {error:.3f} m past the plan's margin {margin:.3f} m "
                                   f"for {now - since:.2f} s in {self.machine.mode}")
         return True
+
+    def _stopped_position(self, est: Estimate) -> tuple[float, float, float]:
+        """Where a fault on the ground stops the vehicle: its estimate (dead-reckoned since the last
+        pose: it drove there), or, with no pose ever, where its plan starts (nothing has driven it;
+        the filter's empty state is the origin, which once held a vehicle that motion capture found
+        late for good before its mission started)."""
+        if math.isfinite(est.pos_std) or self._active is None:
+            return (est.x, est.y, est.z)
+        start = self._active.sample(0.0)
+        return (start.x, start.y, start.z)
 
     def _left_behind(self, now: float, est: Estimate, ref: RefSample | None) -> None:
         """Stopped on the ground for a fault that may clear (stale pose, lost link) while its plan
