@@ -7,10 +7,13 @@ of every 50 ms of drawing and the stop threw the rest away)."""
 from __future__ import annotations
 
 import asyncio
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
 import zenoh
 
 from common.bus.keys import Keys
@@ -20,6 +23,7 @@ from common.bus.session import ZenohConfig
 from services.telemetry.service import TelemetryService
 
 KEYS = Keys("rec")
+REPO = Path(__file__).resolve().parents[1]
 DELIVERY_S = 0.5
 """s for zenoh's threads to hand the burst to the mailboxes while the event loop is held."""
 
@@ -95,3 +99,14 @@ def test_the_recorder_draws_its_backlog_at_the_stop_thinned_by_the_samples_times
     xs = [x for _, x in sorted(bodies)]
     assert 38 <= len(xs) <= 41, xs  # 2 s drawn at 20 Hz by the states' own times
     assert xs[-1] > 0.97, xs  # the end of the path is there
+
+
+@pytest.mark.compute
+def test_the_recorder_cost_benchmark_runs_and_plots(tmp_path: Path) -> None:
+    """`bench.recorder_cost` (bench/ sits above tests/ in the import contracts: run as a user does)."""
+    run = subprocess.run([sys.executable, "-m", "bench.recorder_cost", "--vehicles", "1", "2", "--seconds", "2",
+                          "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    rows = [line.split() for line in run.stdout.splitlines() if line.split()[:1] in (["1"], ["2"])]
+    assert [row[0] for row in rows] == ["1", "2"] and all(float(row[1]) > 0.0 for row in rows), run.stdout
+    assert (tmp_path / "recorder_cost.png").stat().st_size > 10_000
