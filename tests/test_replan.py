@@ -150,6 +150,33 @@ def test_a_vehicle_at_rest_whose_node_a_fault_closed_holds_there_and_one_moving_
         assert validate_plan(reply.plan).ok
 
 
+def test_a_stranded_vehicle_whose_stop_a_body_will_come_down_on_drives_on_to_the_next_nearest() -> None:
+    """cf4 comes down on cf1's goal, and cf2 is coming down 3 s after cf1 reaches its switch node
+    (Wr5, a road node): cf1 cannot stop there for ever either. It is given the next nearest goal it
+    can reach and keeps clear of both bodies; it was left unplanned (the mission then stops such a
+    vehicle where it is: under cf2's descent)."""
+    base = plan_of()
+    at = 1.0
+    switch = next(e for e in base.paths["cf1"] if e.t >= at)
+    assert switch.node == "Wr5" and base.graph.nodes["Wr5"].kind != "air"
+    goal, stop = base.graph.nodes["EP8"].pos, base.graph.nodes["Wr5"].pos
+    sweeps = [Sweep("cf4", goal, goal, at, at, rest=True),
+              Sweep("cf2", stop, stop, switch.t + 3.0, switch.t + 3.0, rest=True)]
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, replan=Replan(
+        base=base, at=at, left=["cf4", "cf2"], sweeps=sweeps, strand=True)))
+    assert reply.ok and reply.plan is not None, reply.error
+    plan = reply.plan
+    assert validate_plan(plan).ok
+    short = plan.tasks["cf1"].goal
+    assert short not in ("EP8", "Wr5") and plan.paths["cf1"][-1].node == short, short
+    for k in range(int((plan.paths["cf1"][-1].t + 5.0 - at) / 0.1)):
+        t = at + 0.1 * k
+        p = plan.position("cf1", t)
+        assert math.dist(p, goal) >= 2 * plan.model.radius - 1e-6
+        if t >= switch.t + 3.0:
+            assert math.dist(p, stop) >= 2 * plan.model.radius - 1e-6
+
+
 def test_a_replan_the_battery_cannot_serve_names_the_vehicle() -> None:
     base = plan_of()
     # the battery, read again, holds less than it did: all the usable charge is used up

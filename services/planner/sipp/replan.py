@@ -27,10 +27,11 @@ new suffix) that the validator checks like any plan.
 Stranding (`Replan.strand`): a vehicle whose goal is out of reach even first in the order (a road
 closed for ever by a vehicle that came down on it, its goal under a resting body) is given the
 nearest goal it can still reach instead, its switch node itself when that is on the ground (it
-stops there), and the orders start again; the answer names it (`PlanResult.stranded`). One that
-cannot reach any of those either (its own node is closed: a vehicle came down next to it) and stops
-on the ground is held where it stops, unplanned (`Leg.hold`), and the others are planned around
-it. Without `strand` the replan fails, naming it.
+stops there), and the orders start again; when it cannot be placed there either (a body comes
+down on that node later), the next nearest, up to `STRAND_CANDIDATES`; the answer names it
+(`PlanResult.stranded`). One that cannot reach any of those (its own node is closed: a vehicle
+came down next to it) and stops on the ground is held where it stops, unplanned (`Leg.hold`), and
+the others are planned around it. Without `strand` the replan fails, naming it.
 """
 
 from __future__ import annotations
@@ -79,6 +80,8 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
     seen = {tuple(leg.vid for leg in order)}
     tried = 0
     stranded: dict[str, str] = {}
+    short_goals: dict[str, list[int]] = {}
+    """The goals short of its own still to try for each stranded vehicle, nearest first."""
     held: set[str] = set()
     while True:
         tried += 1
@@ -100,7 +103,9 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
         if key in seen and replan.strand and vid not in held and time.perf_counter() <= deadline:
             # its goal is out of its reach even first in the order: it stops short (module doc)
             taken = {x.goal for x in order} | {graph.index[p[-1].node] for p in fixed.values()}
-            short = _short_of_goal(graph, leg, mu, taken, tried_nearby=vid in stranded)
+            if vid not in short_goals:
+                short_goals[vid] = _stranding_goals(graph, leg, mu, taken)
+            short = _short_of_goal(graph, leg, short_goals[vid], taken)
             if short is not None:
                 if short.hold:
                     held.add(vid)
@@ -114,32 +119,36 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
         seen.add(key)
 
 
-def _short_of_goal(graph: FleetGraph, leg: Leg, mu: float, taken: set[int], tried_nearby: bool) -> Leg | None:
-    """`leg` stopping short of its goal: at the nearest node it can reach (`_stranded`, unless
-    `tried_nearby`), or held where it is when it is at rest there; None when neither."""
-    short = None if tried_nearby else _stranded(graph, leg, mu, taken)
-    if short is None and leg.prefix[-1].t < leg.depart:  # at rest there: it stays
-        short = dataclasses.replace(leg, goal=leg.start, hold=True,
-                                    task=msgspec.structs.replace(leg.task, goal=leg.task.start))
-    return short
+def _short_of_goal(graph: FleetGraph, leg: Leg, goals: list[int], taken: set[int]) -> Leg | None:
+    """`leg` stopping short of its goal: at the next of `goals` (taken from the list) that is not
+    another vehicle's goal by now, or, when none is left, held where it is if it is at rest there;
+    None when neither. (A goal short of its own may fail too: its switch node, a road node, may be
+    where a body is coming down; the vehicle then drives on to the next nearest instead of being
+    stopped there by the mission, under that body.)"""
+    here = leg.start
+    while goals:
+        n = goals.pop(0)
+        if n == here or n not in taken:
+            return Leg(leg.vid, leg.prefix, here, leg.depart, n, leg.usable,
+                       Task(start=leg.task.start, goal=graph.ids[n], capabilities=leg.task.capabilities,
+                            charge_used_ah=leg.task.charge_used_ah, voltage=leg.task.voltage))
+    if leg.prefix[-1].t < leg.depart:  # at rest there: it stays
+        return dataclasses.replace(leg, goal=leg.start, hold=True,
+                                   task=msgspec.structs.replace(leg.task, goal=leg.task.start))
+    return None
 
 
-def _stranded(graph: FleetGraph, leg: Leg, mu: float, taken: set[int]) -> Leg | None:
-    """`leg` with the nearest goal short of its own it can still reach (its switch node when that is
-    on the ground, else the ground nodes nearest to it in the horizontal, `STRAND_CANDIDATES` of
-    them), not another vehicle's goal and within its battery; None when there is none."""
+def _stranding_goals(graph: FleetGraph, leg: Leg, mu: float, taken: set[int]) -> list[int]:
+    """The goals short of `leg`'s own it can still reach, nearest first: its switch node when that
+    is on the ground, and the ground nodes nearest to it in the horizontal (`STRAND_CANDIDATES` in
+    all), not another vehicle's goal, within its battery."""
     here = leg.start
     d = np.hypot(*(graph.pos[:, :2] - graph.pos[here, :2]).T)
     ground = [n for n in np.argsort(d).tolist() if graph.kinds[n] != "air" and n != leg.goal
               and (n == here or n not in taken)][:STRAND_CANDIDATES]
     ctg = CostToGo.of(graph, mu, leg.task.capabilities)
     ctg.prepare(ground)
-    for n in ground:
-        if ctg.h[n][here] < INF and ctg.q[n][here] <= leg.usable:
-            return Leg(leg.vid, leg.prefix, here, leg.depart, n, leg.usable,
-                       Task(start=leg.task.start, goal=graph.ids[n], capabilities=leg.task.capabilities,
-                            charge_used_ah=leg.task.charge_used_ah, voltage=leg.task.voltage))
-    return None
+    return [n for n in ground if ctg.h[n][here] < INF and ctg.q[n][here] <= leg.usable]
 
 
 def _plan_order(graph: FleetGraph, sweeps: list[Sweep], fixed: dict[str, list[PathEntry]], order: list[Leg],
