@@ -6,10 +6,7 @@ and the mode timeline."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -66,36 +63,8 @@ def blueprint(vids: list[str]) -> rrb.Blueprint:
     )
 
 
-@dataclass
-class _Rows:
-    """One entity's samples waiting to be sent as columns, and how to make its columns of them."""
-    columns: Callable[[list[Any]], rr.ComponentColumnList]
-    times: list[float] = field(default_factory=list)
-    values: list[Any] = field(default_factory=list)
-
-
-def _scalars(values: list[float]) -> rr.ComponentColumnList:
-    return rr.Scalars.columns(scalars=values)
-
-
-def _truths(positions: list[tuple[float, float, float]]) -> rr.ComponentColumnList:
-    n = len(positions)
-    return rr.Points3D.columns(positions=positions, radii=[0.01] * n, colors=[(0, 0, 0)] * n)
-
-
-def _bodies(rows: list[tuple[tuple[float, float, float], tuple[int, int, int], str, float, float]]) -> rr.ComponentColumnList:
-    centers, colors, labels, radii, lengths = zip(*rows, strict=True)
-    return rr.Cylinders3D.columns(lengths=lengths, radii=radii, centers=centers, colors=colors, labels=labels)
-
-
 class FleetRecording:
-    """One rerun recording: static map and plan, then time-stamped vehicle data (epoch seconds).
-
-    The time series (bodies, ground truth, tracking error, progress, battery, link) are kept as rows
-    and sent as columns by `send_rows`, one `send_columns` per entity: rerun's per-call cost, not the
-    data, was the recorder's CPU (`bench.recorder_cost`, 8 vehicles at the fleet's rates: 21 % of a
-    core with an `rr.log` per sample, 6 % with columns; in a flying fleet the whole process went from
-    27 % to 17 %, on a 2-core machine that also runs the control loops). Mode changes go out at once."""
+    """One rerun recording: static map and plan, then time-stamped vehicle data (epoch seconds)."""
 
     def __init__(self, recording_id: str, rrd: Path | None = None, viewer: bool = False, web: bool = False,
                  web_port: int = WEB_PORT, grpc_port: int = GRPC_PORT) -> None:
@@ -118,7 +87,6 @@ class FleetRecording:
         self.body: tuple[float, float] = (0.06, 0.05)
         self.vids: list[str] = []
         self._modes: dict[str, str] = {}
-        self._rows: dict[str, _Rows] = {}
         self.rec.send_blueprint(blueprint(self.vids))
 
     def log_map(self, graph: PlanGraph, spec: MapSpec | None = None) -> None:
@@ -157,29 +125,14 @@ class FleetRecording:
     def _at(self, t: float) -> None:
         self.rec.set_time("time", timestamp=t)
 
-    def _row(self, entity: str, t: float, value: Any, columns: Callable[[list[Any]], rr.ComponentColumnList]) -> None:
-        rows = self._rows.get(entity)
-        if rows is None:
-            rows = self._rows[entity] = _Rows(columns)
-        rows.times.append(t)
-        rows.values.append(value)
-
-    def send_rows(self) -> None:
-        """Every entity's waiting rows, as columns."""
-        for entity, rows in self._rows.items():
-            if rows.times:
-                times = np.asarray(rows.times)  # an array: converted at once, a list one time at a time
-                self.rec.send_columns(entity, indexes=[rr.TimeColumn("time", timestamp=times)],
-                                      columns=rows.columns(rows.values))
-                rows.times, rows.values = [], []
-
     def log_state(self, state: VehicleState) -> None:
+        self._at(state.t)
         r, h = self.body
-        vehicle = f"vehicles/{state.vid}"
-        self._row(f"{vehicle}/body", state.t, ((state.x, state.y, state.z), mode_colour(state.mode),
-                                               f"{state.vid} {state.mode}", r, h), _bodies)
-        self._row(f"{vehicle}/tracking_error", state.t, state.tracking_error, _scalars)
-        self._row(f"{vehicle}/progress", state.t, state.step / max(state.steps, 1), _scalars)
+        self.rec.log(f"vehicles/{state.vid}/body", rr.Cylinders3D(
+            lengths=[h], radii=[r], centers=[(state.x, state.y, state.z)], colors=[mode_colour(state.mode)],
+            labels=[f"{state.vid} {state.mode}"]))
+        self.rec.log(f"vehicles/{state.vid}/tracking_error", rr.Scalars(state.tracking_error))
+        self.rec.log(f"vehicles/{state.vid}/progress", rr.Scalars(state.step / max(state.steps, 1)))
 
     def log_mode(self, state: VehicleState) -> None:
         """A vehicle's mode on the state timeline, when it changes (every state may be handed in)."""
@@ -190,15 +143,15 @@ class FleetRecording:
         self.rec.log(f"vehicles/{state.vid}/mode", rr.StateChange(state=state.mode))
 
     def log_truth(self, truth: SimTruth) -> None:
-        self._row(f"truth/{truth.vid}", truth.t, (truth.x, truth.y, truth.z), _truths)
+        self._at(truth.t)
+        self.rec.log(f"truth/{truth.vid}", rr.Points3D([(truth.x, truth.y, truth.z)], radii=0.01, colors=(0, 0, 0)))
 
     def log_telemetry(self, tel: Telemetry) -> None:
-        vehicle = f"vehicles/{tel.vid}"
-        self._row(f"{vehicle}/battery_v", tel.t, tel.vbat, _scalars)
-        self._row(f"{vehicle}/link_quality", tel.t, tel.link_quality, _scalars)
-        self._row(f"{vehicle}/cmd_rate_hz", tel.t, tel.cmd_rate_hz, _scalars)
+        self._at(tel.t)
+        self.rec.log(f"vehicles/{tel.vid}/battery_v", rr.Scalars(tel.vbat))
+        self.rec.log(f"vehicles/{tel.vid}/link_quality", rr.Scalars(tel.link_quality))
+        self.rec.log(f"vehicles/{tel.vid}/cmd_rate_hz", rr.Scalars(tel.cmd_rate_hz))
 
     def close(self) -> None:
-        self.send_rows()
         self.rec.flush()
         self.rec.disconnect()

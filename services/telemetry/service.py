@@ -6,7 +6,6 @@ battery and link quality."""
 from __future__ import annotations
 
 import argparse
-import asyncio
 import logging
 import math
 import time
@@ -32,8 +31,6 @@ STREAM_BACKLOG = 4096
 TIME_JITTER_S = 1e-3
 """s a sample's time may fall short of the drawing interval and still be drawn (100 Hz stamps are not
 exactly 10 ms apart: at 20 Hz every fifth, not every sixth)."""
-SEND_S = 0.5
-"""s between two sends of the recording's waiting rows (the live view draws that much later)."""
 CATCH_UP_S = 2.0
 """s the recorder may spend at its stop drawing its backlog (`fleet down` kills after 5 s)."""
 
@@ -64,19 +61,12 @@ class TelemetryService(Service):
             (k.all_vehicles("state"), VehicleState, self._on_state),
             (k.all_vehicles("telemetry"), Telemetry, self._with_recording(FleetRecording.log_telemetry)),
             (k.all_sim_truth, SimTruth, self._with_recording(FleetRecording.log_truth)))]
-        self.spawn(self._send_rows(), name="send rows")
         try:
             await self.stopped()
         finally:
             self._catch_up(streams)
             if self.recording is not None:
                 self.recording.close()
-
-    async def _send_rows(self) -> None:
-        while True:
-            await asyncio.sleep(SEND_S)
-            if self.recording is not None:
-                self.recording.send_rows()
 
     def _catch_up(self, streams: list[tuple[Subscription, Callable[[Any, str], None]]]) -> None:
         """Draw what arrived but was not drawn yet before the recording closes: the recorder runs at
