@@ -1,8 +1,8 @@
 """The telemetry recorder's cost per vehicle (issue 15): the CPU `fleet telemetry` spends to draw a
 mission into its rerun recording, the streams at the rates a fleet publishes them (each vehicle's
 state at the executor's 20 Hz, its ground truth at the simulator's 100 Hz, its gateway's telemetry
-at 5 Hz), through the recorder's own handlers (thinned to `--max-hz` per stream by the samples'
-times) into a recording written to a file; zenoh's delivery and decoding excluded.
+at 5 Hz), through the recorder's own handlers (thinned to `fleet telemetry --max-hz`, 20 Hz, per
+stream by the samples' times) into a recording written to a file; zenoh's delivery and decoding excluded.
 
 Prints the recorder's CPU as a share of one core per second of mission, and how many vehicles one
 core records in real time; saves a PNG. (Measured 2026-12-04: 2.5 % of a core per vehicle, almost
