@@ -4,8 +4,10 @@ Layout: ``fleet/<fleet>/...``
 
 - ``vehicle/<vid>/{pose,state,cmd,telemetry,plan,event}``; ground-air teams (paper 002):
   ``vehicle/<vid>/{team_plan,action,action_status}``
+- ``mocap/frame`` (every vehicle's pose of one motion-capture frame, `PoseFrame`)
+- ``gateway/<instance>/cmd`` (an executor's command batch for one gateway's vehicles, `CmdBatch`)
 - ``planner/plan`` (queryable)
-- ``mission/<id>/{start,abort,status}``
+- ``mission/<id>/{start,abort,status}``; ``mission/<id>/add`` (queryable: a running mission's new goals)
 - ``sim/truth/<vid>``; ``sim/fault/<vid>`` (fault injection, simulators only: docs/reliability.md)
 - ``alive/<service>/<instance>`` (liveliness tokens)
 - ``stats/<service>/<instance>`` (each service's counters and figures, every few seconds)
