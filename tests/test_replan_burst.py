@@ -26,7 +26,22 @@ FIRST, BURST = "cf7", ("cf1", "cf4", "cf8")
 
 class Burst(MissionRunner):
     """A started mission (its plan accepted, every vehicle parked at its start) whose vehicles are
-    held: `FIRST`, and `BURST` right after the replan around it has gone to the planner."""
+    held: `FIRST`, and `BURST` while the replan around it asks the planner."""
+
+    def __init__(self, router: str) -> None:
+        super().__init__(MissionSpec(map="town", tasks=TASKS, time_limit=20), ZenohConfig.client(router), KEYS,
+                         progress=False)
+        self.burst = list(BURST)
+        self.asked = 0
+        """Replans asked of the planner."""
+
+    async def _ask_replan(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        """The burst: while the first replan (around `FIRST`) asks the planner."""
+        self.asked += 1
+        while self.burst:
+            vid = self.burst.pop(0)
+            assert self.on_fault(vid, "tracking_hold", f"{vid}: held", "")
+        return await super()._ask_replan(*args, **kwargs)
 
     async def main(self) -> None:
         try:
@@ -39,21 +54,19 @@ class Burst(MissionRunner):
                 self.states[vid] = VehicleState(vid=vid, t=time.time(), owner="e1", mode="parked", x=x, y=y, z=z,
                                                 yaw=0.0, mission=self.mission)
             assert self.on_fault(FIRST, "tracking_hold", f"{FIRST}: held", "")
-            await asyncio.sleep(0.05)  # its replan has asked the planner
-            for vid in BURST:
-                assert self.on_fault(vid, "tracking_hold", f"{vid}: held", "")
-            assert self._replanning is not None
+            while self._replanning is not None and not self._replanning.done():  # (the burst queues more)
+                await self._replanning
             await self._replanning
         finally:
             self.stop()
 
 
-@pytest.mark.timeout(60)
-def test_a_burst_of_holds_during_a_replan_is_replanned_once_after_it(zenoh_router: str) -> None:
-    cfg = ZenohConfig.client(zenoh_router)
-    runner = Burst(MissionSpec(map="town", tasks=TASKS, time_limit=20), cfg, KEYS, progress=False)
+def fly_burst(router: str, runner: Burst) -> None:
+    """Run `runner` against a planner on `router`: no fault of the mission's, and the last plan
+    leaves out every vehicle held."""
 
     async def main() -> None:
+        cfg = ZenohConfig.client(router)
         planner = PlannerService("planner", "p1", cfg, KEYS)
         serving = asyncio.create_task(planner.run())
         try:
@@ -64,8 +77,18 @@ def test_a_burst_of_holds_during_a_replan_is_replanned_once_after_it(zenoh_route
             await serving
 
     asyncio.run(main())
-    assert not runner.fault, runner.fault
+    assert not runner.fault, (runner.fault, runner.events)
     assert runner.plan is not None
     assert set(runner.plan.paths) == set(TASKS) - {FIRST, *BURST}, sorted(runner.plan.paths)
-    # the replan under way, then one for the three (not three: each a planner's time, one after another)
-    assert len(runner.replans) == 2 and runner.replans_skipped == 2, (runner.replans, runner.events)
+
+
+@pytest.mark.timeout(60)
+def test_a_burst_of_holds_during_a_replan_is_replanned_once_after_it(zenoh_router: str) -> None:
+    """The burst comes while the replan around FIRST asks the planner, with the held vehicles'
+    sweeps in its request: it cannot place them (they are held where they stand), which is no
+    fault of the mission's since the next replan, queued behind it, plans around all four; the
+    two between are left out."""
+    runner = Burst(zenoh_router)
+    fly_burst(zenoh_router, runner)
+    assert runner.asked == 2 and runner.replans_skipped == 2, (runner.asked, runner.events)
+    assert any("the replan of a later fault tries again" in e for e in runner.events), runner.events

@@ -339,7 +339,8 @@ class MissionRunner(MissionClient[MissionResult]):
         from the control loops.) A vehicle on the ground the planner could not place (it drives into
         the space a vehicle that left closed) is stopped where it is, alone, and leaves too
         (`STOP_MAX` of them at most); any other failure is the mission's fault (it ends, landing
-        everyone)."""
+        everyone), unless a later fault's replan was queued meanwhile: that one plans around more
+        (the vehicle this one could not place has often left by then: held in the same burst)."""
         if previous is not None:
             await asyncio.gather(previous, return_exceptions=True)
         if ticket < self._fault_replans:
@@ -350,7 +351,9 @@ class MissionRunner(MissionClient[MissionResult]):
             if not error or not self._stop_blocked(error):
                 break
             error = await self._plan_on(None)
-        if error:
+        if error and ticket < self._fault_replans:
+            self.events.append(f"replanning failed ({error}); the replan of a later fault tries again")
+        elif error:
             self.fault = self.fault or f"{', '.join(self.left)} left the mission; {error}"
 
     def _stop_blocked(self, error: str) -> bool:
