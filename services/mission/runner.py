@@ -300,8 +300,6 @@ class MissionRunner(MissionClient[MissionResult]):
     def sample(self) -> None:
         if self.spec.lifelong_s > 0 and self._lifelong_task is None and self.t0 is not None:
             self._lifelong_task = asyncio.get_running_loop().create_task(self._lifelong())
-        if self.sep is not None:
-            self.sep.sample()
 
     def on_fault(self, vid: str, kind: str, text: str, node: str) -> bool:
         if vid in self.left:

@@ -7,17 +7,23 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from common.bus.messages import SimTruth
 
 log = logging.getLogger(__name__)
 
+NEAR_M = 1.0
+"""m: pairs further apart than this (beyond contact) are not counted in `min_gap`."""
+
 
 @dataclass
 class SeparationMonitor:
-    """Feed truths, call `sample()` periodically. `min_gap` is the smallest horizontal distance
-    minus 2r over pairs whose heights overlap (negative means contact); `contacts` lists them."""
+    """Feed it every truth (`update`). The bodies are judged at every instant of the truths: when a
+    truth of a later time arrives, every pair on the latest truths (the simulator publishes all
+    bodies' at one time, 100 times a second from `fleet sim`). (A mission judged them ten times a
+    second and missed a brush shorter than that.) `min_gap` is the smallest horizontal distance
+    minus 2r over pairs whose heights overlap, within `NEAR_M` (negative means contact); `contacts`
+    lists (t, vid, vid, gap) for every instant and pair in contact."""
 
     radius: float
     height: float
@@ -25,30 +31,42 @@ class SeparationMonitor:
     min_gap: float = float("inf")
     min_pair: tuple[str, str] = ("", "")
     contacts: list[tuple[float, str, str, float]] = field(default_factory=list)
+    _instant: float = -float("inf")
+    _touched: set[frozenset[str]] = field(default_factory=set)
+    _pairs: tuple[np.ndarray, np.ndarray] = (np.zeros(0, int), np.zeros(0, int))
 
     def update(self, truth: SimTruth) -> None:
+        if truth.t > self._instant:
+            self._judge()
+            self._instant = truth.t
         self.latest[truth.vid] = truth
 
-    def sample(self) -> None:
+    def _judge(self) -> None:
+        """Every pair of the latest truths."""
         if len(self.latest) < 2:
             return
-        vids = list(self.latest)
-        pos = np.array([(t.x, t.y, t.z) for t in self.latest.values()])
-        reach = float(np.hypot(2 * self.radius + 1.0, self.height))
-        for i, j in cKDTree(pos).query_pairs(reach):
-            d = pos[i] - pos[j]
-            if abs(d[2]) >= self.height:
-                continue
-            gap = float(np.hypot(d[0], d[1])) - 2 * self.radius
-            if gap < self.min_gap:
-                self.min_gap, self.min_pair = gap, (vids[i], vids[j])
-            if gap < 0:
-                a, b = self.latest[vids[i]], self.latest[vids[j]]
-                t = max(a.t, b.t)
-                if not any({c[1], c[2]} == {a.vid, b.vid} for c in self.contacts):
-                    log.warning("contact: %s and %s %.1f cm into each other at %s, %s", a.vid, b.vid, -100 * gap,
-                                _where(a), _where(b))
-                self.contacts.append((t, vids[i], vids[j], gap))
+        truths = list(self.latest.values())
+        pos = np.array([(t.x, t.y, t.z) for t in truths])
+        if len(self._pairs[0]) != len(truths) * (len(truths) - 1) // 2:
+            self._pairs = np.triu_indices(len(truths), 1)
+        i, j = self._pairs
+        d = pos[i] - pos[j]
+        level = np.abs(d[:, 2]) < self.height
+        if not level.any():
+            return
+        i, j = i[level], j[level]
+        gaps = np.hypot(d[level, 0], d[level, 1]) - 2.0 * self.radius
+        k = int(np.argmin(gaps))
+        if gaps[k] < min(self.min_gap, NEAR_M):
+            self.min_gap, self.min_pair = float(gaps[k]), (truths[i[k]].vid, truths[j[k]].vid)
+        for a, b, gap in zip(i[gaps < 0.0].tolist(), j[gaps < 0.0].tolist(), gaps[gaps < 0.0].tolist(), strict=True):
+            ta, tb = truths[a], truths[b]
+            pair = frozenset((ta.vid, tb.vid))
+            if pair not in self._touched:
+                self._touched.add(pair)
+                log.warning("contact: %s and %s %.1f cm into each other at %s, %s", ta.vid, tb.vid, -100 * gap,
+                            _where(ta), _where(tb))
+            self.contacts.append((max(ta.t, tb.t), ta.vid, tb.vid, gap))
 
 
 def _where(t: SimTruth) -> str:

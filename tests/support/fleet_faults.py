@@ -91,7 +91,6 @@ class Watch:
     def _on_truth(self, truth: SimTruth, _key: str) -> None:
         self.truth[truth.vid].append(truth)
         self.separation.update(truth)
-        self.separation.sample()
 
     def close(self) -> None:
         if self._session is not None:
