@@ -14,6 +14,9 @@ log = logging.getLogger(__name__)
 
 NEAR_M = 1.0
 """m: pairs further apart than this (beyond contact) are not counted in `min_gap`."""
+SAME_INSTANT_S = 0.001
+"""s: truths this close in time are of one instant (the simulated bodies' clocks add up their
+physics steps apart, and differ by rounding)."""
 
 
 @dataclass
@@ -36,7 +39,7 @@ class SeparationMonitor:
     _pairs: tuple[np.ndarray, np.ndarray] = (np.zeros(0, int), np.zeros(0, int))
 
     def update(self, truth: SimTruth) -> None:
-        if truth.t > self._instant:
+        if truth.t > self._instant + SAME_INSTANT_S:
             self._judge()
             self._instant = truth.t
         self.latest[truth.vid] = truth
