@@ -18,12 +18,13 @@ RATE_HZ = 100.0
 
 def crossing(dz: float) -> list[SimTruth]:
     """cf1 parked at the origin; cf2 passing it at 1 m/s along y = 2r - 2 mm, `dz` above it, for a
-    second of 100 Hz truths: the bodies overlap (horizontally) for 0.044 s."""
+    second of 100 Hz truths: the bodies overlap (horizontally) for 0.044 s. The two bodies' clocks
+    differ by rounding, as the simulator's do."""
     out = []
     for k in range(int(RATE_HZ)):
         t = k / RATE_HZ
         out.append(SimTruth(vid="cf1", t=t, x=0.0, y=0.0, z=0.0, yaw=0.0))
-        out.append(SimTruth(vid="cf2", t=t, x=-0.5 + t, y=2 * R - 0.002, z=dz, yaw=0.0, vx=1.0))
+        out.append(SimTruth(vid="cf2", t=t + 1e-12, x=-0.5 + t, y=2 * R - 0.002, z=dz, yaw=0.0, vx=1.0))
     return out
 
 
@@ -32,6 +33,7 @@ def test_a_brush_shorter_than_a_tenth_of_a_second_is_a_contact() -> None:
     for truth in crossing(0.0):
         sep.update(truth)
     assert sep.contacts and {sep.contacts[0][1], sep.contacts[0][2]} == {"cf1", "cf2"}
+    assert len(sep.contacts) == 5  # one per instant in contact (0.48 ... 0.52 s), not one per truth
     assert 0.03 <= max(c[0] for c in sep.contacts) - min(c[0] for c in sep.contacts) <= 0.06  # (0.044 s of overlap)
     assert sep.min_gap == pytest.approx(-0.002, abs=1e-9) and set(sep.min_pair) == {"cf1", "cf2"}
 
