@@ -201,6 +201,28 @@ def test_a_vehicle_whose_plan_goes_where_another_is_held_holds_too() -> None:
         assert math.dist(held, (sim.x, sim.y, sim.z)) < 0.05  # it stays there
 
 
+def test_a_vehicle_whose_plan_passes_under_one_coming_down_holds_too() -> None:
+    """Another vehicle's emergency landing comes straight down from where it was: a vehicle whose
+    plan passes under it within `yield_s` holds (on the ground, or in the air below it); one that
+    passes over it, or under a vehicle merely held there, goes on."""
+    fly_at = next(s.t for s in STEPS if s.edge == "fly")
+    for at, airborne_then in ((0.2, False), (fly_at - 4.0, True)):  # (then in cruise for the next 4 s)
+        sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
+        ctrl = VehicleController("cf1", MODEL, owner="test")
+        ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
+        run(ctrl, sim, T0 + at)
+        now = sim.t
+        x, y, z = ctrl.trajectory.plan_position(now - T0 + 2.0)
+        above, below = (x, y, z + 0.5), (x, y, z - 0.5)
+        assert not ctrl.yield_to("cf9", above, now)  # held up there: no threat to a vehicle passing under
+        assert not ctrl.yield_to("cf9", below, now, descending=True)  # it passes over it
+        assert ctrl.yield_to("cf9", above, now, descending=True)
+        assert ctrl.held is None and ctrl.tick(now)[0] and ctrl.held is not None
+        assert ctrl.held.startswith("yields to cf9, coming down from"), ctrl.held
+        run(ctrl, sim, now + 1.0)
+        assert ctrl.mode == (Mode.HOVERING if airborne_then else Mode.HOLDING), ctrl.mode
+
+
 def test_a_vehicle_held_unseen_for_a_while_is_given_the_way_it_may_have_gone() -> None:
     """Held on a stale pose, a vehicle may have driven on blind past its last pose: the others
     yield to where it may be (its last pose, widened by the time unseen at its fastest speed), not

@@ -310,17 +310,18 @@ class ExecutorService(Service):
         self.ownership.on_state(state)
 
     def _on_event(self, event: VehicleEvent, _key: str) -> None:
-        """The fleet's reflex to a vehicle held by the tracking guard (`VehicleController.yield_to`):
-        every owned vehicle whose plan goes where it is held holds too, and is reported in turn."""
+        """The fleet's reflex to a vehicle held by the tracking guard or coming down in an emergency
+        landing (`VehicleController.yield_to`): every owned vehicle whose plan goes where it is held,
+        or under it, holds too, and is reported in turn."""
         seen = self.last_seen.get(event.vid)
-        if event.kind != "tracking_hold" or seen is None:
+        if event.kind not in ("tracking_hold", "emergency_landing") or seen is None:
             return
         frame, pose = seen
         pos, unseen_s = (pose.x, pose.y, pose.z), event.t - frame.t  # (held on a stale pose: unseen a while)
         now = time.time()
         for vid, ctl in self.controllers.items():
             if vid != event.vid:
-                ctl.yield_to(event.vid, pos, now, unseen_s)
+                ctl.yield_to(event.vid, pos, now, unseen_s, descending=event.kind == "emergency_landing")
 
     # ---- the loop -------------------------------------------------------------------------------
     async def _control_loop(self, frames: Subscription[PoseFrame]) -> None:

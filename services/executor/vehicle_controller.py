@@ -385,14 +385,18 @@ class VehicleController:
             self.machine.request(Mode.HOLDING, now, why)
         log.warning("%s: held by the tracking guard: %s", self.vid, why)
 
-    def yield_to(self, vid: str, pos: tuple[float, float, float], now: float, unseen_s: float = 0.0) -> bool:
-        """The fleet's reflex to `vid`, held by the tracking guard at `pos` (issue 15): this vehicle
-        holds too (at its next tick, reported as `tracking_hold`) if its plan brings its body within
-        reach of `vid`'s in the next `yield_s` s: both envelopes, plus the guard's allowance for this
-        one's tracking, plus the way `vid` may have gone in the `unseen_s` s between its pose `pos`
-        and its hold (stopped on a stale pose, it drove on blind: 14 cm past its last pose in a
-        32-vehicle soak, where a neighbour drove into it), at the fastest of its speeds, up to
-        `YIELD_UNSEEN_MAX`. Whether it will hold."""
+    def yield_to(self, vid: str, pos: tuple[float, float, float], now: float, unseen_s: float = 0.0,
+                 descending: bool = False) -> bool:
+        """The fleet's reflex to `vid`, held by the tracking guard at `pos` (issue 15), or, when
+        `descending`, coming straight down from there (an emergency landing: anywhere in the column
+        below `pos`): this vehicle holds too (at its next tick, reported as `tracking_hold`) if its
+        plan brings its body within reach of `vid`'s in the next `yield_s` s: both envelopes, plus the
+        guard's allowance for this one's tracking, plus the way `vid` may have gone in the `unseen_s`
+        s between its pose `pos` and its hold (stopped on a stale pose, it drove on blind: 14 cm past
+        its last pose in a 32-vehicle soak, where a neighbour drove into it), at the fastest of its
+        speeds, up to `YIELD_UNSEEN_MAX`. (A vehicle that came down in an emergency landing on a
+        road was driven into by one on its plan before the replan around it switched: a 32-vehicle
+        soak, 7.6 cm deep.) Whether it will hold."""
         f = self.params.faults
         traj = self._active
         if (not f.guard or f.yield_s <= 0.0 or traj is None or self.t0 is None or self.held or self._yield
@@ -409,9 +413,11 @@ class VehicleController:
             (k * YIELD_STEP_S, traj.plan_position(min(max(rel + k * YIELD_STEP_S, 0.0), traj.end_time)))
             for k in range(-int(YIELD_BEHIND_S / YIELD_STEP_S), int(f.yield_s / YIELD_STEP_S) + 1)]
         for ahead, (x, y, z) in places:
-            if abs(z - pos[2]) < reach_z and math.hypot(x - pos[0], y - pos[1]) < reach_xy:
+            level = z - pos[2] < reach_z if descending else abs(z - pos[2]) < reach_z
+            if level and math.hypot(x - pos[0], y - pos[1]) < reach_xy:
                 where = "where it is" if ahead < -YIELD_BEHIND_S else f"where its plan goes in {max(ahead, 0.0):.1f} s"
-                self._yield = f"yields to {vid}, held at ({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f}), {where}"
+                what = "coming down from" if descending else "held at"
+                self._yield = f"yields to {vid}, {what} ({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f}), {where}"
                 return True
         return False
 
