@@ -291,6 +291,31 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/pure_pursuit.py", "        if abs(err) > flip_beyond:\n",
               "        if False:\n"),),
         "tests/test_controllers.py::test_a_path_that_doubles_back_at_a_node_is_driven_within_the_margin"),
+    Handling(
+        "a burst of faults replanned once, after the replan under way",
+        "mission runner: every fault's replan runs, one after another",
+        (Edit("services/mission/runner.py", "        if ticket < self._fault_replans:\n            self.replans_skipped",
+              "        if False:\n            self.replans_skipped"),),
+        "tests/test_replan_burst.py::test_a_burst_of_holds_during_a_replan_is_replanned_once_after_it"),
+    Handling(
+        "a failed replan left to the one queued behind it",
+        "mission runner: any failed replan is the mission's fault",
+        (Edit("services/mission/runner.py", "        if error and ticket < self._fault_replans:\n",
+              "        if error and False:\n"),),
+        "tests/test_replan_burst.py::test_a_burst_of_holds_during_a_replan_is_replanned_once_after_it"),
+    Handling(
+        "the reflex to a vehicle coming down",
+        "executor: `yield_to` treats a descending vehicle as one held where it was",
+        (Edit("services/executor/vehicle_controller.py",
+              "            level = z - pos[2] < reach_z if descending else abs(z - pos[2]) < reach_z\n",
+              "            level = abs(z - pos[2]) < reach_z\n"),),
+        "tests/test_tracking_guard.py::test_a_vehicle_whose_plan_passes_under_one_coming_down_holds_too"),
+    Handling(
+        "the bodies judged at every instant of the ground truth",
+        "mission: the bodies judged once every 0.1 s",
+        (Edit("services/mission/separation.py", "        if truth.t > self._instant + SAME_INSTANT_S:\n",
+              "        if truth.t > self._instant + 0.1:\n"),),
+        "tests/test_separation.py::test_a_brush_shorter_than_a_tenth_of_a_second_is_a_contact"),
 )
 
 

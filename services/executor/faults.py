@@ -61,7 +61,8 @@ class FaultParams:
     while it is still in it: others may cross its spot by then, so it is held; the first edge after
     the climb is judged in full. The fleet's reflex to a held
     vehicle (`VehicleController.yield_to`): a vehicle whose plan brings it within reach of where
-    another is held in the next `yield_s` s holds too, before a replan could steer it around (the
+    another is held, or under one coming down in an emergency landing, in the next `yield_s` s
+    holds too, before a replan could steer it around (the
     mission's replan switches a second after it hears of the hold, or 3 s when its planner had to
     be asked again: `services.mission.runner.REPLAN_TRIES`); 0 disables the reflex."""
 
