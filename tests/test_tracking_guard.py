@@ -20,14 +20,11 @@ from collections import deque
 import msgspec
 import pytest
 
-from common.bus.keys import Keys
-from common.bus.messages import FramePose, Pose, PoseFrame, Telemetry
-from common.bus.session import ZenohConfig
+from common.bus.messages import Pose, Telemetry
 from common.deploy.launcher import status
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
 from services.executor.faults import FaultParams
-from services.executor.service import ExecutorService
 from services.executor.vehicle_controller import ControlParams, VehicleController
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
@@ -224,56 +221,6 @@ def test_a_vehicle_whose_plan_passes_under_one_coming_down_holds_too() -> None:
         assert ctrl.held.startswith("yields to cf9, coming down from"), ctrl.held
         run(ctrl, sim, now + 1.0)
         assert ctrl.mode == (Mode.HOVERING if airborne_then else Mode.HOLDING), ctrl.mode
-
-
-def driving(ctrl: VehicleController, sim: SimFlyingCar) -> tuple[float, float, float, float]:
-    """`ctrl` driving its first edge: where it is (x, y, z) and its heading of motion."""
-    ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
-    run(ctrl, sim, T0 + 2.0)  # (its first drive edge runs 1.0-3.1 s)
-    est = ctrl.estimator.estimate(sim.t)
-    assert ctrl.mode == Mode.DRIVING and math.hypot(est.vx, est.vy) > 0.05, (ctrl.mode, est)
-    return est.x, est.y, est.z, math.atan2(est.vy, est.vx)
-
-
-def beside(x: float, y: float, z: float, heading: float, gap: float) -> tuple[float, float, float]:
-    """A body's place `gap` m from touching one at (x, y, z), along `heading`."""
-    d = 2.0 * MODEL.radius + gap
-    return x + d * math.cos(heading), y + d * math.sin(heading), z
-
-
-def test_a_vehicle_about_to_touch_another_body_holds_at_once() -> None:
-    """The last resort: a body within `near_gap` (1 cm) of touching a vehicle that drives towards
-    it holds the vehicle at once; one as close behind it, or one the plans' margin (3 cm) away,
-    does not."""
-    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
-    ctrl = VehicleController("cf1", MODEL, owner="test")
-    x, y, z, heading = driving(ctrl, sim)
-    assert not ctrl.near("cf9", beside(x, y, z, heading, 0.03), sim.t)
-    assert not ctrl.near("cf9", beside(x, y, z, heading + math.pi, 0.005), sim.t)
-    assert not ctrl.near("cf9", beside(x, y, z + MODEL.height + 0.02, heading, 0.005), sim.t)  # above it
-    assert ctrl.near("cf9", beside(x, y, z, heading, 0.005), sim.t)
-    assert ctrl.held is None and ctrl.tick(sim.t)[0] and ctrl.held is not None
-    assert ctrl.held.endswith("from cf9 and closing"), ctrl.held
-    run(ctrl, sim, sim.t + 1.0)
-    assert ctrl.mode == Mode.HOLDING and math.hypot(sim.vx, sim.vy) < 0.01
-
-
-def test_the_executor_looks_around_each_of_its_vehicles_before_it_ticks_them() -> None:
-    """`ExecutorService._near`: every owned vehicle against the latest pose of every body, the
-    owned ones included, itself not."""
-    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
-    ctrl = VehicleController("cf1", MODEL, owner="test")
-    x, y, z, heading = driving(ctrl, sim)
-    parked = VehicleController("cf2", MODEL, owner="test")
-    service = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:7447"), Keys("near"))
-    service.controllers.update(cf1=ctrl, cf2=parked)
-    frame = PoseFrame(t=sim.t, seq=1, poses=[])
-    for vid, (px, py, pz) in (("cf1", (x, y, z)), ("cf2", beside(x, y, z, heading, 0.005)),
-                              ("cf3", beside(x, y, z, heading + 1.5, 0.5))):
-        service.last_seen[vid] = (frame, FramePose(vid, px, py, pz, 0.0))
-    service._near(sim.t)
-    assert ctrl.tick(sim.t)[0] and ctrl.held is not None and ctrl.held.endswith("from cf2 and closing"), ctrl.held
-    assert parked.held is None
 
 
 def test_a_vehicle_held_unseen_for_a_while_is_given_the_way_it_may_have_gone() -> None:

@@ -64,9 +64,7 @@ class FaultParams:
     another is held, or under one coming down in an emergency landing, in the next `yield_s` s
     holds too, before a replan could steer it around (the
     mission's replan switches a second after it hears of the hold, or 3 s when its planner had to
-    be asked again: `services.mission.runner.REPLAN_TRIES`); 0 disables the reflex. The last resort
-    (`VehicleController.near`): a vehicle moving towards another body (its latest motion-capture
-    pose) that is within `near_gap` m of touching it is held at once; 0 disables it."""
+    be asked again: `services.mission.runner.REPLAN_TRIES`); 0 disables the reflex."""
 
     vbat_low: float = 3.3
     vbat_low_s: float = 1.0
@@ -87,7 +85,6 @@ class FaultParams:
     guard_rejoin_s: float = 5.0
     guard_drive_start_s: float = 2.0
     yield_s: float = 4.0
-    near_gap: float = 0.01
 
     def descent_brake(self, vx: float, vy: float) -> tuple[float, float]:
         """Horizontal acceleration (m/s^2, world) braking the dead-reckoned horizontal speed at

@@ -35,8 +35,6 @@ import logging
 import time
 from collections import deque
 
-import numpy as np
-
 from common.bus.args import keys_from_args, run_service, zconfig_from_args
 from common.bus.liveliness import AliveSet
 from common.bus.messages import (
@@ -77,9 +75,6 @@ ROUTER_CHECK_TICKS = 10
 """Control ticks between two looks at the router link (a look costs about a microsecond)."""
 FRAME_WAIT = 1.5
 """Control periods a cycle waits for a motion-capture frame before it runs without one."""
-NEAR_REACH = 0.25
-"""m: bodies this close (horizontally and in height) to an owned vehicle are judged by its last
-resort (`VehicleController.near`, which knows the vehicle's size)."""
 
 
 class LoopStats:
@@ -362,27 +357,8 @@ class ExecutorService(Service):
                 self.stats.add_latency(sent - newest.t, sent - arrived)
             due = end + wait
 
-    def _near(self, now: float) -> None:
-        """The last resort (`VehicleController.near`): each owned vehicle against every body of
-        the latest frames, those within `NEAR_REACH` m first picked out at once."""
-        seen = self.last_seen
-        owned = [vid for vid in self.controllers if vid in seen]
-        if not owned or len(seen) < 2:
-            return
-        vids = list(seen)
-        pos = np.array([(p.x, p.y, p.z) for _, p in seen.values()])
-        index = {vid: i for i, vid in enumerate(vids)}
-        mine = pos[[index[vid] for vid in owned]]
-        d = pos[None, :, :] - mine[:, None, :]
-        close = (np.hypot(d[..., 0], d[..., 1]) < NEAR_REACH) & (np.abs(d[..., 2]) < NEAR_REACH)
-        for i, j in zip(*np.nonzero(close), strict=True):
-            if vids[j] != owned[i]:
-                self.controllers[owned[i]].near(vids[j], tuple(pos[j].tolist()), now)
-
     def _cycle(self, now: float, n: int, pose_t: float, pose_arrived: float) -> None:
-        """Tick every owned controller (after the last resort's look around it); commands out as
-        one batch per gateway."""
-        self._near(now)
+        """Tick every owned controller; commands out as one batch per gateway."""
         batches: dict[str, list[Cmd]] = {}
         for vid, ctl in list(self.controllers.items()):
             try:

@@ -51,8 +51,6 @@ YIELD_STEP_S = 0.05
 """s between the plan positions `VehicleController.yield_to` looks at (0.05 s is at most 1.5 cm of flight)."""
 YIELD_UNSEEN_MAX = 0.5
 """m: the most `yield_to` widens its reach for a held vehicle's time unseen."""
-MOVING = frozenset({Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING})
-"""Modes in which a vehicle follows its plan's motion (`near` may hold it)."""
 YIELD_BEHIND_S = 1.0
 """s of its plan behind now that `yield_to` looks at too: a vehicle may lag its reference by up to
 the guard's burst (3x a 3 cm margin: 0.9 s of driving)."""
@@ -422,29 +420,6 @@ class VehicleController:
                 self._yield = f"yields to {vid}, {what} ({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f}), {where}"
                 return True
         return False
-
-    def near(self, vid: str, pos: tuple[float, float, float], now: float) -> bool:
-        """The last resort (issue 15): another body, `vid` at `pos` (its latest motion-capture pose),
-        within `FaultParams.near_gap` of touching this one (both its horizontal and its vertical gap
-        below it) while this one moves towards it: this one holds at its next tick (reported as
-        `tracking_hold`, so the reflex and the replan answer it). Plans keep the bodies a margin
-        (3 cm) apart, and the guard allows each vehicle twice that for its tracking: two vehicles
-        off at once closed it (a 32-vehicle soak: two drivers on their plans brushed 0.4-0.7 cm,
-        neither held). Whether it will hold."""
-        f = self.params.faults
-        if (not f.guard or f.near_gap <= 0.0 or self._active is None or self.t0 is None or self.held or self._yield
-                or self._fault_landing or self._abort or self.machine.mode not in MOVING):
-            return False
-        est = self.estimator.estimate(now)
-        if est.stale:
-            return False
-        m = self.model
-        dx, dy, dz = pos[0] - est.x, pos[1] - est.y, pos[2] - est.z
-        gap = max(math.hypot(dx, dy) - 2.0 * m.radius, abs(dz) - m.height)
-        if gap >= f.near_gap or dx * est.vx + dy * est.vy + dz * est.vz <= 0.0:
-            return False
-        self._yield = f"{100.0 * gap:.1f} cm from {vid} and closing"
-        return True
 
     def _follow_plan(self, now: float, rel: float, est: Estimate) -> None:
         traj = self._active
