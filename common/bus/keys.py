@@ -6,9 +6,11 @@ Layout: ``fleet/<fleet>/...``
   ``vehicle/<vid>/{team_plan,action,action_status}``
 - ``mocap/frame`` (every vehicle's pose of one motion-capture frame, `PoseFrame`)
 - ``gateway/<instance>/cmd`` (an executor's command batch for one gateway's vehicles, `CmdBatch`)
-- ``planner/plan`` (queryable)
+- ``planner/plan`` (queryable); ``planner/graph`` (queryable: a map's graph, for tools and the recorder)
+- ``estop`` (the operator's emergency stop)
 - ``mission/<id>/{start,abort,status}``; ``mission/<id>/add`` (queryable: a running mission's new goals)
-- ``sim/truth/<vid>``; ``sim/fault/<vid>`` (fault injection, simulators only: docs/reliability.md)
+- ``sim/truth/<vid>``; ``sim/mocap`` (the simulated motion-capture system's frames); ``sim/fault/<vid>``
+  (fault injection, simulators only: docs/reliability.md)
 - ``alive/<service>/<instance>`` (liveliness tokens)
 - ``stats/<service>/<instance>`` (each service's counters and figures, every few seconds)
 """
