@@ -339,8 +339,8 @@ class MissionRunner(MissionClient[MissionResult]):
         plans out, unless a later fault's replan (`ticket` is this one's number) is queued: that one
         plans around every vehicle that left by its start, this one's included. (Faults come in
         bursts: in a 32-vehicle soak, 18 holds in a few seconds queued 18 replans of half a second
-        each, one after another, the last handed out ten seconds late, while the planner took a core
-        from the control loops.) A vehicle on the ground the planner could not place (it drives into
+        each, one after another, the last handed out ten seconds late, while the planner took 30-47 %
+        of a core from the control loops.) A vehicle on the ground the planner could not place (it drives into
         the space a vehicle that left closed) is stopped where it is, alone, and leaves too
         (`STOP_MAX` of them at most); any other failure is the mission's fault (it ends, landing
         everyone), unless a later fault's replan was queued meanwhile: that one plans around more
