@@ -46,7 +46,7 @@ import msgspec
 import numpy as np
 
 from common.bus.messages import Replan, Sweep
-from common.domain.planfile import PathEntry, Task
+from common.domain.planfile import PathEntry
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.replanning import Leg, failed, split, touched_by_segment
 from services.planner.result import PlanResult, battery_shortfall
@@ -125,13 +125,10 @@ def _short_of_goal(graph: FleetGraph, leg: Leg, goals: list[int], taken: set[int
     None when neither. (A goal short of its own may fail too: its switch node, a road node, may be
     where a body is coming down; the vehicle then drives on to the next nearest instead of being
     stopped there by the mission, under that body.)"""
-    here = leg.start
     while goals:
         n = goals.pop(0)
-        if n == here or n not in taken:
-            return Leg(leg.vid, leg.prefix, here, leg.depart, n, leg.usable,
-                       Task(start=leg.task.start, goal=graph.ids[n], capabilities=leg.task.capabilities,
-                            charge_used_ah=leg.task.charge_used_ah, voltage=leg.task.voltage))
+        if n == leg.start or n not in taken:
+            return dataclasses.replace(leg, goal=n, task=msgspec.structs.replace(leg.task, goal=graph.ids[n]))
     if leg.prefix[-1].t < leg.depart:  # at rest there: it stays
         return dataclasses.replace(leg, goal=leg.start, hold=True,
                                    task=msgspec.structs.replace(leg.task, goal=leg.task.start))
