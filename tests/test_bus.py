@@ -150,6 +150,38 @@ def test_slow_consumer_loses_the_oldest_messages_and_counts_them(zsession: Sessi
 
 
 @pytest.mark.timeout(10)
+def test_wait_returns_when_a_message_arrives_or_its_time_runs_out_and_leaves_nothing_behind(
+        zsession: Sessions) -> None:
+    """A control loop's wait for its next input or its tick (`Subscription.wait`, then `drain`)."""
+    tx, rx = zsession(), zsession()
+
+    async def scenario() -> None:
+        loop = asyncio.get_running_loop()
+        sub = subscribe(rx, POSE_KEY, Pose)
+        pub = Publisher(tx, POSE_KEY, Pose)
+        await eventually(lambda: pub.matched)
+        start = time.monotonic()
+        assert not await sub.wait(0.05)  # nothing sent: its time runs out
+        assert 0.04 <= time.monotonic() - start < 0.5
+        loop.call_later(0.05, pub.put, pose(1))
+        start = time.monotonic()
+        assert await sub.wait(5.0)  # woken by the arrival, long before its time
+        assert time.monotonic() - start < 1.0
+        assert [m.seq for m, _ in sub.drain()] == [1]
+        pub.put(pose(2))
+        await eventually(lambda: bool(sub._mailbox._items))
+        assert await sub.wait(0.0)  # already waiting: at once
+        assert [m.seq for m, _ in sub.drain()] == [2]
+        for _ in range(200):  # no timer and no task is left behind
+            assert not await sub.wait(0.0)
+        assert len(loop._scheduled) == 0 or all(h.cancelled() for h in loop._scheduled)  # type: ignore[attr-defined]
+        assert len(asyncio.all_tasks()) == 1
+        sub.close()
+
+    asyncio.run(scenario())
+
+
+@pytest.mark.timeout(10)
 def test_a_failing_handler_is_counted_and_the_subscription_goes_on(zsession: Sessions) -> None:
     tx, rx = zsession(), zsession()
     counters = Counters()

@@ -124,7 +124,9 @@ class Mailbox(Generic[T]):
     """Bounded hand-over from zenoh threads to one asyncio consumer; when full, the oldest goes.
 
     The bound holds even while the event loop is busy: items wait here, not in the loop's queue, and
-    the loop is woken at most once per batch.
+    the loop is woken at most once per batch. The consumer waits on one future of its own, with a
+    timer for a timeout: `asyncio.wait_for` would make a task and a cancellation per wait, which was a
+    quarter of a radio gateway's Python time (its loop waits for each executor's command batch).
     """
 
     def __init__(self, loop: asyncio.AbstractEventLoop, maxlen: int, on_overflow: Callable[[], None]) -> None:
@@ -135,7 +137,7 @@ class Mailbox(Generic[T]):
         self._on_overflow = on_overflow
         self._items: deque[T] = deque()
         self._lock = threading.Lock()
-        self._wakeup = asyncio.Event()
+        self._waiter: asyncio.Future[bool] | None = None
         self._wake_pending = False
 
     def put_threadsafe(self, item: T) -> None:
@@ -150,7 +152,11 @@ class Mailbox(Generic[T]):
         if overflow:
             self._on_overflow()
         if wake:
-            call_in_loop(self._loop, self._wakeup.set)
+            call_in_loop(self._loop, self._wake)
+
+    def _wake(self) -> None:
+        if self._items:  # a wake-up scheduled before the consumer drained is stale
+            _settle(self._waiter, True)
 
     def drain(self) -> list[T]:
         """Every waiting item, oldest first, without waiting (event loop only)."""
@@ -165,9 +171,29 @@ class Mailbox(Generic[T]):
             with self._lock:
                 if self._items:
                     return self._items.popleft()
-                self._wake_pending = False
-                self._wakeup.clear()
-            await self._wakeup.wait()
+            await self.wait(None)
+
+    async def wait(self, timeout: float | None) -> bool:
+        """Until an item is waiting or `timeout` s have passed (None: for ever); whether one is
+        (event loop only)."""
+        with self._lock:
+            if self._items:
+                return True
+            self._wake_pending = False
+        waiter = self._waiter = self._loop.create_future()
+        timer = None if timeout is None else self._loop.call_later(max(timeout, 0.0), _settle, waiter, False)
+        try:
+            return await waiter
+        finally:
+            self._waiter = None
+            if timer is not None:
+                timer.cancel()
+
+
+def _settle(waiter: asyncio.Future[bool] | None, arrived: bool) -> None:
+    """End a mailbox's wait (event loop only): an item `arrived`, or its time ran out."""
+    if waiter is not None and not waiter.done():
+        waiter.set_result(arrived)
 
 
 class Publisher(Generic[T]):
@@ -226,6 +252,11 @@ class Subscription(Generic[T]):
     async def recv(self) -> tuple[T, str]:
         """The next message and its key (only without a handler)."""
         return await self._mailbox.get()
+
+    async def wait(self, timeout: float) -> bool:
+        """Until a message is waiting or `timeout` s have passed; whether one is (only without a
+        handler; take it with `drain`). A control loop waits this way for its next input or its tick."""
+        return await self._mailbox.wait(timeout)
 
     def drain(self) -> list[tuple[T, str]]:
         """Every message waiting, oldest first, without waiting (only without a handler): a control

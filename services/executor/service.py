@@ -332,18 +332,13 @@ class ExecutorService(Service):
         due = time.monotonic() + wait
         n = 0
         while True:
-            try:
-                first: PoseFrame | None = (await asyncio.wait_for(frames.recv(), max(due - time.monotonic(), 0.0)))[0]
-            except TimeoutError:
-                first = None
+            await frames.wait(due - time.monotonic())
             start = time.monotonic()
             now = time.time()
-            newest = first
-            if first is not None:
-                self._fuse(first)
-                for frame, _key in frames.drain():
-                    self._fuse(frame)
-                    newest = frame
+            newest: PoseFrame | None = None
+            for frame, _key in frames.drain():
+                self._fuse(frame)
+                newest = frame
             if n % ROUTER_CHECK_TICKS == 0:
                 self._check_router(now)
             arrived = (newest.arrived or newest.t) if newest is not None else 0.0

@@ -137,11 +137,8 @@ class RadioGateway(Service):
         telemetry_every = max(1, round(self.params.tick_hz / self.params.status_hz))
         due = loop.time()
         ticks = 0
-        arrived: CmdBatch | None = None
         while True:
             late = loop.time() - due
-            if arrived is not None:
-                self._on_batch(arrived)
             for got, _key in batches.drain():
                 self._on_batch(got)
             for sub in cmds:
@@ -172,11 +169,8 @@ class RadioGateway(Service):
             if delay < -period:  # fell behind: the token bucket already caps the catch-up
                 due = loop.time()
                 delay = 0.0
-            try:
-                arrived = (await asyncio.wait_for(batches.recv(), max(delay, 0.0)))[0]
+            if await batches.wait(delay):
                 due = loop.time()  # ticking now: the next regular tick a period later
-            except TimeoutError:
-                arrived = None
 
     # ---- links ------------------------------------------------------------------------------
 
