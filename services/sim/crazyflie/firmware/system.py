@@ -76,6 +76,8 @@ LINK_ACTIVITY_S = 1.0
 ESTOP_WATCHDOG_S = 1.0
 LOW_BATTERY_S = 5.0
 """DEFAULT_BAT_LOW_DURATION_TO_TRIGGER_SEC."""
+PM_PERIOD_S = 0.1
+"""pm_stm32f4.c `pmTask`: `vTaskDelay(100)` between its looks at the battery voltage."""
 RADIO_ADDRESS = bytes.fromhex("e7e7e7e7e7e7")
 FREE_FALL_G = 0.1
 """Specific force below which the supervisor sees free fall (all axes < 0.1 g)."""
@@ -142,6 +144,7 @@ class CrazyflieFirmware:
         self._last_tick = car.t
         self._next_supervisor = car.t
         self._low_since: float | None = None
+        self._pm_due = car.t
         self._motor_cmd = 0
         self._control: FlightSetpoint | None = None
         self._power_due: tuple[float, int] | None = None
@@ -613,6 +616,10 @@ class CrazyflieFirmware:
             self.car.apply(WheelSetpoint(left=left, right=right), now)
 
     def _battery(self, now: float) -> None:
+        """`pmTask`: every `PM_PERIOD_S`, whether the voltage is at or below `pm.lowVoltage` and since when."""
+        if now < self._pm_due:
+            return
+        self._pm_due = now + PM_PERIOD_S
         low = self.car.battery.vbat <= self.params.get("pm.lowVoltage")
         if not low:
             self._low_since = None
