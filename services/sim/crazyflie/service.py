@@ -101,13 +101,12 @@ class SimService(Service):
         due = loop.time()
         while True:
             now = time.time()
-            truths = []
-            for vid, cf in self.vehicles.items():
+            for cf in self.vehicles.values():
                 cf.advance(now)
-                truth = cf.car.truth()
-                self._truth.put(vid, truth)
-                truths.append(truth)
-            self.mocap.capture(now, truths)
+            truths = [cf.car.truth() for cf in self.vehicles.values()]
+            self.mocap.capture(now, truths)  # (its frame first: the executors wait for it)
+            for truth in truths:
+                self._truth.put(truth.vid, truth)
             due += self.period
             delay = due - loop.time()
             if delay < -self.period:  # fell behind (loaded machine): skip, do not burst
