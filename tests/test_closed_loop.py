@@ -40,10 +40,12 @@ Hook = Callable[[VehicleController, float], None]
 
 def fly_plan(steps: Sequence[PlanStep] = STEPS, params: PhysicsParams = PERTURBED, noise: MocapNoise = NOISE,
              until: float | None = None, charge_used_ah: float = 0.0, hook: Hook | None = None,
-             telemetry_every: int = 10) -> tuple[VehicleController, SimFlyingCar, list[Record]]:
-    """Fly `steps` from T0; `hook(controller, now)` runs before every tick (fault injection)."""
+             telemetry_every: int = 10, bodies: Sequence[tuple[float, float, float]] = (),
+             ) -> tuple[VehicleController, SimFlyingCar, list[Record]]:
+    """Fly `steps` from T0; `hook(controller, now)` runs before every tick (fault injection);
+    `bodies`: where other vehicles stand (as the executor would tell the controller)."""
     sim = SimFlyingCar("cf1", MODEL, params, pos=steps[0].pos, yaw=0.0, charge_used_ah=charge_used_ah)
-    ctrl = VehicleController("cf1", MODEL, owner="test")
+    ctrl = VehicleController("cf1", MODEL, owner="test", bodies=lambda: bodies)
     ctrl.on_pose(Pose(vid="cf1", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=sim.yaw))
     ctrl.load(plan_for("cf1", steps, MODEL, t0=T0))
     records = run(ctrl, sim, until if until is not None else T0 + steps[-1].t + 2.0, Mocap(noise, seed=7),
@@ -314,6 +316,21 @@ def test_abort_lands_a_flying_vehicle_and_stops_a_driving_one() -> None:
     ctrl, sim, records = fly_plan(until=on_road + 2.0, hook=abort_at(on_road))
     assert ctrl.mode == Mode.DONE
     assert records[-1].truth.x == pytest.approx(records[-60].truth.x, abs=0.002)  # stopped
+
+
+def test_an_abort_lands_on_the_nearest_landing_node_clear_of_the_vehicles_standing_there() -> None:
+    """Aborted while it hovers above its landing node: it lands there; with another vehicle parked
+    on that node, it flies back to the node it took off from instead (executor: `bodies_besides`)."""
+    hovering = T0 + next(s.t for s in STEPS if s.node == "a2")
+    landing = {s.node: s.pos for s in STEPS if s.node in ("l1", "l2")}
+    parked = (*landing["l2"][:2], 0.0)
+    for bodies, node in (((), "l2"), ((parked, (5.0, 5.0, 0.0)), "l1")):
+        ctrl, sim, records = fly_plan(until=hovering + 11.0, hook=abort_at(hovering + 0.5), bodies=bodies)
+        assert [tr.reason for tr in ctrl.machine.history][-2:] == ["abort", "landed after fault"], node
+        assert math.dist((sim.x, sim.y, sim.z), landing[node]) < 0.03, (node, sim.x, sim.y, sim.z)
+        if bodies:  # never came down within reach of the parked body: its column stayed clear
+            low = [r for r in records if r.t > hovering and r.truth.z < 0.4]
+            assert low and min(math.dist((r.truth.x, r.truth.y), parked[:2]) for r in low) > 0.5
 
 
 def link_lost_during(start: float, end: float) -> Hook:

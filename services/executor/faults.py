@@ -18,7 +18,7 @@ not fall below C_low), lost radio link, and where to go when the plan must be le
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 from common.bus.messages import PlanStep, Telemetry
@@ -149,16 +149,22 @@ def landing_nodes(plan: Sequence[PlanStep]) -> list[PlanStep]:
 
 
 def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence[PlanStep],
-                       model: VehicleModel) -> list[PlanStep]:
+                       model: VehicleModel, bodies: Iterable[tuple[float, float, float]] = ()) -> list[PlanStep]:
     """Path entries from `pos` at time `t`: level flight to above the plan's ground node nearest
     in the horizontal, then a descent onto it, at the model's fly and land speeds. The nodes where
     the plan takes off or lands come first: they are under the airspace it flies in (other ground
-    nodes, e.g. a parking spot next to a landing node, may lie under a no-fly zone)."""
+    nodes, e.g. a parking spot next to a landing node, may lie under a no-fly zone). A node with one
+    of the other `bodies` below the vehicle in its column (two radii and a margin of it: a vehicle
+    parked there, or another's fault landing heading there) is passed over for the next nearest;
+    with every node taken, the nearest."""
     ground = landing_nodes(plan) or [s for s in plan if s.kind != "air"]
+    clear = 2.0 * model.radius + model.margin
+    below = [b for b in bodies if b[2] < pos[2]]
+    free = [s for s in ground if all(math.hypot(s.pos[0] - b[0], s.pos[1] - b[1]) >= clear for b in below)]
     if not ground:
         target = PlanStep(node="below", t=0.0, pos=(pos[0], pos[1], 0.0), kind="land")
     else:
-        target = min(ground, key=lambda s: math.hypot(s.pos[0] - pos[0], s.pos[1] - pos[1]))
+        target = min(free or ground, key=lambda s: math.hypot(s.pos[0] - pos[0], s.pos[1] - pos[1]))
     gx, gy, gz = target.pos
     steps = [PlanStep(node="fault", t=t, pos=pos, kind="air")]
     reach = math.hypot(gx - pos[0], gy - pos[1])

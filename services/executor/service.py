@@ -73,6 +73,8 @@ clients one by one, so a peer's token may vanish a few ms before this process lo
 too. Well inside the gateways' 0.2 s before a silent vehicle's command is stale."""
 ROUTER_CHECK_TICKS = 10
 """Control ticks between two looks at the router link (a look costs about a microsecond)."""
+BODIES_FRESH_S = 2.0
+"""s: a vehicle seen in a frame this recent is where a fault landing of another may not come down."""
 FRAME_WAIT = 1.5
 """Control periods a cycle waits for a motion-capture frame before it runs without one."""
 
@@ -229,7 +231,8 @@ class ExecutorService(Service):
         plan = self.plans[vid]
         if (vid, plan.mission) in self._failed:
             return
-        ctl = VehicleController(vid, plan.model, owner=self.instance, params=self.control, bank=self.bank)
+        ctl = VehicleController(vid, plan.model, owner=self.instance, params=self.control, bank=self.bank,
+                                bodies=lambda: self._bodies_besides(vid))
         ctl.load(plan)
         t0 = plan.t0 or self.starts.get(plan.mission)
         if t0:
@@ -297,6 +300,15 @@ class ExecutorService(Service):
                 estimators.append(ctl.estimator)
                 poses.append(frame.pose(p))
         fuse_poses(estimators, poses)
+
+    def _bodies_besides(self, vid: str) -> list[tuple[float, float, float]]:
+        """Where every vehicle but `vid` is (its pose in a frame of the last `BODIES_FRESH_S`), and
+        where this executor's fault landings are heading: what a fault landing of `vid` keeps off."""
+        now = time.time()
+        seen = [(p.x, p.y, p.z) for other, (frame, p) in self.last_seen.items()
+                if other != vid and now - frame.t < BODIES_FRESH_S]
+        landing = [ctl.landing_step for other, ctl in self.controllers.items() if other != vid]
+        return seen + [step.pos for step in landing if step is not None]
 
     def _on_telemetry(self, tel: Telemetry, _key: str) -> None:
         if tel.gateway:

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from common.bus.messages import (
     Cmd,
+    PlanStep,
     Pose,
     Setpoint,
     StopSetpoint,
@@ -92,9 +94,13 @@ class VehicleController:
     `tick(now)` at `params.dt` for the setpoint and state."""
 
     def __init__(self, vid: str, model: VehicleModel | None = None, owner: str = "",
-                 params: ControlParams | None = None, bank: KalmanBank | None = None) -> None:
-        """`bank`: the executor's, shared by its vehicles' estimators (`fuse_poses` a frame at once)."""
+                 params: ControlParams | None = None, bank: KalmanBank | None = None,
+                 bodies: Callable[[], Iterable[tuple[float, float, float]]] | None = None) -> None:
+        """`bank`: the executor's, shared by its vehicles' estimators (`fuse_poses` a frame at once);
+        `bodies`: where the other vehicles are, or land in a fault landing (a fault landing keeps
+        off their columns: `safe_landing_steps`)."""
         self.vid = vid
+        self._bodies = bodies or (lambda: ())
         self.owner = owner
         self.params = params or ControlParams()
         self.model = model or VehicleModel()
@@ -237,9 +243,15 @@ class VehicleController:
     def landing_node(self) -> str | None:
         """The ground node a fault landing (low battery, lost link, abort) is heading for; None
         while the vehicle follows its plan (or a planned landing ends the mission)."""
+        step = self.landing_step
+        return step.node if step is not None else None
+
+    @property
+    def landing_step(self) -> PlanStep | None:
+        """The last entry of a fault landing's path (`landing_node`'s, with its position)."""
         if not self._fault_landing or self._active is None or self._active is self.trajectory:
             return None
-        return self._active.steps[-1].node
+        return self._active.steps[-1]
 
     def reference(self, now: float) -> RefSample | None:
         """The reference being followed at `now` (the plan's, or a fault landing's, or where the
@@ -460,7 +472,7 @@ class VehicleController:
             log.info("%s: %s while landing: the mission ends at touchdown", self.vid, reason)
             return
         assert self.trajectory is not None
-        steps = safe_landing_steps((est.x, est.y, est.z), rel, self.trajectory.steps, self.model)
+        steps = safe_landing_steps((est.x, est.y, est.z), rel, self.trajectory.steps, self.model, self._bodies())
         self._active = Trajectory(steps, self.params.trajectory, yaw0=est.yaw)
         self._landing_end = steps[-1].t
         self._ground_z = steps[-1].pos[2]
