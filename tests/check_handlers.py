@@ -316,6 +316,12 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/mission/separation.py", "        if truth.t > self._instant + SAME_INSTANT_S:\n",
               "        if truth.t > self._instant + 0.1:\n"),),
         "tests/test_separation.py::test_a_brush_shorter_than_a_tenth_of_a_second_is_a_contact"),
+    Handling(
+        "a fault landing keeps off another vehicle's column",
+        "executor: a fault landing comes down on the nearest landing node, whoever stands there",
+        (Edit("services/executor/faults.py", "    free = [s for s in ground if all(",
+              "    free = [] and [s for s in ground if all("),),
+        "tests/test_closed_loop.py::test_an_abort_lands_on_the_nearest_landing_node_clear_of_the_vehicles_standing_there"),
 )
 
 
