@@ -320,7 +320,7 @@ def test_abort_lands_a_flying_vehicle_and_stops_a_driving_one() -> None:
 
 def test_an_abort_lands_on_the_nearest_landing_node_clear_of_the_vehicles_standing_there() -> None:
     """Aborted while it hovers above its landing node: it lands there; with another vehicle parked
-    on that node, it flies back to the node it took off from instead (executor: `bodies_besides`)."""
+    on that node, it flies back to the node it took off from instead (executor: `_bodies_besides`)."""
     hovering = T0 + next(s.t for s in STEPS if s.node == "a2")
     landing = {s.node: s.pos for s in STEPS if s.node in ("l1", "l2")}
     parked = (*landing["l2"][:2], 0.0)

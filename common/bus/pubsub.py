@@ -175,11 +175,15 @@ class Mailbox(Generic[T]):
 
     async def wait(self, timeout: float | None) -> bool:
         """Until an item is waiting or `timeout` s have passed (None: for ever); whether one is
-        (event loop only)."""
+        (event loop only). It always yields to the loop once: a control loop whose input arrives
+        during every cycle (an overloaded one) would otherwise never give its loop back."""
         with self._lock:
-            if self._items:
-                return True
-            self._wake_pending = False
+            ready = bool(self._items)
+            if not ready:
+                self._wake_pending = False
+        if ready:
+            await asyncio.sleep(0)
+            return True
         waiter = self._waiter = self._loop.create_future()
         timer = None if timeout is None else self._loop.call_later(max(timeout, 0.0), _settle, waiter, False)
         try:

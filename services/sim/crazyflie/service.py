@@ -104,7 +104,7 @@ class SimService(Service):
             for cf in self.vehicles.values():
                 cf.advance(now)
             truths = [cf.car.truth() for cf in self.vehicles.values()]
-            self.mocap.capture(now, truths)  # (its frame first: the executors wait for it)
+            self.mocap.capture(now, truths)  # (it leaves latency_s after `now`, whatever the truths cost)
             for truth in truths:
                 self._truth.put(truth.vid, truth)
             due += self.period
