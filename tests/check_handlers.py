@@ -322,6 +322,13 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/faults.py", "    free = [s for s in ground if all(",
               "    free = [] and [s for s in ground if all("),),
         "tests/test_closed_loop.py::test_an_abort_lands_on_the_nearest_landing_node_clear_of_the_vehicles_standing_there"),
+    Handling(
+        "another executor's fault landing kept off",
+        "executor: another executor's announced fault landing is not counted",
+        (Edit("services/executor/service.py",
+              "        return seen + [step.pos for step in mine if step is not None] + theirs\n",
+              "        return seen + [step.pos for step in mine if step is not None]\n"),),
+        "tests/test_fault_landing.py::test_another_executors_fault_landing_is_heard_and_its_node_passed_over"),
 )
 
 

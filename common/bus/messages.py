@@ -175,6 +175,9 @@ class VehicleState(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     tracking_error: float = 0.0
     charge_used_ah: float = 0.0
     arrived: bool = False
+    landing: tuple[float, float, float] | None = None
+    """Where a fault landing (abort, low battery, lost link) comes down; None otherwise. Another
+    executor's fault landing keeps off it (`safe_landing_steps`)."""
 
 
 class Telemetry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -133,6 +133,8 @@ class ExecutorService(Service):
         self.ownership = VehicleOwnership(self.instance, lambda vid: vid in self.controllers, self._take,
                                           lambda vid: self.controllers.pop(vid, None))
         self.last_seen: dict[str, tuple[PoseFrame, FramePose]] = {}
+        self._landings: dict[str, tuple[float, tuple[float, float, float]]] = {}
+        """Other executors' fault landings: vid -> (when heard, where it comes down)."""
         """The latest pose of every vehicle, owned or not (with its frame): a take-over starts from it."""
         self.gateway_of: dict[str, str] = {}
         """Each vehicle's gateway, from its telemetry: where its commands go."""
@@ -303,12 +305,14 @@ class ExecutorService(Service):
 
     def _bodies_besides(self, vid: str) -> list[tuple[float, float, float]]:
         """Where every vehicle but `vid` is (its pose in a frame of the last `BODIES_FRESH_S`), and
-        where this executor's fault landings are heading: what a fault landing of `vid` keeps off."""
+        where the fault landings of this executor and, by their states, of the others are heading:
+        what a fault landing of `vid` keeps off."""
         now = time.time()
         seen = [(p.x, p.y, p.z) for other, (frame, p) in self.last_seen.items()
                 if other != vid and now - frame.t < BODIES_FRESH_S]
-        landing = [ctl.landing_step for other, ctl in self.controllers.items() if other != vid]
-        return seen + [step.pos for step in landing if step is not None]
+        mine = [ctl.landing_step for other, ctl in self.controllers.items() if other != vid]
+        theirs = [at for other, (t, at) in self._landings.items() if other != vid and now - t < BODIES_FRESH_S]
+        return seen + [step.pos for step in mine if step is not None] + theirs
 
     def _on_telemetry(self, tel: Telemetry, _key: str) -> None:
         if tel.gateway:
@@ -320,6 +324,11 @@ class ExecutorService(Service):
     def _on_state(self, state: VehicleState, _key: str) -> None:
         self.team.on_state(state)
         self.ownership.on_state(state)
+        if state.owner != self.instance:  # another executor's fault landing, announced
+            if state.landing is not None:
+                self._landings[state.vid] = (time.time(), state.landing)
+            else:
+                self._landings.pop(state.vid, None)
 
     def _on_event(self, event: VehicleEvent, _key: str) -> None:
         """The fleet's reflex to a vehicle held by the tracking guard or coming down in an emergency

@@ -643,4 +643,5 @@ class VehicleController:
             pose_ok=not est.stale, mission=self.plan.mission if self.plan else "",
             step=traj.segment(now - self.t0) if traj is not None and self.t0 is not None else 0,
             steps=len(traj.steps) if traj is not None else 0,
-            tracking_error=err, charge_used_ah=self.charge_used_ah, arrived=arrived)
+            tracking_error=err, charge_used_ah=self.charge_used_ah, arrived=arrived,
+            landing=landing.pos if (landing := self.landing_step) is not None else None)
