@@ -5,19 +5,22 @@ over the bus), and `safe_landing_steps` passes over those nodes (docs/control.md
 from __future__ import annotations
 
 import asyncio
+import math
 from collections.abc import Callable
 
 import pytest
 import zenoh
 
 from common.bus.keys import Keys
-from common.bus.messages import VehicleState
+from common.bus.messages import Pose, VehicleState
 from common.bus.pubsub import Publisher
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
 from services.executor.faults import safe_landing_steps
 from services.executor.service import ExecutorService
-from tests.support.closed_loop import reference_steps
+from services.executor.vehicle_controller import VehicleController
+from services.sim.crazyflie.physics import SimFlyingCar
+from tests.support.closed_loop import Mocap, plan_for, reference_steps, run
 
 KEYS = Keys("landing")
 MODEL = VehicleModel()
@@ -61,3 +64,33 @@ def test_another_executors_fault_landing_is_heard_and_its_node_passed_over(
 
     # nothing there: the nearest (l2); cf2 of e2 coming down on l2: l1; cf2 landed elsewhere: l2
     assert asyncio.run(scenario()) == ["l2", "l1", "l2", "l2"]
+
+
+@pytest.mark.parametrize("other, node", [("cf1", "l1"), ("cf3", "l2")])
+def test_two_fault_landings_of_an_abort_that_chose_one_node_part(other: str, node: str) -> None:
+    """cf2 and `other` (another executor's) aborted at once as cf2 flew towards its landing node l2
+    (0.3 m short of it) and both chose l2; 50 ms later cf2 hears `other`'s landing there (its state).
+    The one whose id sorts first keeps the node: cf2 gives it up to cf1 and lands on l1, the node it
+    took off from; it keeps it from cf3."""
+    t0 = 0.5
+    above = t0 + next(s.t for s in STEPS if s.node == "a2")
+    abort, heard = above - 1.0, above - 0.95
+    sim = SimFlyingCar("cf2", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    announced: list[tuple[float, float, float]] = []
+    ctrl = VehicleController("cf2", MODEL, owner="e1", bodies=lambda: announced)
+    ctrl.on_pose(Pose(vid="cf2", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=sim.yaw))
+    ctrl.load(plan_for("cf2", STEPS, MODEL, t0=t0))
+
+    def hook(now: float) -> None:
+        if now >= abort and not ctrl._abort:
+            ctrl.abort("abort")
+        if now >= heard and not announced:  # the executor records it, then tells its controllers
+            announced.append(PADS["l2"])
+            ctrl.landing_wanted_by(other, PADS["l2"])
+
+    records = run(ctrl, sim, above + 11.0, Mocap(), on_tick=hook)
+    assert [tr.reason for tr in ctrl.machine.history][-2:] == ["abort", "landed after fault"]
+    assert math.dist((sim.x, sim.y, sim.z), PADS[node]) < 0.03, (node, sim.x, sim.y, sim.z)
+    if node == "l1":  # never came down near the node it gave up
+        low = [r for r in records if r.t > abort and r.truth.z < 0.4]
+        assert low and min(math.dist((r.truth.x, r.truth.y), PADS["l2"][:2]) for r in low) > 0.5

@@ -327,6 +327,8 @@ class ExecutorService(Service):
         if state.owner != self.instance:  # another executor's fault landing, announced
             if state.landing is not None:
                 self._landings[state.vid] = (time.time(), state.landing)
+                for ctl in self.controllers.values():
+                    ctl.landing_wanted_by(state.vid, state.landing)
             else:
                 self._landings.pop(state.vid, None)
 

@@ -120,6 +120,7 @@ class VehicleController:
     def _reset_mission(self) -> None:
         self._active: Trajectory | None = self.trajectory  # the plan's, or a fault landing's
         self._fault_landing = False
+        self._choose_again = False  # another executor's fault landing took its node (`landing_wanted_by`)
         self._ground_z = 0.0  # height of the ground the vehicle took off from or lands on
         self._landing_end = 0.0
         self._hold_since: float | None = None
@@ -299,6 +300,11 @@ class VehicleController:
             if reason and not self._fault_landing:
                 self._begin_safe_landing(now, rel, est, reason)
                 return
+            if self._choose_again and self._active is not None:
+                self._choose_again = False
+                if rel < self._active.steps[-2].t:  # still flying level: not above its node yet
+                    log.info("%s: gives its landing node up to a vehicle of another executor", self.vid)
+                    self._choose_landing(rel, est)
             if self._fault_landing or self.held or (m.mode == Mode.LANDING and rel >= self._landing_end):
                 return  # a landing lasts until touchdown (see `_control`), even past its plan time
             if self._yield is not None and ref is not None:
@@ -471,12 +477,27 @@ class VehicleController:
         if self.machine.mode == Mode.LANDING:
             log.info("%s: %s while landing: the mission ends at touchdown", self.vid, reason)
             return
+        self._choose_landing(rel, est)
+        self.machine.request(Mode.LANDING, now, reason)
+
+    def _choose_landing(self, rel: float, est: Estimate) -> None:
+        """The fault landing's path from where the vehicle is, clear of the other bodies."""
         assert self.trajectory is not None
         steps = safe_landing_steps((est.x, est.y, est.z), rel, self.trajectory.steps, self.model, self._bodies())
         self._active = Trajectory(steps, self.params.trajectory, yaw0=est.yaw)
         self._landing_end = steps[-1].t
         self._ground_z = steps[-1].pos[2]
-        self.machine.request(Mode.LANDING, now, reason)
+
+    def landing_wanted_by(self, vid: str, at: tuple[float, float, float]) -> None:
+        """Another executor's vehicle `vid` announced a fault landing coming down at `at`. Two fault
+        landings of an abort (no replan follows it) that chose one node at the same moment cannot
+        have seen each other's choice: the vehicle whose id sorts later gives the node up, unless it
+        has begun its descent, and chooses again at its next tick, the other's landing counted."""
+        step = self.landing_step
+        if (step is None or not self._abort or vid >= self.vid
+                or math.hypot(step.pos[0] - at[0], step.pos[1] - at[1]) >= 2.0 * self.model.radius + self.model.margin):
+            return
+        self._choose_again = True
 
     # ---- controllers ----------------------------------------------------------------------
 
