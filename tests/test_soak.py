@@ -5,7 +5,7 @@ leave the world safe, judged in ground truth: no contact, no crash (touchdowns u
 - the short one (issue 15): 32 simulated vehicles through back-to-back missions on city934 for one
   minute, with flights. Meant as the gate in `make test`, where it judges safety only (a loaded
   2-core machine may stall the fleet long enough for the tracking guard to hold vehicles: not every
-  mission can arrive; here, since the simulator's costs were cut, five runs of five arrived whole).
+  mission can arrive; here, since the simulator's costs were cut, six runs of six arrived whole).
   It stays in `make soak` for its time: 1.5 minutes of the whole machine, where `make test` already
   takes 14-15 of its 15 minutes on two cores (docs/reliability.md, Soak);
 - the long one (issue 8; `make soak`): 80 vehicles for FLEET_SOAK_MINUTES (default 5) minutes; every
