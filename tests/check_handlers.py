@@ -332,8 +332,8 @@ HANDLINGS: tuple[Handling, ...] = (
     Handling(
         "two fault landings of an abort part",
         "executor: a fault landing keeps its node when another executor's chose it at the same moment",
-        (Edit("services/executor/vehicle_controller.py", "        self._choose_again = True\n",
-              "        self._choose_again = False\n"),),
+        (Edit("services/executor/vehicle_controller.py", "            self._choose_again = True\n",
+              "            self._choose_again = False\n"),),
         "tests/test_fault_landing.py::test_two_fault_landings_of_an_abort_that_chose_one_node_part[cf1-l1]"),
 )
 

@@ -148,6 +148,12 @@ def landing_nodes(plan: Sequence[PlanStep]) -> list[PlanStep]:
             if s.edge == "land" or (i + 1 < len(plan) and plan[i + 1].edge == "takeoff")]
 
 
+def in_column(node: tuple[float, float, float], body: tuple[float, float, float], model: VehicleModel) -> bool:
+    """Whether `body` is in the column a fault landing onto `node` comes down through: within two
+    radii and a margin of it in the horizontal."""
+    return math.hypot(node[0] - body[0], node[1] - body[1]) < 2.0 * model.radius + model.margin
+
+
 def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence[PlanStep],
                        model: VehicleModel, bodies: Iterable[tuple[float, float, float]] = ()) -> list[PlanStep]:
     """Path entries from `pos` at time `t`: level flight to above the plan's ground node nearest
@@ -158,9 +164,8 @@ def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence
     parked there, or another's fault landing heading there) is passed over for the next nearest;
     with every node taken, the nearest."""
     ground = landing_nodes(plan) or [s for s in plan if s.kind != "air"]
-    clear = 2.0 * model.radius + model.margin
     below = [b for b in bodies if b[2] < pos[2]]
-    free = [s for s in ground if all(math.hypot(s.pos[0] - b[0], s.pos[1] - b[1]) >= clear for b in below)]
+    free = [s for s in ground if all(not in_column(s.pos, b, model) for b in below)]
     if not ground:
         target = PlanStep(node="below", t=0.0, pos=(pos[0], pos[1], 0.0), kind="land")
     else:

@@ -32,7 +32,13 @@ from common.flight.landing import REST_SPEED, LandInPlace
 from common.flight.lqr import FlightLqr, LqrWeights
 from common.flight.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
 from services.executor import onboard
-from services.executor.faults import EmergencyDescent, FaultMonitor, FaultParams, safe_landing_steps
+from services.executor.faults import (
+    EmergencyDescent,
+    FaultMonitor,
+    FaultParams,
+    in_column,
+    safe_landing_steps,
+)
 from services.executor.pure_pursuit import PurePursuit, PursuitParams
 from services.executor.trajectory import RefSample, Trajectory, TrajectoryParams
 
@@ -494,10 +500,8 @@ class VehicleController:
         have seen each other's choice: the vehicle whose id sorts later gives the node up, unless it
         has begun its descent, and chooses again at its next tick, the other's landing counted."""
         step = self.landing_step
-        if (step is None or not self._abort or vid >= self.vid
-                or math.hypot(step.pos[0] - at[0], step.pos[1] - at[1]) >= 2.0 * self.model.radius + self.model.margin):
-            return
-        self._choose_again = True
+        if step is not None and self._abort and vid < self.vid and in_column(step.pos, at, self.model):
+            self._choose_again = True
 
     # ---- controllers ----------------------------------------------------------------------
 
