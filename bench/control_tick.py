@@ -55,7 +55,7 @@ def fly_once(seed: int) -> tuple[list[tuple[float, str, float]], list[float], li
         start = time.thread_time_ns()
         if pose is not None:
             ctrl.on_pose(pose)
-        cmd, _ = ctrl.tick(now)
+        cmd = ctrl.tick(now)
         cost = (time.thread_time_ns() - start) * 1e-9
         costs.append((now, mode_class(ctrl.mode), cost))
         ref = ctrl.reference(now)

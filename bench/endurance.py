@@ -104,7 +104,7 @@ def measure(run: Run, model: VehicleModel | None = None, seed: int = 0,
         if ctrl.faults.low_battery(ctrl.charge_used_ah, now):
             ended = "voltage" if battery.vbat < ctrl.params.faults.vbat_low else "charge counted"
             break
-        cmd, _ = ctrl.tick(now)
+        cmd = ctrl.tick(now)
         sim.apply(cmd.setpoint, now)
         before, x, y, z = sim.charge_used_ah, sim.x, sim.y, sim.z
         sim.step(DT)

@@ -130,7 +130,8 @@ def test_battery_drain_matches_eq_4_5(mission) -> None:
 
 def test_state_reports_progress_and_arrival(mission) -> None:
     ctrl, sim, _ = mission
-    _, state = ctrl.tick(sim.t)
+    ctrl.tick(sim.t)
+    state = ctrl.state()
     assert state.mode == "done" and state.arrived and state.pose_ok
     assert state.step == state.steps == len(STEPS)
     assert state.mission == "sim" and state.owner == "test"
@@ -357,7 +358,8 @@ def test_a_vehicle_held_up_past_its_plans_end_drives_on_to_its_goal() -> None:
     ctrl, sim, records = fly_plan(until=end + 6.0, hook=link_lost_during(end - 1.5, end + 0.5), telemetry_every=0)
     assert [tr.reason for tr in ctrl.machine.history][-2:] == ["behind the plan: driving on to the goal", "plan"]
     assert ctrl.mode == Mode.DONE and math.dist((sim.x, sim.y), STEPS[-1].pos[:2]) < 0.05
-    assert ctrl.tick(sim.t)[1].arrived
+    ctrl.tick(sim.t)
+    assert ctrl.state().arrived
 
 
 def test_a_vehicle_far_from_its_goal_at_its_plans_end_does_not_drive_off_the_roads() -> None:
@@ -387,7 +389,8 @@ def test_a_plan_the_vehicle_cannot_follow_is_refused_not_crashed() -> None:
 def test_before_the_mission_starts_the_vehicle_stays_parked() -> None:
     ctrl = VehicleController("cf1", MODEL)
     ctrl.load(plan_for("cf1", STEPS, MODEL, t0=0.0))  # not started
-    cmd, state = ctrl.tick(10.0)
+    cmd = ctrl.tick(10.0)
+    state = ctrl.state()
     assert cmd.setpoint.__class__.__name__ == "StopSetpoint" and cmd.vid == "cf1" and cmd.seq == 1
     assert state.mode == "parked" and not state.pose_ok
     ctrl.start(10.0)

@@ -46,7 +46,7 @@ def blind_landing(silent_at: float, physics: PhysicsParams,
         now = car.t
         if now < silent_at:
             ctl.on_pose(mocap.observe(car.truth()))
-            ch.command(ctl.tick(now)[0].setpoint, now)
+            ch.command(ctl.tick(now).setpoint, now)
             silent_z = top = car.z
         elif stray is not None and now >= silent_at + 1.0:
             with contextlib.suppress(Refused):  # refused: the landing goes on

@@ -39,7 +39,8 @@ def handover(at: float, gap: float = 0.05):
     """Controller A until `at` (mission time), nobody for `gap` s, then B from A's last state."""
     sim, plan, a, mocap = first_owner(3)
     first = run(a, sim, T0 + at, mocap)
-    _, last_state = a.tick(sim.t)
+    a.tick(sim.t)
+    last_state = a.state()
     sim.step(gap)  # the setpoint of the dead executor is held by the gateway meanwhile
     b = VehicleController("cf1", MODEL, owner="exec-b")
     b.load(plan)
@@ -71,7 +72,8 @@ def test_take_over_during_a_fault_landing_lands_at_the_nearest_safe_point() -> N
     run(a, sim, T0 + FLY - 3.0, mocap)
     a.abort("test abort")
     run(a, sim, T0 + FLY - 2.5, mocap)
-    _, state = a.tick(sim.t)
+    a.tick(sim.t)
+    state = a.state()
     assert state.mode == "landing"
     b = VehicleController("cf1", MODEL, owner="exec-b")
     b.load(plan)
@@ -83,7 +85,9 @@ def test_take_over_during_a_fault_landing_lands_at_the_nearest_safe_point() -> N
 def test_unknown_mode_is_taken_as_parked() -> None:
     b = VehicleController("cf1", MODEL, owner="exec-b")
     b.load(plan_for("cf1", STEPS, MODEL, t0=T0))
-    _, state = VehicleController("cf1", MODEL).tick(0.0)
+    fresh = VehicleController("cf1", MODEL)
+    fresh.tick(0.0)
+    state = fresh.state()
     b.take_over(msgspec.structs.replace(state, mode="warp"), 0.1)
     assert b.mode == Mode.PARKED
 
@@ -96,7 +100,8 @@ def test_take_over_after_a_partition_starts_from_the_latest_pose_at_rest() -> No
     up to 1.5 m, down 1.5 m off the map)."""
     sim, plan, a, mocap = first_owner(5)
     run(a, sim, T0 + FLY - 1.2, mocap)
-    _, last_state = a.tick(sim.t)
+    a.tick(sim.t)
+    last_state = a.state()
     assert last_state.mode == "flying"
     sim.step(0.2)  # the dead owner's last setpoint, held
     sim.apply(FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=thrust_command(0.9 * MODEL.mass * G)), sim.t)

@@ -76,7 +76,7 @@ def fly(every: int, delay_s: float, guard: bool = True, until: float | None = No
             if k % 10 == 0:
                 ctrl.on_telemetry(Telemetry(vid="cf1", t=now, gateway="sim", vbat=sim.battery.vbat, link_quality=1.0,
                                             sent=k, dropped=0, cmd_rate_hz=100.0), now)
-            cmd, _ = ctrl.tick(now)
+            cmd = ctrl.tick(now)
             setpoint = cmd.setpoint
             if held_at is None and ctrl.held:
                 held_at = now
@@ -217,7 +217,7 @@ def test_a_vehicle_whose_plan_passes_under_one_coming_down_holds_too() -> None:
         assert not ctrl.yield_to("cf9", above, now)  # held up there: no threat to a vehicle passing under
         assert not ctrl.yield_to("cf9", below, now, descending=True)  # it passes over it
         assert ctrl.yield_to("cf9", above, now, descending=True)
-        assert ctrl.held is None and ctrl.tick(now)[0] and ctrl.held is not None
+        assert ctrl.held is None and ctrl.tick(now) and ctrl.held is not None
         assert ctrl.held.startswith("yields to cf9, coming down from"), ctrl.held
         run(ctrl, sim, now + 1.0)
         assert ctrl.mode == (Mode.HOVERING if airborne_then else Mode.HOLDING), ctrl.mode
@@ -237,7 +237,7 @@ def test_a_vehicle_held_unseen_for_a_while_is_given_the_way_it_may_have_gone() -
     assert not ctrl.yield_to("cf9", near, sim.t)
     assert not ctrl.yield_to("cf9", near, sim.t, unseen_s=0.1)
     assert ctrl.yield_to("cf9", near, sim.t, unseen_s=1.0)
-    assert ctrl.held is None and ctrl.tick(sim.t)[0] and ctrl.held is not None
+    assert ctrl.held is None and ctrl.tick(sim.t) and ctrl.held is not None
 
 
 def test_a_vehicle_stopped_by_a_stale_pose_is_held_for_good_once_its_plan_moved_on() -> None:

@@ -142,7 +142,7 @@ class ExecutorService(Service):
         self.bank = KalmanBank(EstimatorParams())
         """Every owned vehicle's pose filter, for fusing a frame in one step."""
         self.stats = LoopStats()
-        self._last_mode: dict[str, str] = {}
+        self._last_mode: dict[str, Mode] = {}
         self._told_held: set[str] = set()
         """Vehicles whose hold (`VehicleController.held`) was reported."""
         self._told_aborted: list[str] = []
@@ -380,7 +380,7 @@ class ExecutorService(Service):
         batches: dict[str, list[Cmd]] = {}
         for vid, ctl in list(self.controllers.items()):
             try:
-                cmd, state = ctl.tick(now)
+                cmd = ctl.tick(now)
             except Exception as exc:  # one vehicle's bug must not take the others down
                 self._give_up(vid, exc, now)
                 continue
@@ -390,8 +390,8 @@ class ExecutorService(Service):
             else:
                 batches.setdefault(gateway, []).append(cmd)
             if n % self.state_every == 0:
-                self._state.put(vid, state)
-            self._report_mode(vid, ctl, state, now)
+                self._state.put(vid, ctl.state())
+            self._report_mode(vid, ctl, now)
         sent = time.time()
         for gateway, cmds in batches.items():
             self._batch.put(gateway, CmdBatch(owner=self.instance, t=sent, cmds=cmds, pose_t=pose_t,
@@ -409,28 +409,28 @@ class ExecutorService(Service):
         self._event.put(vid,
             VehicleEvent(vid=vid, t=now, kind="controller_failed", detail=f"{type(exc).__name__}: {exc}"))
 
-    def _report_mode(self, vid: str, ctl: VehicleController, state: VehicleState, now: float) -> None:
+    def _report_mode(self, vid: str, ctl: VehicleController, now: float) -> None:
         """Tell everyone (`vehicle/<vid>/event`) when a vehicle enters a fault mode, or leaves its
         plan for a battery or link fault: "low_battery" / "link_lost", with the node it lands at."""
-        prev = self._last_mode.get(vid)
-        self._last_mode[vid] = state.mode
+        prev, mode = self._last_mode.get(vid), ctl.mode
+        self._last_mode[vid] = mode
         if not ctl.held:
             self._told_held.discard(vid)
-        elif vid not in self._told_held and state.mode in (Mode.HOVERING, Mode.HOLDING):
+        elif vid not in self._told_held and mode in (Mode.HOVERING, Mode.HOLDING):
             self._told_held.add(vid)  # (also held while already holding: `_left_behind`)
             self._event.put(vid, VehicleEvent(vid=vid, t=now, kind="tracking_hold", detail=ctl.held))
             return
-        if prev == state.mode:
+        if prev == mode:
             return
-        kind, detail, node = FAULT_MODES.get(state.mode), f"from {prev}", ""
-        leaves_plan = state.mode == Mode.LANDING or (state.mode == Mode.DONE and prev != Mode.LANDING)
+        kind, detail, node = FAULT_MODES.get(mode), f"from {prev}", ""
+        leaves_plan = mode == Mode.LANDING or (mode == Mode.DONE and prev != Mode.LANDING)
         if kind is None and leaves_plan:
             if ctl.faults.low_battery(ctl.charge_used_ah, now):
                 kind = "low_battery"
             elif ctl.faults.link_lost(now):
                 kind = "link_lost"
             node = ctl.landing_node or ""
-            where = f"landing at {node}" if node else "landing here" if state.mode == Mode.LANDING else "stopped here"
+            where = f"landing at {node}" if node else "landing here" if mode == Mode.LANDING else "stopped here"
             detail = f"from {prev}: {where}"
         if kind is not None:
             self._event.put(vid,

@@ -121,6 +121,7 @@ class VehicleController:
         self.charge_used_ah = 0.0
         self.lqr = FlightLqr(self.model.mass, self.params.dt, self.params.lqr)
         self.faults = FaultMonitor(self.model, self.params.faults)
+        self._seen: tuple[float, Estimate, RefSample | None] | None = None  # the last tick's `now`, estimate, reference
         self._reset_mission()
 
     def _reset_mission(self) -> None:
@@ -271,8 +272,10 @@ class VehicleController:
 
     # ---- the control tick -----------------------------------------------------------------
 
-    def tick(self, now: float) -> tuple[Cmd, VehicleState]:
-        """One control step at `now`: supervise the mode, run its controller, account the charge."""
+    def tick(self, now: float) -> Cmd:
+        """One control step at `now`: supervise the mode, run its controller, account the charge.
+        `state()` tells what the step saw (built only when asked: the executor publishes one
+        state in five ticks)."""
         self.estimator.floor = self._ground_z if self.machine.mode in NEAR_GROUND else self._lowest_ground
         est = self.estimator.estimate(now)
         dt = 0.0 if self._last_tick is None else min(max(now - self._last_tick, 0.0), 0.1)
@@ -287,9 +290,9 @@ class VehicleController:
         setpoint = self._control(now, est, ref, before)
         self.charge_used_ah += self.model.charge_ah(self._power(ref), dt)
         self.seq += 1
-        cmd = Cmd(vid=self.vid, owner=self.owner, seq=self.seq, t=now, setpoint=setpoint,
-                  mode=str(self.machine.mode))
-        return cmd, self._state(now, est, ref)
+        self._seen = (now, est, ref)
+        return Cmd(vid=self.vid, owner=self.owner, seq=self.seq, t=now, setpoint=setpoint,
+                   mode=str(self.machine.mode))
 
     def _supervise(self, now: float, rel: float, est: Estimate, ref: RefSample | None) -> None:
         m = self.machine
@@ -656,7 +659,11 @@ class VehicleController:
             return self.model.power.drive
         return self.model.power.idle
 
-    def _state(self, now: float, est: Estimate, ref: RefSample | None) -> VehicleState:
+    def state(self) -> VehicleState:
+        """The vehicle's state as the last `tick` saw it (its estimate, reference and mode)."""
+        if self._seen is None:
+            raise RuntimeError(f"{self.vid}: no state before the first tick")
+        now, est, ref = self._seen
         err = 0.0 if ref is None or est.stale else math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z))
         traj = self.trajectory
         arrived = False

@@ -128,7 +128,7 @@ def run(ctrl: VehicleController, sim: SimFlyingCar | FirmwareCar, until: float, 
                                         link_quality=1.0, sent=k, dropped=0,
                                         cmd_rate_hz=1.0 / dt, control=control), now)
         if k % every == 0:
-            setpoint = ctrl.tick(now)[0].setpoint
+            setpoint = ctrl.tick(now).setpoint
         sim.apply(setpoint, now)
         records.append(Record(now, truth, ctrl.reference(now), ctrl.mode))
         sim.step(dt)
