@@ -323,9 +323,9 @@ def test_a_starved_executor_holds_its_vehicles_and_nothing_touches(tmp_path) -> 
     assert plan is not None and t0 is not None
     worst = max(math.dist((s.x, s.y, s.z), plan.position("cf1", s.t - t0))
                 for s in watch.truth_between("cf1", marks["starved"], held or marks["fed"]))
-    # unguarded 0.22 and 1.37 m (two runs); guarded 8-12 cm on an idle machine, 8-18 cm beside a
-    # busy process (nine runs each, 2026-12-05; 18 cm failed the 6-margin bound this had, twice in
-    # a row in a CI run): a loop this starved (30 ms of every 200 ms) tracks within the margin
+    # unguarded 0.22 and 1.37 m (two runs); guarded 8-12 cm on an idle machine (four runs), 8-18 cm
+    # beside a busy process (twelve runs, 2026-12-05: three over the 6-margin bound this had, which
+    # also failed twice in a row in a CI run): a loop this starved (30 ms of every 200 ms) tracks within the margin
     # until it does not, and the guard judges on poses up to 200 ms late, the vehicle flying on
     # meanwhile; when the error crosses the guard's threshold just after a window, it is held two
     # windows later (0.79 s into the starvation instead of 0.38) and furthest off
