@@ -31,6 +31,7 @@ import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import msgspec
 import numpy as np
 
 from common.bus.messages import Pose
@@ -98,9 +99,9 @@ class EstimatorParams:
     reacquire_s: float = 0.08
 
 
-@dataclass(frozen=True, slots=True)
-class Estimate:
-    """The state predicted to a query time, with its position std (m) and staleness."""
+class Estimate(msgspec.Struct, frozen=True, gc=False):
+    """The state predicted to a query time, with its position std (m) and staleness. (A struct, not
+    a frozen dataclass: one or two are made per vehicle and control tick, ten times faster.)"""
 
     t: float
     x: float
@@ -216,7 +217,7 @@ class PoseEstimator:
         self._dr_t = 0.0  # dead reckoning since the last pose: time, position, velocity
         self._dr = [0.0] * 6
         self._yaw = (0.0, 0.0)  # yaw and its rate at the last pose
-        self._pos_cov: list[tuple[float, float, float]] = []  # per axis: P_pp, P_pv, P_vv at the last pose
+        self._pos_cov: Sequence[float] = ()  # per axis x, y, z: P_pp, P_pv, P_vv at the last pose
         self.lift_error = 0.0
         """The fraction of its thrust a thrust command gives beyond what its controller expects
         (`command`): the thrust model's error (battery, propellers, payload), learned aloft from the
@@ -234,16 +235,16 @@ class PoseEstimator:
         """Start over at `pose`, at rest or at `velocity` (m/s)."""
         self.bank.reset(self.slot, (pose.x, pose.y, pose.z, pose.yaw), (*velocity, 0.0))
         self.t = pose.t
-        self._restart_dead_reckoning(self.bank.x[self.slot].tolist(), self.bank.p[self.slot].tolist())
+        self._restart_dead_reckoning(self.bank.x[self.slot].ravel().tolist(), self.bank.p[self.slot].ravel().tolist())
 
-    def _restart_dead_reckoning(self, x: list[list[float]], p: list[list[float]]) -> None:
-        """From the slot's state `x` (per axis: value, rate) and covariance `p` (Ppp, Ppv, Pvv) at
-        the pose's time, through the commands given since then."""
+    def _restart_dead_reckoning(self, x: Sequence[float], p: Sequence[float]) -> None:
+        """From the slot's state `x` and covariance `p` at the pose's time (flattened: per axis x,
+        y, z, yaw its value and rate, and its Ppp, Ppv, Pvv), through the commands given since then."""
         assert self.t is not None
         self._dr_t = self.t
-        self._dr = [x[0][0], x[1][0], x[2][0], x[0][1], x[1][1], x[2][1]]
-        self._yaw = (x[3][0], x[3][1])
-        self._pos_cov = [(p[i][0], p[i][1], p[i][2]) for i in range(3)]
+        self._dr = [x[0], x[2], x[4], x[1], x[3], x[5]]
+        self._yaw = (x[6], x[7])
+        self._pos_cov = p[:9]
         while self._inputs and self._inputs[0][0] <= self.t:
             self._input_base = self._inputs.pop(0)[1]
         a = self._input_base
@@ -266,14 +267,16 @@ class PoseEstimator:
         start = self.t if self.t is not None else until
         if until <= start:
             return self._accel
-        sums, a, t0 = [0.0, 0.0, 0.0], self._input_base, start
+        sx = sy = sz = 0.0  # (per axis, written out: once per vehicle and frame)
+        a, t0 = self._input_base, start
         for t, accel in self._inputs:
             if t >= until:
                 break
-            sums = [s + ai * (t - t0) for s, ai in zip(sums, a, strict=True)]
+            d = t - t0
+            sx, sy, sz = sx + a[0] * d, sy + a[1] * d, sz + a[2] * d
             a, t0 = accel, t
-        span = until - start
-        return tuple((s + ai * (until - t0)) / span for s, ai in zip(sums, a, strict=True))  # type: ignore[return-value]
+        d, span = until - t0, until - start
+        return ((sx + a[0] * d) / span, (sy + a[1] * d) / span, (sz + a[2] * d) / span)
 
     def set_input(self, accel: Accel, now: float, learn: bool = False) -> None:
         """The acceleration (world frame, m/s^2) the vehicle is commanded from `now` on; with
@@ -301,16 +304,16 @@ class PoseEstimator:
         """Fuse one pose; False if it was dropped (out of order) or rejected by the gate."""
         return fuse_poses([self], [pose])[0]
 
-    def _fused(self, pose: Pose, accepted: bool, x: list[list[float]], p: list[list[float]], dvz: float,
+    def _fused(self, pose: Pose, accepted: bool, x: list[float], p: list[float], dvz: float,
                lift: float) -> None:
-        """After the bank fused `pose` into this slot (state `x`, covariance `p` now, `dvz` the
-        vertical velocity correction it made, `lift` the thrust's acceleration, m/s^2, it was
-        predicted with): counts, the lift error, and the restart after `reacquire_after` rejected
-        poses in a row."""
+        """After the bank fused `pose` into this slot (state `x`, covariance `p` now, flattened as
+        `_restart_dead_reckoning` takes them; `dvz` the vertical velocity correction it made, `lift`
+        the thrust's acceleration, m/s^2, it was predicted with): counts, the lift error, and the
+        restart after `reacquire_after` rejected poses in a row."""
         last = self.t
         assert last is not None  # fuse_poses resets an estimator on its first pose instead
         learns = (self._unlearned_until <= last and pose.t - last <= LIFT_LEARN_GAP_S
-                  and lift > 0.5 * G and x[2][0] > (self.floor or 0.0) + LIFT_LEARN_HEIGHT)
+                  and lift > 0.5 * G and x[4] > (self.floor or 0.0) + LIFT_LEARN_HEIGHT)
         self.t = pose.t
         if accepted:
             if learns:  # every input since the last pose taught it, and that pose was recent
@@ -330,9 +333,9 @@ class PoseEstimator:
                 self._rejected_first = None
                 self.reset(pose, ((pose.x - first.x) / span, (pose.y - first.y) / span, (pose.z - first.z) / span))
                 return
-        if self.floor is not None and x[2][0] < self.floor:  # the filter's state too: on it, not sinking
-            x[2][0], x[2][1] = self.floor, max(x[2][1], 0.0)
-            self.bank.x[self.slot, 2] = x[2]
+        if self.floor is not None and x[4] < self.floor:  # the filter's state too: on it, not sinking
+            x[4], x[5] = self.floor, max(x[5], 0.0)
+            self.bank.x[self.slot, 2] = x[4:6]
         self._restart_dead_reckoning(x, p)
 
     def pos_std(self, now: float) -> float:
@@ -340,7 +343,9 @@ class PoseEstimator:
         if self.t is None:
             return math.inf
         dt = max(now - self.t, 0.0)
-        var = max(pp + 2.0 * dt * pv + dt * dt * vv for pp, pv, vv in self._pos_cov)
+        c, dt2 = self._pos_cov, dt * dt
+        var = max(c[0] + 2.0 * dt * c[1] + dt2 * c[2], c[3] + 2.0 * dt * c[4] + dt2 * c[5],
+                  c[6] + 2.0 * dt * c[7] + dt2 * c[8])
         return math.sqrt(var + self.params.accel_std**2 * dt**4 / 4.0)
 
     def estimate(self, now: float) -> Estimate:
@@ -376,7 +381,7 @@ def fuse_poses(estimators: Sequence[PoseEstimator], poses: Sequence[Pose]) -> li
         u = np.array([e.mean_input(p.t) for e, p in zip(ests, ps, strict=True)])
         prior_vz = bank.x[slots, 2, 1] + u[:, 2] * dt
         accepted = bank.update(slots, dt, z, u).tolist()
-        xs, covs = bank.x[slots].tolist(), bank.p[slots].tolist()
+        xs, covs = bank.x[slots].reshape(len(slots), 8).tolist(), bank.p[slots].reshape(len(slots), 12).tolist()
         dvz = (bank.x[slots, 2, 1] - prior_vz).tolist()
         for k, i in enumerate(members):
             estimators[i]._fused(poses[i], accepted[k], xs[k], covs[k], dvz[k], G + float(u[k, 2]))

@@ -116,6 +116,11 @@ def lqr_gain(model: FlightModel = FlightModel(), weights: LqrWeights = LqrWeight
     return k
 
 
+def _lags(model: FlightModel, dt: float) -> tuple[float, float]:
+    """How far the attitude loop's roll/pitch and yaw-rate lags close on their setpoints in `dt` s."""
+    return 1.0 - math.exp(-dt / model.tau_roll_pitch), 1.0 - math.exp(-dt / model.tau_yaw_rate)
+
+
 MAX_STEP_S = 0.1
 """s: the longest time one command is taken to have held (a longer gap is a stall, not a step)."""
 
@@ -131,6 +136,7 @@ class FlightLqr:
         self.integral_limit = integral_limit
         self.max_tilt = math.radians(MAX_TILT_DEG)
         self.max_accel = max_thrust() / mass * math.cos(self.max_tilt) - G
+        self._lags = _lags(model, dt)  # (one control period's, the common case)
         self.reset()
 
     def reset(self) -> None:
@@ -153,17 +159,19 @@ class FlightLqr:
         29 deg against 9 believed, and the thrust's lift was 13 % less than expected.)"""
         dt = self.model.dt
         if self._sent is not None:
-            t, *sent = self._sent
+            t, roll, pitch, yaw_rate = self._sent
             late = min(max(est.t - t - dt, 0.0), MAX_STEP_S - dt)
             if late > 0.0:  # the last command held for longer than one period
-                self._propagate(*sent, late)
+                self._propagate(roll, pitch, yaw_rate, late)
                 dt += late
         ex, ey, ez = est.x - ref.x, est.y - ref.y, est.z - ref.z
-        if integrate:
-            lim = self.integral_limit
-            self.integral = [min(max(i + e * dt, -lim), lim) for i, e in zip(self.integral, (ex, ey, ez), strict=True)]
-        c, s = math.cos(est.yaw), math.sin(est.yaw)
         ix, iy, iz = self.integral
+        if integrate:  # (per axis, written out: once per vehicle and control period)
+            lim = self.integral_limit
+            ix, iy, iz = (min(max(ix + ex * dt, -lim), lim), min(max(iy + ey * dt, -lim), lim),
+                          min(max(iz + ez * dt, -lim), lim))
+            self.integral = [ix, iy, iz]
+        c, s = math.cos(est.yaw), math.sin(est.yaw)
         # reference acceleration in the yawed frame, fed forward as attitude (v'x = g pitch, ...)
         abx, aby = ref.ax * c + ref.ay * s, -ref.ax * s + ref.ay * c
         pitch_ff, roll_ff = abx / G, -aby / G
@@ -198,8 +206,7 @@ class FlightLqr:
 
     def _propagate(self, roll: float, pitch: float, yaw_rate: float, dt: float) -> None:
         """The on-board attitude loop (first-order lags) `dt` s on, commanded `roll`, `pitch`, `yaw_rate`."""
-        kr = 1.0 - math.exp(-dt / self.model.tau_roll_pitch)
-        ky = 1.0 - math.exp(-dt / self.model.tau_yaw_rate)
+        kr, ky = self._lags if dt == self.model.dt else _lags(self.model, dt)
         self.roll += (roll - self.roll) * kr
         self.pitch += (pitch - self.pitch) * kr
         self.yaw_rate += (yaw_rate - self.yaw_rate) * ky

@@ -4,7 +4,8 @@ mode (paper 000 §VI-B), shared by the executor's trajectory and the gateway's s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+
+import msgspec
 
 from common.flight.modes import Mode
 
@@ -14,10 +15,10 @@ def wrap_angle(a: float) -> float:
     return a - 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
 
 
-@dataclass(frozen=True, slots=True)
-class RefSample:
+class RefSample(msgspec.Struct, frozen=True, gc=False):
     """The reference at time `t` (s since mission start): position, velocity, acceleration (m, m/s,
-    m/s^2, world frame), yaw (rad, CCW from +x) and yaw rate, and the planned mode."""
+    m/s^2, world frame), yaw (rad, CCW from +x) and yaw rate, and the planned mode. (A struct, not a
+    frozen dataclass: one or two are made per vehicle and control tick, ten times faster.)"""
 
     t: float
     x: float
