@@ -378,12 +378,13 @@ def fuse_poses(estimators: Sequence[PoseEstimator], poses: Sequence[Pose]) -> li
         slots = np.fromiter((e.slot for e in ests), np.intp, len(ests))
         dt = np.fromiter((p.t - (e.t or 0.0) for e, p in zip(ests, ps, strict=True)), float, len(ests))
         z = np.array([(p.x, p.y, p.z, p.yaw) for p in ps])
-        u = np.array([e.mean_input(p.t) for e, p in zip(ests, ps, strict=True)])
+        inputs = [e.mean_input(p.t) for e, p in zip(ests, ps, strict=True)]
+        u = np.array(inputs)
         prior_vz = bank.x[slots, 2, 1] + u[:, 2] * dt
         accepted = bank.update(slots, dt, z, u).tolist()
         xs, covs = bank.x[slots].reshape(len(slots), 8).tolist(), bank.p[slots].reshape(len(slots), 12).tolist()
         dvz = (bank.x[slots, 2, 1] - prior_vz).tolist()
         for k, i in enumerate(members):
-            estimators[i]._fused(poses[i], accepted[k], xs[k], covs[k], dvz[k], G + float(u[k, 2]))
+            estimators[i]._fused(poses[i], accepted[k], xs[k], covs[k], dvz[k], G + inputs[k][2])
             out[i] = accepted[k]
     return out
