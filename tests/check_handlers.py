@@ -233,7 +233,7 @@ HANDLINGS: tuple[Handling, ...] = (
         "the estimator's floor for its own state",
         "estimator: the filter's state goes through the floor (its dead reckoning still stops there)",
         (Edit("common/flight/estimator.py",
-              "        if self.floor is not None and x[2][0] < self.floor:  # the filter's state too",
+              "        if self.floor is not None and x[4] < self.floor:  # the filter's state too",
               "        if False:  # the filter's state too"),),
         "tests/test_estimator.py::test_poses_on_the_floor_after_a_fall_are_taken_not_rejected"),
     Handling(
