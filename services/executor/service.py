@@ -133,9 +133,9 @@ class ExecutorService(Service):
         self.ownership = VehicleOwnership(self.instance, lambda vid: vid in self.controllers, self._take,
                                           lambda vid: self.controllers.pop(vid, None))
         self.last_seen: dict[str, tuple[PoseFrame, FramePose]] = {}
+        """The latest pose of every vehicle, owned or not (with its frame): a take-over starts from it."""
         self._landings: dict[str, tuple[float, tuple[float, float, float]]] = {}
         """Other executors' fault landings: vid -> (when heard, where it comes down)."""
-        """The latest pose of every vehicle, owned or not (with its frame): a take-over starts from it."""
         self.gateway_of: dict[str, str] = {}
         """Each vehicle's gateway, from its telemetry: where its commands go."""
         self.controllers: dict[str, VehicleController] = {}
