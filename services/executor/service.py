@@ -35,6 +35,8 @@ import logging
 import time
 from collections import deque
 
+import numpy as np
+
 from common.bus.args import keys_from_args, run_service, zconfig_from_args
 from common.bus.liveliness import AliveSet
 from common.bus.messages import (
@@ -56,6 +58,7 @@ from common.bus.stats import percentile_figures, publish_stats
 from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
 from common.flight.modes import Mode
 from services.executor.faults import FaultParams
+from services.executor.proximity import Bodies, ProximityParams
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
 from services.executor.vehicle_controller import ControlParams, VehicleController
@@ -121,7 +124,8 @@ class LoopStats:
 
 class ExecutorService(Service):
     def __init__(self, instance: str, *args, rate_hz: float = 100.0, state_hz: float = 20.0,
-                 control: ControlParams | None = None, **kwargs) -> None:
+                 control: ControlParams | None = None, proximity: ProximityParams | None = None,
+                 **kwargs) -> None:
         super().__init__("executor", instance, *args, **kwargs)
         self.control = control or ControlParams()
         self.team = TeamExecutor(self)
@@ -134,6 +138,8 @@ class ExecutorService(Service):
                                           lambda vid: self.controllers.pop(vid, None))
         self.last_seen: dict[str, tuple[PoseFrame, FramePose]] = {}
         """The latest pose of every vehicle, owned or not (with its frame): a take-over starts from it."""
+        self.bodies = Bodies(proximity or ProximityParams())
+        """Every vehicle's position and velocity in the frames: the proximity stop's view."""
         self._landings: dict[str, tuple[float, tuple[float, float, float]]] = {}
         """Other executors' fault landings: vid -> (when heard, where it comes down)."""
         self.gateway_of: dict[str, str] = {}
@@ -295,6 +301,7 @@ class ExecutorService(Service):
         controllers, seen = self.controllers, self.last_seen
         estimators: list[PoseEstimator] = []
         poses: list[Pose] = []
+        self.bodies.update(frame)
         for p in frame.poses:
             seen[p.vid] = (frame, p)
             ctl = controllers.get(p.vid)
@@ -362,6 +369,9 @@ class ExecutorService(Service):
             for frame, _key in frames.drain():
                 self._fuse(frame)
                 newest = frame
+            if newest is not None:
+                self.bodies.settle(newest.t)
+                self._stop_short(now)
             if n % ROUTER_CHECK_TICKS == 0:
                 self._check_router(now)
             arrived = (newest.arrived or newest.t) if newest is not None else 0.0
@@ -374,6 +384,29 @@ class ExecutorService(Service):
                 sent = time.time()
                 self.stats.add_latency(sent - newest.t, sent - arrived)
             due = end + wait
+
+    def _stop_short(self, now: float) -> None:
+        """The proximity stop (`services/executor/proximity.py`): every owned vehicle moving on its
+        plan that heads into another body holds (at the tick that follows). The guard's switch
+        (`FaultParams.guard`) turns it off too."""
+        if not self.control.faults.guard:
+            return
+        movers: list[str] = []
+        velocities: list[tuple[tuple[float, float, float], tuple[float, float, float]]] = []
+        radius = height = 0.0
+        rows = self.bodies.rows
+        for vid, ctl in self.controllers.items():
+            motion = ctl.motion()
+            if motion is not None and vid in rows:
+                movers.append(vid)
+                velocities.append(motion)
+                r, h = ctl.model.body()
+                radius, height = max(radius, r), max(height, h)
+        if not movers:
+            return
+        for vid, other, gap, speed in self.bodies.closing(movers, np.array(velocities), radius, height, now):
+            self.controllers[vid].stop_short(f"stops short of {other}: bodies {100 * gap:.1f} cm apart, "
+                                             f"closing at {speed:.2f} m/s")
 
     def _cycle(self, now: float, n: int, pose_t: float, pose_arrived: float) -> None:
         """Tick every owned controller; commands out as one batch per gateway."""

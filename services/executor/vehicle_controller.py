@@ -55,6 +55,8 @@ def lowest_ground(plan: VehiclePlan | None) -> float:
     (z = 0, where the maps put their ground) or the lowest point of its plan, if lower."""
     return min([0.0] + ([s.pos[2] for s in plan.steps] if plan is not None else []))
 
+MOVING = frozenset({Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING})
+"""Modes in which a vehicle moves on its plan (`VehicleController.motion`)."""
 YIELD_STEP_S = 0.05
 """s between the plan positions `VehicleController.yield_to` looks at (0.05 s is at most 1.5 cm of flight)."""
 YIELD_UNSEEN_MAX = 0.5
@@ -426,8 +428,7 @@ class VehicleController:
         soak, 7.6 cm deep.) Whether it will hold."""
         f = self.params.faults
         traj = self._active
-        if (not f.guard or f.yield_s <= 0.0 or traj is None or self.t0 is None or self.held or self._yield
-                or self._fault_landing or self._abort or self.machine.mode in (Mode.DONE, Mode.EMERGENCY_LANDING)):
+        if f.yield_s <= 0.0 or traj is None or not self._may_yield():
             return False
         m = self.model
         unseen = min(max(unseen_s, 0.0) * max(m.speed.drive, m.speed.fly), YIELD_UNSEEN_MAX)
@@ -447,6 +448,32 @@ class VehicleController:
                 self._yield = f"yields to {vid}, {what} ({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f}), {where}"
                 return True
         return False
+
+    def _may_yield(self) -> bool:
+        """Whether the vehicle follows its plan and may be held for another's sake (`yield_to`,
+        `stop_short`): a fault landing, an emergency descent or an aborted mission goes on."""
+        return (self.params.faults.guard and self._active is not None and self.t0 is not None and not self.held
+                and not self._yield and not self._fault_landing and not self._abort
+                and self.machine.mode not in (Mode.DONE, Mode.EMERGENCY_LANDING))
+
+    def motion(self) -> tuple[tuple[float, float, float], tuple[float, float, float]] | None:
+        """The last tick's estimated and planned velocities while the vehicle moves on its plan
+        (driving, taking off, flying, landing), for the proximity stop
+        (`services/executor/proximity.py`); None otherwise."""
+        if self._seen is None or self.machine.mode not in MOVING or not self._may_yield():
+            return None
+        _, est, ref = self._seen
+        if est.stale or ref is None:
+            return None
+        return (est.vx, est.vy, est.vz), (ref.vx, ref.vy, ref.vz)
+
+    def stop_short(self, why: str) -> bool:
+        """The proximity stop: this vehicle heads into another body (`why`); it holds at its next
+        tick, like a vehicle the tracking guard holds (reported as `tracking_hold`). Whether it will."""
+        if not self._may_yield():
+            return False
+        self._yield = why
+        return True
 
     def _follow_plan(self, now: float, rel: float, est: Estimate) -> None:
         traj = self._active

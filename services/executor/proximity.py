@@ -1,0 +1,139 @@
+"""The proximity stop (issue 15): the last line between bodies when tracking fails.
+
+A plan keeps its bodies apart only while every vehicle keeps to it (`VehicleModel.margin`); the
+tracking guard holds a vehicle that leaves it by two margins, but on an overloaded machine a
+vehicle stalled a few centimetres behind its plan (inside the guard's allowance) was driven into
+by a neighbour on time: 80-vehicle soaks had ground contacts in every run that took off
+(docs/reliability.md). The motion capture sees every body, so every executor knows where all of
+them are, whoever owns them: from every frame it keeps each body's position and velocity
+(`Bodies`), and before each control cycle it asks, for each vehicle of its own that moves on its
+plan, whether that vehicle, at its estimated or planned velocity, is heading into a body (within
+`near_gap` of contact) in the next `horizon_s` s, the other's velocity as seen; if so, the vehicle
+stops short (`VehicleController.stop_short`: it holds like a vehicle the guard holds, is reported
+and the fleet's reflex and the mission's replan follow). A vehicle at rest, or moving away, does
+not stop: its stopping would not help, and the one closing in stops instead.
+
+The Crazyflie firmware has a layer of the same purpose for peers it localises itself
+(`src/modules/interface/collision_avoidance.h`, buffered Voronoi cells: it keeps the vehicle in
+its cell for `horizonSecs`, and stops in place when the cell is empty); here the executor has the
+motion capture's view of every body and holds the vehicle instead of steering it, so the plans'
+timing stays the planner's to repair."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from common.bus.messages import PoseFrame
+
+NEVER = -1e9
+"""The capture time of a body not seen yet (s)."""
+
+
+@dataclass(frozen=True, slots=True)
+class ProximityParams:
+    """near_gap: m between two bodies that counts as touching (a third of the shipped maps' 3 cm
+    margin: plans keep a whole margin, tracking in a 32-vehicle soak came to 1.5 cm); horizon_s:
+    how far ahead a closing is looked for: a stalled cycle's reaction (0.15 s) and a stop from
+    flying speed (0.3 m/s at 2 m/s^2: 0.15 s); closing_speed: m/s towards the other body at which a
+    vehicle counts as heading into it; velocity_s: the window over which a body's velocity is
+    measured from its positions (1 mm motion-capture noise is 1.4 cm/s over 0.1 s); fresh_s: a
+    body not seen for longer is not counted (the motion capture lost it)."""
+
+    near_gap: float = 0.01
+    horizon_s: float = 0.3
+    closing_speed: float = 0.02
+    velocity_s: float = 0.1
+    fresh_s: float = 1.0
+    samples: int = 4
+
+
+class Bodies:
+    """Every body's latest position in the motion-capture frames and its velocity over the last
+    `velocity_s`, one row per vehicle."""
+
+    def __init__(self, params: ProximityParams = ProximityParams()) -> None:
+        self.params = params
+        self.rows: dict[str, int] = {}
+        self.vids: list[str] = []
+        self.pos = np.zeros((0, 3))
+        self.seen = np.zeros(0)
+        self.vel = np.zeros((0, 3))
+        self._history: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+
+    def _row(self, vid: str) -> int:
+        row = self.rows.get(vid)
+        if row is None:
+            row = self.rows[vid] = len(self.vids)
+            self.vids.append(vid)
+            if row >= len(self.seen):
+                grow = max(8, len(self.seen))
+                self.pos = np.vstack((self.pos, np.zeros((grow, 3))))
+                self.vel = np.vstack((self.vel, np.zeros((grow, 3))))
+                self.seen = np.concatenate((self.seen, np.full(grow, NEVER)))
+                self._history.clear()
+        return row
+
+    def update(self, frame: PoseFrame) -> None:
+        """Take the positions of `frame`."""
+        if not frame.poses:
+            return
+        rows = [self._row(p.vid) for p in frame.poses]
+        self.pos[rows] = [(p.x, p.y, p.z) for p in frame.poses]
+        self.seen[rows] = frame.t
+
+    def settle(self, t: float) -> None:
+        """After a cycle's frames (the newest of capture time `t`): the velocities over the last
+        `velocity_s` (0 for a body without positions that far apart, or seen then but not since)."""
+        window = self.params.velocity_s
+        history = self._history
+        history.append((t, self.pos.copy(), self.seen.copy()))
+        while len(history) > 1 and history[1][0] <= t - window:
+            history.popleft()
+        _, old_pos, old_seen = history[0]
+        dt = self.seen - old_seen
+        ok = (dt >= 0.5 * window) & (dt <= 10.0 * window)
+        self.vel[:] = 0.0
+        self.vel[ok] = (self.pos[ok] - old_pos[ok]) / dt[ok, None]
+
+    def closing(self, movers: list[str], v_self: np.ndarray, radius: float, height: float,
+                now: float) -> list[tuple[str, str, float, float]]:
+        """Which of `movers` (vehicles seen in the frames) head into another body within the
+        horizon: `v_self` (len(movers) x K x 3) are the velocities each may move at (estimated,
+        planned); bodies of `radius` x `height` touch when nearer than 2 radius across and height
+        up (DESIGN.md). (mover, other, gap now (m), closing speed (m/s)) for each, nearest first."""
+        p = self.params
+        n = len(self.vids)
+        if not movers or n < 2:
+            return []
+        own = np.array([self.rows[v] for v in movers])
+        fresh = now - self.seen[:n] < p.fresh_s
+        pos, vel = self.pos[:n], self.vel[:n]
+        d = pos[None, :, :] - pos[own][:, None, :]  # movers x bodies x 3: to the other body
+        across = np.hypot(d[..., 0], d[..., 1])
+        speed = np.linalg.norm(vel, axis=1)[None, :] + np.linalg.norm(v_self, axis=2).max(axis=1)[:, None]
+        reach_xy, reach_z = 2.0 * radius + p.near_gap, height + p.near_gap
+        near = ((across - speed * p.horizon_s < reach_xy) & (np.abs(d[..., 2]) - speed * p.horizon_s < reach_z)
+                & fresh[None, :] & fresh[own][:, None])
+        near[np.arange(len(own)), own] = False
+        i, j = np.nonzero(near)
+        if not len(i):
+            return []
+        dij = d[i, j]  # pairs x 3
+        taus = np.linspace(0.0, p.horizon_s, p.samples)
+        hits: dict[tuple[str, str], tuple[str, str, float, float]] = {}
+        for k in range(v_self.shape[1]):
+            vs = v_self[i, k]  # pairs x 3
+            w = vel[j] - vs  # the other's motion relative to the mover
+            q = dij[:, None, :] + w[:, None, :] * taus[None, :, None]  # pairs x samples x 3
+            touch = ((np.hypot(q[..., 0], q[..., 1]) < reach_xy) & (np.abs(q[..., 2]) < reach_z)).any(axis=1)
+            dist = np.linalg.norm(dij, axis=1)
+            towards = np.einsum("ij,ij->i", vs, dij) / np.maximum(dist, 1e-9)
+            for m in np.nonzero(touch & (towards > p.closing_speed))[0].tolist():
+                gap = max(float(across[i[m], j[m]]) - 2.0 * radius, float(abs(dij[m, 2])) - height)
+                pair = (movers[i[m]], self.vids[j[m]])
+                if pair not in hits or hits[pair][3] < towards[m]:
+                    hits[pair] = (*pair, gap, float(towards[m]))
+        return sorted(hits.values(), key=lambda h: h[2])
