@@ -41,10 +41,12 @@ def frames(bodies: Bodies, moves: dict[str, tuple[tuple[float, float, float], tu
     return t
 
 
-def closing(bodies: Bodies, velocities: dict[str, tuple[float, float, float]], now: float) -> list:
+def closing(bodies: Bodies, velocities: dict[str, tuple[float, float, float]], now: float,
+            react_s: float = 0.15) -> list:
+    """(A loaded executor's reaction by default: the 80-vehicle soak's pose-to-command p99.)"""
     movers = list(velocities)
     v = np.array([[velocities[m], velocities[m]] for m in movers])
-    return bodies.closing(movers, v, RADIUS, HEIGHT, now)
+    return bodies.closing(movers, v, RADIUS, HEIGHT, now, react_s)
 
 
 def test_velocities_are_measured_from_the_frames() -> None:
@@ -58,11 +60,13 @@ def test_a_vehicle_driving_on_into_one_that_stalled_stops_short() -> None:
     """The 80-vehicle soak's contact (docs/reliability.md): a leader stalled behind its plan, the
     follower on time drives on into it."""
     bodies = Bodies()
-    gap = 0.03  # a whole margin between the bodies: the plan's
+    gap = 0.025  # under a margin (the plan's 3 cm) and closing at driving speed: 1.75 cm before it stops
     now = frames(bodies, {"follower": ((0.0, 0.0, 0.0), (0.1, 0.0, 0.0)),
                           "leader": ((2 * RADIUS + gap, 0.0, 0.0), (0.0, 0.0, 0.0))})
-    [(mover, other, at, speed)] = closing(bodies, {"follower": (0.1, 0.0, 0.0)}, now)
+    [(mover, other, at, speed, _, _)] = closing(bodies, {"follower": (0.1, 0.0, 0.0)}, now)
     assert (mover, other) == ("follower", "leader") and at == pytest.approx(gap, abs=1e-6) and speed == pytest.approx(0.1)
+    # an executor that reacts within 30 ms stops it later: 1.55 cm before contact, not yet
+    assert closing(bodies, {"follower": (0.1, 0.0, 0.0)}, now, react_s=0.03) == []
     # the leader, standing, is not the one to stop; on the move away from the follower neither
     assert closing(bodies, {"leader": (0.0, 0.0, 0.0)}, now) == []
     assert closing(bodies, {"leader": (0.1, 0.0, 0.0)}, now) == []

@@ -8,7 +8,9 @@ by a neighbour on time: 80-vehicle soaks had ground contacts in every run that t
 them are, whoever owns them: from every frame it keeps each body's position and velocity
 (`Bodies`), and before each control cycle it asks, for each vehicle of its own that moves on its
 plan, whether that vehicle, at its estimated or planned velocity, is heading into a body (within
-`near_gap` of contact) in the next `horizon_s` s, the other's velocity as seen; if so, the vehicle
+`near_gap` of contact) before it could have stopped, the other going on as it moves if it
+moves away and standing where it is if it comes closer (its approach is its own executor's to
+stop: each of two vehicles heading into each other stops for its own motion); if so, the vehicle
 stops short (`VehicleController.stop_short`: it holds like a vehicle the guard holds, is reported
 and the fleet's reflex and the mission's replan follow). A vehicle at rest, or moving away, does
 not stop: its stopping would not help, and the one closing in stops instead.
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -35,19 +38,41 @@ NEVER = -1e9
 @dataclass(frozen=True, slots=True)
 class ProximityParams:
     """near_gap: m between two bodies that counts as touching (a third of the shipped maps' 3 cm
-    margin: plans keep a whole margin, tracking in a 32-vehicle soak came to 1.5 cm); horizon_s:
-    how far ahead a closing is looked for: a stalled cycle's reaction (0.15 s) and a stop from
-    flying speed (0.3 m/s at 2 m/s^2: 0.15 s); closing_speed: m/s towards the other body at which a
+    margin: plans keep a whole margin, tracking in a 32-vehicle soak came to 1.5 cm); a closing is
+    looked for as far ahead as the mover needs to stop: its executor's reaction (`closing`'s
+    `react_s`: the recent pose-to-command p99 and a period; at least `react_s` here) and a stop from
+    the pair's relative speed at `brake` m/s^2 (the flight controller's tilt limit; wheels stop
+    faster); closing_speed: m/s towards the other body at which a
     vehicle counts as heading into it; velocity_s: the window over which a body's velocity is
     measured from its positions (1 mm motion-capture noise is 1.4 cm/s over 0.1 s); fresh_s: a
     body not seen for longer is not counted (the motion capture lost it)."""
 
     near_gap: float = 0.01
-    horizon_s: float = 0.3
+    react_s: float = 0.03
+    brake: float = 2.0
     closing_speed: float = 0.02
     velocity_s: float = 0.1
     fresh_s: float = 1.0
     samples: int = 4
+
+
+class Closing(NamedTuple):
+    """A mover heading into another body: the gap between them now (m), the mover's speed towards
+    it (m/s), the mover's velocity judged and the other's as counted (m/s, world; zero when it comes
+    closer)."""
+
+    mover: str
+    other: str
+    gap: float
+    speed: float
+    v_mover: tuple[float, float, float]
+    v_other: tuple[float, float, float]
+
+    def why(self) -> str:
+        """The hold's reason, as reported."""
+        vm, vo = (", ".join(f"{c:.2f}" for c in v) for v in (self.v_mover, self.v_other))
+        return (f"stops short of {self.other}: bodies {100 * self.gap:.1f} cm apart, closing at {self.speed:.2f} m/s "
+                f"(its velocity ({vm}), {self.other}'s ({vo}))")
 
 
 class Bodies:
@@ -99,41 +124,51 @@ class Bodies:
         self.vel[ok] = (self.pos[ok] - old_pos[ok]) / dt[ok, None]
 
     def closing(self, movers: list[str], v_self: np.ndarray, radius: float, height: float,
-                now: float) -> list[tuple[str, str, float, float]]:
+                now: float, react_s: float = 0.0) -> list[Closing]:
         """Which of `movers` (vehicles seen in the frames) head into another body within the
         horizon: `v_self` (len(movers) x K x 3) are the velocities each may move at (estimated,
         planned); bodies of `radius` x `height` touch when nearer than 2 radius across and height
-        up (DESIGN.md). (mover, other, gap now (m), closing speed (m/s)) for each, nearest first."""
+        up (DESIGN.md); `react_s`: how late the mover's commands take effect (s). One `Closing` per
+        such pair, nearest first."""
         p = self.params
+        react = max(react_s, p.react_s)
         n = len(self.vids)
-        if not movers or n < 2:
+        moving = np.linalg.norm(v_self, axis=2).max(axis=1) > p.closing_speed  # (slower heads into nothing)
+        if n < 2 or not moving.any():
             return []
+        index = np.nonzero(moving)[0]
+        movers, v_self = [movers[k] for k in index.tolist()], v_self[index]
         own = np.array([self.rows[v] for v in movers])
         fresh = now - self.seen[:n] < p.fresh_s
         pos, vel = self.pos[:n], self.vel[:n]
         d = pos[None, :, :] - pos[own][:, None, :]  # movers x bodies x 3: to the other body
         across = np.hypot(d[..., 0], d[..., 1])
         speed = np.linalg.norm(vel, axis=1)[None, :] + np.linalg.norm(v_self, axis=2).max(axis=1)[:, None]
+        ahead = speed * (react + speed / (2.0 * p.brake))  # the farthest the pair closes in before stopping
         reach_xy, reach_z = 2.0 * radius + p.near_gap, height + p.near_gap
-        near = ((across - speed * p.horizon_s < reach_xy) & (np.abs(d[..., 2]) - speed * p.horizon_s < reach_z)
+        near = ((across - ahead < reach_xy) & (np.abs(d[..., 2]) - ahead < reach_z)
                 & fresh[None, :] & fresh[own][:, None])
         near[np.arange(len(own)), own] = False
         i, j = np.nonzero(near)
         if not len(i):
             return []
         dij = d[i, j]  # pairs x 3
-        taus = np.linspace(0.0, p.horizon_s, p.samples)
-        hits: dict[tuple[str, str], tuple[str, str, float, float]] = {}
+        vo = vel[j]
+        vo = np.where((np.einsum("ij,ij->i", vo, dij) > 0.0)[:, None], vo, 0.0)  # its approach is its own to stop
+        steps = np.linspace(0.0, 1.0, p.samples)
+        hits: dict[tuple[str, str], Closing] = {}
         for k in range(v_self.shape[1]):
             vs = v_self[i, k]  # pairs x 3
-            w = vel[j] - vs  # the other's motion relative to the mover
-            q = dij[:, None, :] + w[:, None, :] * taus[None, :, None]  # pairs x samples x 3
+            w = vo - vs  # the other's motion relative to the mover
+            horizon = react + np.linalg.norm(w, axis=1) / (2.0 * p.brake)  # until both could be stopped
+            taus = horizon[:, None] * steps[None, :]
+            q = dij[:, None, :] + w[:, None, :] * taus[..., None]  # pairs x samples x 3
             touch = ((np.hypot(q[..., 0], q[..., 1]) < reach_xy) & (np.abs(q[..., 2]) < reach_z)).any(axis=1)
             dist = np.linalg.norm(dij, axis=1)
             towards = np.einsum("ij,ij->i", vs, dij) / np.maximum(dist, 1e-9)
             for m in np.nonzero(touch & (towards > p.closing_speed))[0].tolist():
                 gap = max(float(across[i[m], j[m]]) - 2.0 * radius, float(abs(dij[m, 2])) - height)
                 pair = (movers[i[m]], self.vids[j[m]])
-                if pair not in hits or hits[pair][3] < towards[m]:
-                    hits[pair] = (*pair, gap, float(towards[m]))
-        return sorted(hits.values(), key=lambda h: h[2])
+                if pair not in hits or hits[pair].speed < towards[m]:
+                    hits[pair] = Closing(*pair, gap, float(towards[m]), tuple(vs[m].tolist()), tuple(vo[m].tolist()))
+        return sorted(hits.values(), key=lambda h: h.gap)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import itertools
 import logging
 import time
 from collections import deque
@@ -78,6 +79,8 @@ ROUTER_CHECK_TICKS = 10
 """Control ticks between two looks at the router link (a look costs about a microsecond)."""
 BODIES_FRESH_S = 2.0
 """s: a vehicle seen in a frame this recent is where a fault landing of another may not come down."""
+REACT_WINDOW = 200
+"""Cycles (2 s at 100 Hz) over which the proximity stop's reaction is measured (`LoopStats.recent_latency`)."""
 FRAME_WAIT = 1.5
 """Control periods a cycle waits for a motion-capture frame before it runs without one."""
 
@@ -98,6 +101,8 @@ class LoopStats:
         self.ticks = 0
         self.missed = 0
         self.worst_latency = 0.0
+        self._react = 0.0
+        self._react_at = 0
 
     def add(self, late: float, cost: float, period: float) -> None:
         self.ticks += 1
@@ -111,6 +116,15 @@ class LoopStats:
         self.latency.append(seconds)
         self.software.append(software)
         self.worst_latency = max(self.worst_latency, seconds)
+
+    def recent_latency(self, n: int = REACT_WINDOW) -> float:
+        """The p99 of the last `n` pose-to-command latencies (s; 0 before any), recomputed every
+        `n` cycles: how late this executor's commands are now (the proximity stop's reaction)."""
+        if self.ticks >= self._react_at:
+            self._react_at = self.ticks + n
+            recent = list(itertools.islice(reversed(self.latency), n))
+            self._react = float(np.percentile(recent, 99)) if recent else 0.0
+        return self._react
 
     def percentiles(self) -> dict[str, float]:
         return {**percentile_figures("late", self.late), **percentile_figures("cost", self.cost),
@@ -392,7 +406,7 @@ class ExecutorService(Service):
         if not self.control.faults.guard:
             return
         movers: list[str] = []
-        velocities: list[tuple[tuple[float, float, float], tuple[float, float, float]]] = []
+        velocities: list[tuple[float, float, float, float, float, float]] = []
         radius = height = 0.0
         rows = self.bodies.rows
         for vid, ctl in self.controllers.items():
@@ -404,9 +418,10 @@ class ExecutorService(Service):
                 radius, height = max(radius, r), max(height, h)
         if not movers:
             return
-        for vid, other, gap, speed in self.bodies.closing(movers, np.array(velocities), radius, height, now):
-            self.controllers[vid].stop_short(f"stops short of {other}: bodies {100 * gap:.1f} cm apart, "
-                                             f"closing at {speed:.2f} m/s")
+        react = self.stats.recent_latency() + self.period
+        v_self = np.array(velocities).reshape(len(movers), 2, 3)
+        for closing in self.bodies.closing(movers, v_self, radius, height, now, react):
+            self.controllers[closing.mover].stop_short(closing.why())
 
     def _cycle(self, now: float, n: int, pose_t: float, pose_arrived: float) -> None:
         """Tick every owned controller; commands out as one batch per gateway."""

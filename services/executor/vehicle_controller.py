@@ -456,16 +456,16 @@ class VehicleController:
                 and not self._yield and not self._fault_landing and not self._abort
                 and self.machine.mode not in (Mode.DONE, Mode.EMERGENCY_LANDING))
 
-    def motion(self) -> tuple[tuple[float, float, float], tuple[float, float, float]] | None:
-        """The last tick's estimated and planned velocities while the vehicle moves on its plan
-        (driving, taking off, flying, landing), for the proximity stop
+    def motion(self) -> tuple[float, float, float, float, float, float] | None:
+        """The last tick's estimated and planned velocities (vx, vy, vz of each, flat) while the
+        vehicle moves on its plan (driving, taking off, flying, landing), for the proximity stop
         (`services/executor/proximity.py`); None otherwise."""
         if self._seen is None or self.machine.mode not in MOVING or not self._may_yield():
             return None
         _, est, ref = self._seen
         if est.stale or ref is None:
             return None
-        return (est.vx, est.vy, est.vz), (ref.vx, ref.vy, ref.vz)
+        return est.vx, est.vy, est.vz, ref.vx, ref.vy, ref.vz
 
     def stop_short(self, why: str) -> bool:
         """The proximity stop: this vehicle heads into another body (`why`); it holds at its next
