@@ -140,6 +140,23 @@ def test_yaw_crossing_pi_is_smooth() -> None:
     assert -math.pi < e.yaw <= math.pi
 
 
+def test_between_poses_the_yaw_turns_at_the_rate_commanded() -> None:
+    """A flight controller's yaw-rate command turns the predicted yaw from when it was given; with
+    none (driving, on the ground) the yaw goes on at the rate the poses show."""
+    est = PoseEstimator()
+    for k in range(20):  # still, facing +x
+        est.update(Pose(vid="cf1", t=0.01 * k, x=0.0, y=0.0, z=0.5, yaw=0.0))
+    t = 0.19
+    est.set_input((0.0, 0.0, 0.0), t + 0.05, yaw_rate=2.0)  # 2 rad/s from 50 ms after the last pose
+    assert est.estimate(t + 0.05).yaw == pytest.approx(0.0, abs=1e-6)
+    assert est.estimate(t + 0.25).yaw == pytest.approx(0.4, abs=1e-6)
+    assert est.estimate(t + 0.25).yaw_rate == pytest.approx(2.0)
+    est.set_input((0.0, 0.0, 0.0), t + 0.15)  # no command any more: the poses' rate (none) from then on
+    assert est.estimate(t + 0.25).yaw == pytest.approx(0.2, abs=1e-6)
+    est.update(Pose(vid="cf1", t=t + 0.1, x=0.0, y=0.0, z=0.5, yaw=0.1))  # a pose in the middle of the turn
+    assert est.estimate(t + 0.15).yaw == pytest.approx(0.1 + 2.0 * 0.05, abs=0.02)
+
+
 def test_out_of_order_and_duplicate_poses_are_dropped() -> None:
     est = PoseEstimator()
     track(est, 0.0, 1.0)

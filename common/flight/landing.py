@@ -114,5 +114,5 @@ class LandInPlace:
                 az, capped = min(az, (SETTLE_THRUST - 1.0) * G), True
         # (on the ground only thrust above its weight; settling on something higher than `ground`,
         # a capped thrust against a vehicle at rest teaches no lift error)
-        self.estimator.command((ax, ay, az), now, aloft, learn=not capped)
+        self.estimator.command((ax, ay, az), now, aloft, learn=not capped, yaw_rate=self.lqr.yaw_rate)
         return sp

@@ -557,7 +557,7 @@ class VehicleController:
             aloft = est.z - self._ground_z > self.params.liftoff_height
             sp = self.lqr.command(est, ref, integrate=aloft and link)
             if link:
-                self.estimator.command(self.lqr.expected_accel, now, aloft)
+                self.estimator.command(self.lqr.expected_accel, now, aloft, yaw_rate=self.lqr.yaw_rate)
             else:
                 self.estimator.set_input((0.0, 0.0, 0.0), now)
             return sp
@@ -666,7 +666,8 @@ class VehicleController:
         d = self.lqr.model.drag_rate  # the thrust also makes up for the drag of the descent
         k = max(self.estimator.lift_error, 0.0)  # the thrust model's error learned: (1 + k)(g + bias + accel) = g + accel
         bias = min(max((G + accel) / (1.0 + k) - G - accel, -faults.descent_bias_max), faults.descent_bias_max)
-        self.estimator.command((ax - d * est.vx, ay - d * est.vy, accel + bias), now, aloft=True, learn=False)
+        self.estimator.command((ax - d * est.vx, ay - d * est.vy, accel + bias), now, aloft=True, learn=False,
+                               yaw_rate=0.0)
         thrust = self.model.mass * (G + bias + accel + d * est.vz) / (math.cos(roll) * math.cos(pitch))
         return to_flight_setpoint(roll, pitch, 0.0, thrust_command(thrust))
 
