@@ -11,7 +11,7 @@ each starts where the last one left the vehicles, with fresh goals. Collected wh
 
 Printed as tables at the end; `soak.png` plots memory and latency over time.
 
-    python -m bench.soak [--minutes 5] [--vehicles 80] [--executors 2] [--per-radio 8] [--truth-hz 50]
+    python -m bench.soak [--minutes 5] [--vehicles 80] [--executors 2] [--per-radio 8] [--truth-hz 50] [--sim-priority 0]
     FLEET_SOAK_MINUTES=20 make soak        # the same through pytest -m soak (tests/test_soak.py)
 """
 
@@ -61,10 +61,12 @@ def draw_tasks(graph: FleetGraph, starts: dict[str, str], rng: random.Random) ->
 
 
 def soak_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int, per_radio: int,
-               truth_hz: float, fleet: str = "soak", thrust_spread: float = 0.0):
-    """The demo's fleet (services.mission.demo), minus the recorder, tuned for a large fleet."""
+               truth_hz: float, fleet: str = "soak", thrust_spread: float = 0.0, sim_priority: int = 0):
+    """The demo's fleet (services.mission.demo), minus the recorder, tuned for a large fleet;
+    `sim_priority`: nice levels the simulator raises its priority by (`fleet sim --priority`)."""
     return local_fleet(map_name, tasks, run_dir, executors, per_radio, fleet=fleet, without={"telemetry"},
-                       extra_args={"sim": ["--truth-hz", str(truth_hz), "--thrust-spread", str(thrust_spread)]})
+                       extra_args={"sim": ["--truth-hz", str(truth_hz), "--thrust-spread", str(thrust_spread),
+                                           "--priority", str(sim_priority)]})
 
 
 def proc_sample(pid: int) -> tuple[float, float] | None:
@@ -278,14 +280,15 @@ def figure(log: SoakLog, out: str | Path) -> Path:
 
 def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: int = 8, truth_hz: float = 50.0,
              sample_s: float = 5.0, seed: int = 0, run_dir: Path = Path("out/soak/run"),
-             out: str | Path = "out", thrust_spread: float = 0.0) -> SoakLog:
+             out: str | Path = "out", thrust_spread: float = 0.0, sim_priority: int = 0) -> SoakLog:
     """Start the fleet, soak it for `minutes`, print the report and save the figure."""
     graph = load_graph(MAP)
     rng = random.Random(seed)
     spots = sorted(graph.endpoints())
     starts = {f"cf{i + 1:02d}": s for i, s in enumerate(rng.sample(spots, vehicles))}
     tasks = draw_tasks(graph, starts, rng)
-    with soak_fleet(MAP, tasks, run_dir, executors, per_radio, truth_hz, thrust_spread=thrust_spread) as fleet:
+    with soak_fleet(MAP, tasks, run_dir, executors, per_radio, truth_hz, thrust_spread=thrust_spread,
+                    sim_priority=sim_priority) as fleet:
         log = asyncio.run(soak(fleet, graph, tasks, 60.0 * minutes, sample_s, seed))
     print(report(log, 60.0 * minutes))
     print(f"saved {figure(log, out)}")
@@ -303,11 +306,14 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--thrust-spread", type=float, default=0.0, metavar="FRACTION",
                         help="the simulated units' thrust differs from the model by up to this fraction (`fleet sim`)")
+    parser.add_argument("--sim-priority", type=int, default=0, metavar="N",
+                        help="the simulator raises its CPU priority by N nice levels (`fleet sim --priority`): "
+                             "the world it stands for does not wait for a loaded machine")
     parser.add_argument("--run-dir", default="out/soak/run", help="logs and state of the fleet's processes")
     parser.add_argument("--summary", help="also write the verdicts and memory growth here (JSON)")
     args = parser.parse_args()
     log = run_soak(args.minutes, args.vehicles, args.executors, args.per_radio, args.truth_hz, args.sample_s,
-                   args.seed, Path(args.run_dir), args.out, args.thrust_spread)
+                   args.seed, Path(args.run_dir), args.out, args.thrust_spread, args.sim_priority)
     if args.summary:
         Path(args.summary).write_text(json.dumps(summary(log), indent=1))
 

@@ -110,6 +110,25 @@ def test_the_driving_switch_serialises_wheel_commands_at_its_rate() -> None:
     assert max(by_tick.values()) == 1  # one wheel packet at a time
 
 
+def test_a_stop_goes_ahead_of_the_driving_switch_queue() -> None:
+    """Ten drivers whose commands change every tick fill the switch (each gets a wheel packet every
+    tenth tick); the one told to stop gets its zero out in the tick it was told, ahead of the queue
+    and beyond the switch's rate, and its repeats go on through the queue."""
+    chans, sched = _radio(0, 10)
+    before, _ = _run(chans, sched, 1.0, lambda ch, now: WheelSetpoint(left=now, right=-now))
+    stop_at = max(t for t, p in before["d3"] if isinstance(p, crtp.Wheels)) + 2 * TICK  # its turn 8 ticks away
+    def command(ch, now):
+        if ch.vid == "d3" and now >= stop_at - 1e-9:
+            return StopSetpoint()
+        return WheelSetpoint(left=now, right=-now)
+    sent, _ = _run(chans, sched, 0.5, command, t0=1.0)
+    zeros = [t for t, p in sent["d3"] if isinstance(p, crtp.Wheels) and p.left_mm_s == 0 and p.right_mm_s == 0]
+    assert zeros and zeros[0] == pytest.approx(stop_at), zeros
+    assert len(zeros) == GatewayParams().stop_repeats
+    by_tick = Counter(t for ch in chans for t, p in sent[ch.vid] if isinstance(p, crtp.Wheels))
+    assert by_tick[zeros[0]] == 2  # the stop beside the switch's own packet
+
+
 def test_stale_commands_land_a_flyer_and_stop_a_driver() -> None:
     chans, sched = _radio(1, 1)
     flyer, driver = chans

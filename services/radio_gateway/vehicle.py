@@ -429,6 +429,12 @@ class VehicleChannel:
             return False
         return self._wheels != self._wheels_sent or now - self._wheels_sent_at >= self.params.wheel_refresh_s
 
+    @property
+    def wheels_to_stop(self) -> bool:
+        """A wheel command that stops wheels last sent turning is due: the driving command switch
+        carries it ahead of its queue (`Scheduler._drive`)."""
+        return self._wheels == (0.0, 0.0) and self._wheels_sent is not None and any(self._wheels_sent)
+
     def wheel_packet(self, now: float) -> bytes | None:
         """The latest wheel command (None if no longer due)."""
         if not self.wheel_due(now):
