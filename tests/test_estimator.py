@@ -155,6 +155,12 @@ def test_between_poses_the_yaw_turns_at_the_rate_commanded() -> None:
     assert est.estimate(t + 0.25).yaw == pytest.approx(0.2, abs=1e-6)
     est.update(Pose(vid="cf1", t=t + 0.1, x=0.0, y=0.0, z=0.5, yaw=0.1))  # a pose in the middle of the turn
     assert est.estimate(t + 0.15).yaw == pytest.approx(0.1 + 2.0 * 0.05, abs=0.02)
+    # blind for longer than the commands are kept (1 s): 0.5 rad/s for 1.5 s, then none, every 10 ms
+    last = t + 0.15  # (after the last input given)
+    yaw0 = est.estimate(last).yaw
+    for k in range(300):
+        est.set_input((0.0, 0.0, 0.0), last + 0.01 * k, yaw_rate=0.5 if k < 150 else 0.0)
+    assert est.estimate(last + 3.0).yaw == pytest.approx(yaw0 + 0.5 * 1.5, abs=1e-6)
 
 
 def test_out_of_order_and_duplicate_poses_are_dropped() -> None:

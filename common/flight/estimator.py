@@ -207,8 +207,9 @@ class PoseEstimator:
         self._accel: Accel = (0.0, 0.0, 0.0)
         self._input_base: Accel = (0.0, 0.0, 0.0)  # the command in force before the first of `_inputs`
         self._inputs: list[tuple[float, Accel]] = []  # (from when, acceleration), since the last pose
-        self._yaw_base: float | None = None  # the yaw rate commanded before the first of `_yaw_inputs`
-        self._yaw_inputs: list[tuple[float, float | None]] = []  # (from when, yaw rate or None), since the last pose
+        self._yaw_from: tuple[float, float, float | None] = (0.0, 0.0, None)
+        """The yaw predicted from: (time, yaw then, the yaw rate commanded from then on, None for none)."""
+        self._yaw_inputs: list[tuple[float, float | None]] = []  # (from when, yaw rate or None), since `_yaw_from`
         self._unlearned_until = math.inf  # the end of the last input that teaches no lift error (inf: in force)
         self.floor: float | None = None
         """Height (m) the vehicle cannot be below, set by its controller (the ground where it takes
@@ -219,7 +220,7 @@ class PoseEstimator:
         stopped in the air.)"""
         self._dr_t = 0.0  # dead reckoning since the last pose: time, position, velocity
         self._dr = [0.0] * 6
-        self._yaw = (0.0, 0.0)  # yaw and its rate at the last pose
+        self._seen_yaw_rate = 0.0  # the filter's yaw rate at the last pose
         self._pos_cov: Sequence[float] = ()  # per axis x, y, z: P_pp, P_pv, P_vv at the last pose
         self.lift_error = 0.0
         """The fraction of its thrust a thrust command gives beyond what its controller expects
@@ -246,12 +247,14 @@ class PoseEstimator:
         assert self.t is not None
         self._dr_t = self.t
         self._dr = [x[0], x[2], x[4], x[1], x[3], x[5]]
-        self._yaw = (x[6], x[7])
+        self._seen_yaw_rate = x[7]
         self._pos_cov = p[:9]
         while self._inputs and self._inputs[0][0] <= self.t:
             self._input_base = self._inputs.pop(0)[1]
+        commanded = self._yaw_from[2]
         while self._yaw_inputs and self._yaw_inputs[0][0] <= self.t:
-            self._yaw_base = self._yaw_inputs.pop(0)[1]
+            commanded = self._yaw_inputs.pop(0)[1]
+        self._yaw_from = (self.t, x[6], commanded)
         a = self._input_base
         for t, accel in self._inputs:
             self._dr, self._dr_t, a = self._floored(_reckoned(self._dr, a, t - self._dr_t)), t, accel
@@ -299,8 +302,9 @@ class PoseEstimator:
         while self._inputs and self._inputs[0][0] < now - INPUT_HISTORY_S:
             self._input_base = self._inputs.pop(0)[1]
         self._yaw_inputs.append((now, yaw_rate))
-        while self._yaw_inputs and self._yaw_inputs[0][0] < now - INPUT_HISTORY_S:
-            self._yaw_base = self._yaw_inputs.pop(0)[1]
+        while self._yaw_inputs and self._yaw_inputs[0][0] < now - INPUT_HISTORY_S:  # (no pose for a while)
+            since, commanded = self._yaw_inputs.pop(0)
+            self._yaw_from = (since, self._yaw_at(since)[0], commanded)
 
     def command(self, accel: Accel, now: float, aloft: bool, learn: bool = True,
                 yaw_rate: float | None = None) -> None:
@@ -375,9 +379,8 @@ class PoseEstimator:
         rate alone, a vehicle turning to its heading at the top of a take-off on 0.2 s old poses
         had its yaw estimated 60-100 deg behind, and the yaw loop swung it +-50 deg at 500 deg/s
         while its tilt was turned the wrong way: it flew off by metres.)"""
-        yaw, seen_rate = self._yaw
-        t = self.t or now
-        rate = self._yaw_base
+        seen_rate = self._seen_yaw_rate
+        t, yaw, rate = self._yaw_from
         for since, commanded in self._yaw_inputs:
             if since >= now:
                 break

@@ -45,7 +45,8 @@ class ProximityParams:
     faster); closing_speed: m/s towards the other body at which a
     vehicle counts as heading into it; velocity_s: the window over which a body's velocity is
     measured from its positions (1 mm motion-capture noise is 1.4 cm/s over 0.1 s); fresh_s: a
-    body not seen for longer is not counted (the motion capture lost it)."""
+    body not seen for longer is not counted (the motion capture lost it); samples: the points of the
+    look-ahead at which the two bodies are judged."""
 
     near_gap: float = 0.01
     react_s: float = 0.03
@@ -125,8 +126,8 @@ class Bodies:
 
     def closing(self, movers: list[str], v_self: np.ndarray, radius: float, height: float,
                 now: float, react_s: float = 0.0) -> list[Closing]:
-        """Which of `movers` (vehicles seen in the frames) head into another body within the
-        horizon: `v_self` (len(movers) x K x 3) are the velocities each may move at (estimated,
+        """Which of `movers` (vehicles seen in the frames) head into another body before they could
+        have stopped: `v_self` (len(movers) x K x 3) are the velocities each may move at (estimated,
         planned); bodies of `radius` x `height` touch when nearer than 2 radius across and height
         up (DESIGN.md); `react_s`: how late the mover's commands take effect (s). One `Closing` per
         such pair, nearest first."""
@@ -160,7 +161,7 @@ class Bodies:
         for k in range(v_self.shape[1]):
             vs = v_self[i, k]  # pairs x 3
             w = vo - vs  # the other's motion relative to the mover
-            horizon = react + np.linalg.norm(w, axis=1) / (2.0 * p.brake)  # until both could be stopped
+            horizon = react + np.linalg.norm(w, axis=1) / (2.0 * p.brake)  # until the mover could have stopped
             taus = horizon[:, None] * steps[None, :]
             q = dij[:, None, :] + w[:, None, :] * taus[..., None]  # pairs x samples x 3
             touch = ((np.hypot(q[..., 0], q[..., 1]) < reach_xy) & (np.abs(q[..., 2]) < reach_z)).any(axis=1)
