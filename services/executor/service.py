@@ -10,7 +10,8 @@ Inputs: `vehicle/*/plan`, `mocap/frame` (every vehicle's pose of one motion-capt
 `vehicle/*/telemetry`, `vehicle/*/state` (for take-over), `mission/*/start`, `mission/*/abort`.
 
 The control cycle is triggered by a frame's arrival (DESIGN.md, "Hot path"): it fuses the frame's
-poses of the owned vehicles, ticks every controller and sends the commands as one `CmdBatch` per
+poses of the owned vehicles, holds each owned vehicle that heads into another body the frames show
+(the proximity stop, `proximity.py`), ticks every controller and sends the commands as one `CmdBatch` per
 gateway (`gateway/<instance>/cmd`; a vehicle's gateway is the one its telemetry comes from,
 `vehicle/<vid>/cmd` until that is known). Without frames (motion capture lost) a cycle runs every
 `FRAME_WAIT` periods anyway, so that stale poses are noticed and fault landings are flown. Outputs

@@ -55,6 +55,7 @@ def lowest_ground(plan: VehiclePlan | None) -> float:
     (z = 0, where the maps put their ground) or the lowest point of its plan, if lower."""
     return min([0.0] + ([s.pos[2] for s in plan.steps] if plan is not None else []))
 
+
 MOVING = frozenset({Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING})
 """Modes in which a vehicle moves on its plan (`VehicleController.motion`)."""
 YIELD_STEP_S = 0.05
