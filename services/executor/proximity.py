@@ -134,17 +134,18 @@ class Bodies:
         p = self.params
         react = max(react_s, p.react_s)
         n = len(self.vids)
-        moving = np.linalg.norm(v_self, axis=2).max(axis=1) > p.closing_speed  # (slower heads into nothing)
+        fastest = np.linalg.norm(v_self, axis=2).max(axis=1)
+        moving = fastest > p.closing_speed  # (slower heads into nothing)
         if n < 2 or not moving.any():
             return []
         index = np.nonzero(moving)[0]
-        movers, v_self = [movers[k] for k in index.tolist()], v_self[index]
+        movers, v_self, fastest = [movers[k] for k in index.tolist()], v_self[index], fastest[index]
         own = np.array([self.rows[v] for v in movers])
         fresh = now - self.seen[:n] < p.fresh_s
         pos, vel = self.pos[:n], self.vel[:n]
         d = pos[None, :, :] - pos[own][:, None, :]  # movers x bodies x 3: to the other body
         across = np.hypot(d[..., 0], d[..., 1])
-        speed = np.linalg.norm(vel, axis=1)[None, :] + np.linalg.norm(v_self, axis=2).max(axis=1)[:, None]
+        speed = np.linalg.norm(vel, axis=1)[None, :] + fastest[:, None]
         ahead = speed * (react + speed / (2.0 * p.brake))  # the farthest the pair closes in before stopping
         reach_xy, reach_z = 2.0 * radius + p.near_gap, height + p.near_gap
         near = ((across - ahead < reach_xy) & (np.abs(d[..., 2]) - ahead < reach_z)
@@ -156,6 +157,7 @@ class Bodies:
         dij = d[i, j]  # pairs x 3
         vo = vel[j]
         vo = np.where((np.einsum("ij,ij->i", vo, dij) > 0.0)[:, None], vo, 0.0)  # its approach is its own to stop
+        dist = np.linalg.norm(dij, axis=1)
         steps = np.linspace(0.0, 1.0, p.samples)
         hits: dict[tuple[str, str], Closing] = {}
         for k in range(v_self.shape[1]):
@@ -165,7 +167,6 @@ class Bodies:
             taus = horizon[:, None] * steps[None, :]
             q = dij[:, None, :] + w[:, None, :] * taus[..., None]  # pairs x samples x 3
             touch = ((np.hypot(q[..., 0], q[..., 1]) < reach_xy) & (np.abs(q[..., 2]) < reach_z)).any(axis=1)
-            dist = np.linalg.norm(dij, axis=1)
             towards = np.einsum("ij,ij->i", vs, dij) / np.maximum(dist, 1e-9)
             for m in np.nonzero(touch & (towards > p.closing_speed))[0].tolist():
                 gap = max(float(across[i[m], j[m]]) - 2.0 * radius, float(abs(dij[m, 2])) - height)
