@@ -63,13 +63,29 @@ def test_a_vehicle_driving_on_into_one_that_stalled_stops_short() -> None:
     gap = 0.025  # under a margin (the plan's 3 cm) and closing at driving speed: 1.75 cm before it stops
     now = frames(bodies, {"follower": ((0.0, 0.0, 0.0), (0.1, 0.0, 0.0)),
                           "leader": ((2 * RADIUS + gap, 0.0, 0.0), (0.0, 0.0, 0.0))})
-    [(mover, other, at, speed, _, _)] = closing(bodies, {"follower": (0.1, 0.0, 0.0)}, now)
+    [(mover, other, at, speed, _, _, _)] = closing(bodies, {"follower": (0.1, 0.0, 0.0)}, now)
     assert (mover, other) == ("follower", "leader") and at == pytest.approx(gap, abs=1e-6) and speed == pytest.approx(0.1)
     # an executor that reacts within 30 ms stops it later: 1.55 cm before contact, not yet
     assert closing(bodies, {"follower": (0.1, 0.0, 0.0)}, now, react_s=0.03) == []
     # the leader, standing, is not the one to stop; on the move away from the follower neither
     assert closing(bodies, {"leader": (0.0, 0.0, 0.0)}, now) == []
     assert closing(bodies, {"leader": (0.1, 0.0, 0.0)}, now) == []
+
+
+def test_while_the_frames_stall_a_vehicle_driving_on_into_a_body_stops_short() -> None:
+    """The 80-vehicle soak's contact on the proximity stop's code (docs/reliability.md): the motion
+    capture stalled for a tenth of a second, the follower drove on on its estimate into a vehicle
+    stopped before it. The judgement goes on without frames, over the age of the newest one."""
+    bodies = Bodies()
+    gap, v = 0.04, (0.1, 0.0, 0.0)
+    now = frames(bodies, {"follower": ((0.0, 0.0, 0.0), v), "leader": ((2 * RADIUS + gap, 0.0, 0.0), (0.0, 0.0, 0.0))})
+    assert bodies.reaction(now + 0.005, 0.02, 0.01) == pytest.approx(0.03)  # the executor's p99 and a period
+    assert closing(bodies, {"follower": v}, now + 0.005, bodies.reaction(now + 0.005, 0.02, 0.01)) == []
+    # no frame for 0.3 s: the follower has driven on 3 cm of its 4 on its estimate
+    react = bodies.reaction(now + 0.3, 0.02, 0.01)
+    assert react == pytest.approx(0.31)
+    [hit] = closing(bodies, {"follower": v}, now + 0.3, react)
+    assert (hit.mover, hit.other) == ("follower", "leader") and hit.gap == pytest.approx(gap, abs=1e-6)
 
 
 @pytest.mark.parametrize(("what", "follower", "leader", "v_follower"), [

@@ -40,7 +40,8 @@ class ProximityParams:
     """near_gap: m between two bodies that counts as touching (a third of the shipped maps' 3 cm
     margin: plans keep a whole margin, tracking in a 32-vehicle soak came to 1.5 cm); a closing is
     looked for as far ahead as the mover needs to stop: its executor's reaction (`closing`'s
-    `react_s`: the recent pose-to-command p99 and a period; at least `react_s` here) and a stop from
+    `react_s`, `Bodies.reaction`: the recent pose-to-command p99, or the newest frame's age while
+    the frames stall, and a period; at least `react_s` here) and a stop from
     the pair's relative speed at `brake` m/s^2 (the flight controller's tilt limit; wheels stop
     faster); closing_speed: m/s towards the other body at which a
     vehicle counts as heading into it; velocity_s: the window over which a body's velocity is
@@ -60,7 +61,7 @@ class ProximityParams:
 class Closing(NamedTuple):
     """A mover heading into another body: the gap between them now (m), the mover's speed towards
     it (m/s), the mover's velocity judged and the other's as counted (m/s, world; zero when it comes
-    closer)."""
+    closer), and the reaction it was judged with (s)."""
 
     mover: str
     other: str
@@ -68,12 +69,13 @@ class Closing(NamedTuple):
     speed: float
     v_mover: tuple[float, float, float]
     v_other: tuple[float, float, float]
+    react: float
 
     def why(self) -> str:
         """The hold's reason, as reported."""
         vm, vo = (", ".join(f"{c:.2f}" for c in v) for v in (self.v_mover, self.v_other))
         return (f"stops short of {self.other}: bodies {100 * self.gap:.1f} cm apart, closing at {self.speed:.2f} m/s "
-                f"(its velocity ({vm}), {self.other}'s ({vo}))")
+                f"(its velocity ({vm}), {self.other}'s ({vo}); reaction {1000 * self.react:.0f} ms)")
 
 
 class Bodies:
@@ -87,6 +89,8 @@ class Bodies:
         self.pos = np.zeros((0, 3))
         self.seen = np.zeros(0)
         self.vel = np.zeros((0, 3))
+        self.newest = NEVER
+        """The capture time of the newest frame settled (s)."""
         self._history: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
 
     def _row(self, vid: str) -> int:
@@ -113,6 +117,7 @@ class Bodies:
     def settle(self, t: float) -> None:
         """After a cycle's frames (the newest of capture time `t`): the velocities over the last
         `velocity_s` (0 for a body without positions that far apart, or seen then but not since)."""
+        self.newest = max(self.newest, t)
         window = self.params.velocity_s
         history = self._history
         history.append((t, self.pos.copy(), self.seen.copy()))
@@ -123,6 +128,16 @@ class Bodies:
         ok = (dt >= 0.5 * window) & (dt <= 10.0 * window)
         self.vel[:] = 0.0
         self.vel[ok] = (self.pos[ok] - old_pos[ok]) / dt[ok, None]
+
+    def reaction(self, now: float, latency: float, period: float) -> float:
+        """How long after the capture of the positions a mover is judged on its stop takes effect
+        (s): the executor's recent pose-to-command `latency` (its p99) or, while the frames stall,
+        the age of the newest (the movers drive on, on their estimates, and the judgement goes on
+        every cycle: in an 80-vehicle soak the motion capture stalled for a tenth of a second, a
+        driver went on into a vehicle stopped before it and stopped short 40 ms after they touched),
+        and a `period` for the command to follow."""
+        age = now - self.newest if self.newest > NEVER else 0.0
+        return max(latency, age) + period
 
     def closing(self, movers: list[str], v_self: np.ndarray, radius: float, height: float,
                 now: float, react_s: float = 0.0) -> list[Closing]:
@@ -172,5 +187,6 @@ class Bodies:
                 gap = max(float(across[i[m], j[m]]) - 2.0 * radius, float(abs(dij[m, 2])) - height)
                 pair = (movers[i[m]], self.vids[j[m]])
                 if pair not in hits or hits[pair].speed < towards[m]:
-                    hits[pair] = Closing(*pair, gap, float(towards[m]), tuple(vs[m].tolist()), tuple(vo[m].tolist()))
+                    hits[pair] = Closing(*pair, gap, float(towards[m]), tuple(vs[m].tolist()), tuple(vo[m].tolist()),
+                                         react)
         return sorted(hits.values(), key=lambda h: h.gap)

@@ -386,7 +386,7 @@ class ExecutorService(Service):
                 newest = frame
             if newest is not None:
                 self.bodies.settle(newest.t)
-                self._stop_short(now)
+            self._stop_short(now)
             if n % ROUTER_CHECK_TICKS == 0:
                 self._check_router(now)
             arrived = (newest.arrived or newest.t) if newest is not None else 0.0
@@ -402,8 +402,9 @@ class ExecutorService(Service):
 
     def _stop_short(self, now: float) -> None:
         """The proximity stop (`services/executor/proximity.py`): every owned vehicle moving on its
-        plan that heads into another body holds (at the tick that follows). The guard's switch
-        (`FaultParams.guard`) turns it off too."""
+        plan that heads into another body holds (at the tick that follows), judged every cycle, a
+        new frame or not (`Bodies.reaction`). The guard's switch (`FaultParams.guard`) turns it off
+        too."""
         if not self.control.faults.guard:
             return
         movers: list[str] = []
@@ -419,7 +420,7 @@ class ExecutorService(Service):
                 radius, height = max(radius, r), max(height, h)
         if not movers:
             return
-        react = self.stats.recent_latency() + self.period
+        react = self.bodies.reaction(now, self.stats.recent_latency(), self.period)
         v_self = np.array(velocities).reshape(len(movers), 2, 3)
         for closing in self.bodies.closing(movers, v_self, radius, height, now, react):
             self.controllers[closing.mover].stop_short(closing.why())

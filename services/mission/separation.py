@@ -4,6 +4,7 @@ cylinders of radius r and height h touch when |d_xy| < 2r and |d_z| < h)."""
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -67,9 +68,14 @@ class SeparationMonitor:
             pair = frozenset((ta.vid, tb.vid))
             if pair not in self._touched:
                 self._touched.add(pair)
-                log.warning("contact: %s and %s %.1f cm into each other at %s, %s", ta.vid, tb.vid, -100 * gap,
-                            _where(ta), _where(tb))
+                log.warning("contact: %s and %s %.1f cm into each other at %s (UTC): %s, %s", ta.vid, tb.vid,
+                            -100 * gap, _clock(max(ta.t, tb.t)), _where(ta), _where(tb))
             self.contacts.append((max(ta.t, tb.t), ta.vid, tb.vid, gap))
+
+
+def _clock(t: float) -> str:
+    """A truth's time as the services' logs print theirs (to the millisecond), to find what they did then."""
+    return time.strftime("%H:%M:%S", time.gmtime(t)) + f".{int(1000 * (t % 1.0)):03d}"
 
 
 def _where(t: SimTruth) -> str:
