@@ -130,12 +130,11 @@ class Bodies:
         self.vel[ok] = (self.pos[ok] - old_pos[ok]) / dt[ok, None]
 
     def reaction(self, now: float, latency: float, period: float) -> float:
-        """How long after the capture of the positions a mover is judged on its stop takes effect
-        (s): the executor's recent pose-to-command `latency` (its p99) or, while the frames stall,
-        the age of the newest (the movers drive on, on their estimates, and the judgement goes on
-        every cycle: in an 80-vehicle soak the motion capture stalled for a tenth of a second, a
-        driver went on into a vehicle stopped before it and stopped short 40 ms after they touched),
-        and a `period` for the command to follow."""
+        """The time from the capture of the positions judged to a stop's effect (s): the executor's
+        recent pose-to-command `latency` (its p99), or the newest frame's age while the frames stall
+        (the movers drive on, on their estimates, and are judged every cycle: in an 80-vehicle soak
+        a stall of a tenth of a second let a driver go on into a vehicle stopped before it), and a
+        control `period`."""
         age = now - self.newest if self.newest > NEVER else 0.0
         return max(latency, age) + period
 

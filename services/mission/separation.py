@@ -68,14 +68,15 @@ class SeparationMonitor:
             pair = frozenset((ta.vid, tb.vid))
             if pair not in self._touched:
                 self._touched.add(pair)
-                log.warning("contact: %s and %s %.1f cm into each other at %s (UTC): %s, %s", ta.vid, tb.vid,
+                log.warning("contact: %s and %s %.1f cm into each other at %s: %s, %s", ta.vid, tb.vid,
                             -100 * gap, _clock(max(ta.t, tb.t)), _where(ta), _where(tb))
             self.contacts.append((max(ta.t, tb.t), ta.vid, tb.vid, gap))
 
 
 def _clock(t: float) -> str:
-    """A truth's time as the services' logs print theirs (to the millisecond), to find what they did then."""
-    return time.strftime("%H:%M:%S", time.gmtime(t)) + f".{int(1000 * (t % 1.0)):03d}"
+    """A truth's time of day as the services' logs print theirs (local, to the millisecond), to find
+    what they did then."""
+    return time.strftime("%H:%M:%S", time.localtime(t)) + f",{int(1000 * (t % 1.0)):03d}"
 
 
 def _where(t: SimTruth) -> str:
