@@ -1,0 +1,157 @@
+"""The router's hop on the hot path (issue 15; DESIGN.md, "Hot path": peer-to-peer transport "when
+measurements show it pays"): a motion-capture frame of `--bodies` bodies at 100 Hz from one process
+to `--subscribers` processes, each taking it in its event loop as the executors do
+(`common.bus.pubsub.subscribe`), through the router (every fleet process is a client of it, which
+is where access control is enforced: docs/security.md) or over direct peer links (the publisher
+listens, the subscribers connect to it). `--load N` runs N busy processes beside it (a loaded
+machine). Prints, per transport, the latency from the frame's stamp to its arrival in each
+subscriber's loop and the CPU of each process; saves a PNG.
+
+    python -m bench.router_hop [--bodies 80] [--subscribers 2] [--seconds 20] [--load 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import resource
+import subprocess
+import sys
+import time
+
+from bench.tables import bench_parser, format_table, new_figure, save_figure
+from common.bus.messages import FramePose, PoseFrame
+from common.bus.pubsub import Publisher, subscribe
+from common.bus.session import InProcessRouter, ZenohConfig, free_tcp_endpoint, open_session
+
+KEY = "bench/frame"
+TRANSPORTS = ("router", "peer")
+SETTLE_S = 1.5
+"""s the publisher waits for the subscribers' declarations before it publishes."""
+WARMUP = 300
+"""Frames published before the measured ones (3 s: every process started and connected)."""
+
+
+def cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def config(transport: str, endpoint: str, publisher: bool) -> ZenohConfig:
+    if transport == "router":
+        return ZenohConfig.client(endpoint)
+    return ZenohConfig(mode="peer", listen=(endpoint,)) if publisher else ZenohConfig(mode="peer", connect=(endpoint,))
+
+
+def publish(transport: str, endpoint: str, seconds: float, bodies: int) -> dict:
+    """`WARMUP` frames, then frames at 100 Hz for `seconds`; this process's CPU share over those."""
+    session = open_session(config(transport, endpoint, publisher=True))
+    pub = Publisher(session, KEY, PoseFrame)
+    time.sleep(SETTLE_S)
+    due, total = time.monotonic(), WARMUP + round(100 * seconds)
+    start = cpu_s()
+    for seq in range(total):
+        if seq == WARMUP:
+            start = cpu_s()
+        poses = [FramePose(f"cf{i:02d}", 0.1 * i, 0.2, 0.3, 0.0) for i in range(bodies)]
+        pub.put(PoseFrame(t=time.time(), seq=seq, poses=poses))
+        due += 0.01
+        time.sleep(max(due - time.monotonic(), 0.0))
+    share = (cpu_s() - start) / seconds
+    time.sleep(0.5)
+    session.close()
+    return {"process": "publisher", "cpu": share, "frames": total - WARMUP}
+
+
+def receive(transport: str, endpoint: str, seconds: float) -> dict:
+    """Every frame's latency into this process's event loop; its CPU share."""
+    session = open_session(config(transport, endpoint, publisher=False))
+    latencies: list[float] = []
+
+    async def main() -> float:
+        sub = subscribe(session, KEY, PoseFrame)
+        start, last = None, WARMUP + round(100 * seconds) - 1
+        while True:
+            try:
+                frame, _key = await asyncio.wait_for(sub.recv(), WARMUP / 100 + SETTLE_S + 5.0)
+            except TimeoutError:  # the publisher is done (its last frames lost)
+                break
+            if frame.seq < WARMUP:
+                continue
+            start = cpu_s() if start is None else start
+            latencies.append(time.time() - frame.t)
+            if frame.seq >= last:
+                break
+        return (cpu_s() - start) / seconds if start is not None else 0.0
+
+    share = asyncio.run(main())
+    session.close()
+    latencies.sort()
+    n = len(latencies)
+    at = (lambda q: 1e3 * latencies[min(int(q * n), n - 1)]) if n else (lambda q: float("nan"))
+    return {"process": "subscriber", "cpu": share, "frames": n, "p50_ms": at(0.5), "p99_ms": at(0.99),
+            "max_ms": at(1.0)}
+
+
+def measure(transport: str, subscribers: int, seconds: float, bodies: int, load: int) -> list[dict]:
+    """One run: the publisher, the subscribers and `load` busy processes; the router (when used) in
+    this process, whose CPU share is then the router's."""
+    router = InProcessRouter(free_tcp_endpoint()) if transport == "router" else None
+    endpoint = router.endpoint if router is not None else free_tcp_endpoint()
+    me = [sys.executable, "-m", "bench.router_hop", "--transport", transport, "--endpoint", endpoint,
+          "--seconds", str(seconds)]
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(load)]
+    try:
+        start, t0 = cpu_s(), time.monotonic()
+        pub = subprocess.Popen([*me, "--role", "publisher", "--bodies", str(bodies)], stdout=subprocess.PIPE, text=True)
+        subs = [subprocess.Popen([*me, "--role", "subscriber"], stdout=subprocess.PIPE, text=True)
+                for _ in range(subscribers)]
+        rows = [json.loads(p.communicate(timeout=seconds + 60)[0]) for p in [pub, *subs]]
+        if router is not None:
+            rows.append({"process": "router", "cpu": (cpu_s() - start) / (time.monotonic() - t0)})
+    finally:
+        for hog in hogs:
+            hog.kill()
+        if router is not None:
+            router.close()
+    return [{"transport": transport, **row} for row in rows]
+
+
+def main() -> None:
+    parser = bench_parser(__doc__.splitlines()[0])
+    parser.add_argument("--bodies", type=int, default=80)
+    parser.add_argument("--subscribers", type=int, default=2)
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--load", type=int, default=0, help="busy processes beside the measurement")
+    # the benchmark's own processes:
+    parser.add_argument("--role", choices=["publisher", "subscriber"], help=argparse.SUPPRESS)
+    parser.add_argument("--transport", choices=TRANSPORTS, help=argparse.SUPPRESS)
+    parser.add_argument("--endpoint", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.role == "publisher":
+        print(json.dumps(publish(args.transport, args.endpoint, args.seconds, args.bodies)))
+        return
+    if args.role == "subscriber":
+        print(json.dumps(receive(args.transport, args.endpoint, args.seconds)))
+        return
+    rows = [row for transport in TRANSPORTS for row in measure(transport, args.subscribers, args.seconds,
+                                                               args.bodies, args.load)]
+    print(f"{args.bodies} bodies at 100 Hz to {args.subscribers} subscriber processes, {args.seconds:.0f} s, "
+          f"{args.load} busy processes beside")
+    print(format_table(["transport", "process", "frames", "latency p50/p99/max ms", "CPU %"],
+                       [[r["transport"], r["process"], r.get("frames", "-"),
+                         f"{r['p50_ms']:.2f}/{r['p99_ms']:.2f}/{r['max_ms']:.1f}" if "p50_ms" in r else "-",
+                         f"{100 * r['cpu']:.1f}"] for r in rows]))
+    fig, (ax,) = new_figure()
+    for k, transport in enumerate(TRANSPORTS):
+        subs = [r for r in rows if r["transport"] == transport and r["process"] == "subscriber"]
+        for j, q in enumerate(("p50_ms", "p99_ms")):
+            ax.bar(k * 3 + j, max(r[q] for r in subs), label=f"{transport} {q[:3]}")
+    ax.set(ylabel="ms (worst subscriber)", title="frame latency: router hop vs peer link", xticks=[])
+    ax.legend(fontsize=7)
+    print(f"saved {save_figure(fig, args.out, 'router_hop')}")
+
+
+if __name__ == "__main__":
+    main()
