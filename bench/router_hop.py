@@ -2,8 +2,9 @@
 measurements show it pays"): a motion-capture frame of `--bodies` bodies at 100 Hz from one process
 to `--subscribers` processes, each taking it in its event loop as the executors do
 (`common.bus.pubsub.subscribe`), through the router (every fleet process is a client of it, which
-is where access control is enforced: docs/security.md) or over direct peer links (the publisher
-listens, the subscribers connect to it). `--load N` runs N busy processes beside it (a loaded
+is where access control is enforced: docs/security.md), over direct peer links (the publisher
+listens, the subscribers connect to it), or over those with each frame in a shared-memory buffer
+(`zenoh.shm`). `--load N` runs N busy processes beside it (a loaded
 machine). Prints, per transport, the latency from the frame's stamp to its arrival in each
 subscriber's loop and the CPU of each process; saves a PNG.
 
@@ -19,14 +20,21 @@ import resource
 import subprocess
 import sys
 import time
+from collections.abc import Callable
+
+import zenoh
+import zenoh.shm
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
-from common.bus.messages import FramePose, PoseFrame
-from common.bus.pubsub import Publisher, subscribe
+from common.bus.messages import Codec, FramePose, PoseFrame
+from common.bus.pubsub import Publisher, encode_message, subscribe
 from common.bus.session import InProcessRouter, ZenohConfig, free_tcp_endpoint, open_session
 
 KEY = "bench/frame"
-TRANSPORTS = ("router", "peer")
+TRANSPORTS = ("router", "peer", "shm")
+"""Through the router; direct peer links; direct peer links with the frames in shared memory."""
+SHM_POOL = 1 << 22
+"""Bytes of the publisher's shared-memory pool."""
 SETTLE_S = 1.5
 """s the publisher waits for the subscribers' declarations before it publishes."""
 WARMUP = 300
@@ -41,13 +49,30 @@ def cpu_s() -> float:
 def config(transport: str, endpoint: str, publisher: bool) -> ZenohConfig:
     if transport == "router":
         return ZenohConfig.client(endpoint)
-    return ZenohConfig(mode="peer", listen=(endpoint,)) if publisher else ZenohConfig(mode="peer", connect=(endpoint,))
+    link = {"listen": (endpoint,)} if publisher else {"connect": (endpoint,)}
+    return ZenohConfig(mode="peer", extra={"transport/shared_memory/enabled": transport == "shm"}, **link)
+
+
+def frame_sender(session: zenoh.Session, transport: str) -> Callable[[PoseFrame], None]:
+    """Puts a frame: encoded as the fleet's publishers do; with "shm", into a shared-memory buffer."""
+    if transport != "shm":
+        return Publisher(session, KEY, PoseFrame).put
+    codec, publisher = Codec(PoseFrame), session.declare_publisher(KEY)
+    provider = zenoh.shm.ShmProvider.default_backend(SHM_POOL)
+
+    def put(frame: PoseFrame) -> None:
+        data = encode_message(codec, frame)
+        buf = provider.alloc(len(data), zenoh.shm.BlockOn(zenoh.shm.GarbageCollect()))
+        buf[:len(data)] = data
+        publisher.put(buf)
+
+    return put
 
 
 def publish(transport: str, endpoint: str, seconds: float, bodies: int) -> dict:
     """`WARMUP` frames, then frames at 100 Hz for `seconds`; this process's CPU share over those."""
     session = open_session(config(transport, endpoint, publisher=True))
-    pub = Publisher(session, KEY, PoseFrame)
+    put = frame_sender(session, transport)
     time.sleep(SETTLE_S)
     due, total = time.monotonic(), WARMUP + round(100 * seconds)
     start = cpu_s()
@@ -55,7 +80,7 @@ def publish(transport: str, endpoint: str, seconds: float, bodies: int) -> dict:
         if seq == WARMUP:
             start = cpu_s()
         poses = [FramePose(f"cf{i:02d}", 0.1 * i, 0.2, 0.3, 0.0) for i in range(bodies)]
-        pub.put(PoseFrame(t=time.time(), seq=seq, poses=poses))
+        put(PoseFrame(t=time.time(), seq=seq, poses=poses))
         due += 0.01
         time.sleep(max(due - time.monotonic(), 0.0))
     share = (cpu_s() - start) / seconds

@@ -381,11 +381,11 @@ def test_token_of_a_killed_or_hung_process_disappears_within_a_second(
 @pytest.mark.compute
 def test_the_router_hop_benchmark_measures_both_transports(tmp_path: Path) -> None:
     """`bench.router_hop` (docs/bus.md, "The hot path and the router"): frames reach every subscriber
-    through the router and over peer links, and the table and the PNG come out."""
+    through the router, over peer links and in shared memory, and the table and the PNG come out."""
     run = subprocess.run([sys.executable, "-m", "bench.router_hop", "--bodies", "8", "--seconds", "1",
                           "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
     rows = [line.split() for line in run.stdout.splitlines() if line.split()[1:2] == ["subscriber"]]
-    assert sorted(row[0] for row in rows) == ["peer", "peer", "router", "router"], run.stdout
+    assert sorted(row[0] for row in rows) == ["peer", "peer", "router", "router", "shm", "shm"], run.stdout
     assert all(int(row[2]) > 0 for row in rows), run.stdout
     assert (tmp_path / "router_hop.png").stat().st_size > 10_000
