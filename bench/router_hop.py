@@ -42,11 +42,13 @@ WARMUP = 300
 
 
 def cpu_s() -> float:
+    """This process's CPU time so far (s)."""
     usage = resource.getrusage(resource.RUSAGE_SELF)
     return usage.ru_utime + usage.ru_stime
 
 
 def config(transport: str, endpoint: str, publisher: bool) -> ZenohConfig:
+    """A client of the router at `endpoint`, or a peer listening there (the publisher) or connecting to it."""
     if transport == "router":
         return ZenohConfig.client(endpoint)
     link = {"listen": (endpoint,)} if publisher else {"connect": (endpoint,)}
