@@ -379,7 +379,7 @@ def test_token_of_a_killed_or_hung_process_disappears_within_a_second(
 
 
 @pytest.mark.compute
-def test_the_router_hop_benchmark_measures_both_transports(tmp_path: Path) -> None:
+def test_the_router_hop_benchmark_measures_every_transport(tmp_path: Path) -> None:
     """`bench.router_hop` (docs/bus.md, "The hot path and the router"): frames reach every subscriber
     through the router, over peer links and in shared memory, and the table and the PNG come out."""
     run = subprocess.run([sys.executable, "-m", "bench.router_hop", "--bodies", "8", "--seconds", "1",
