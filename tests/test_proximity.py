@@ -131,8 +131,10 @@ def test_a_vehicle_told_to_stop_short_holds_where_it_is() -> None:
 @pytest.mark.timeout(180)
 def test_a_vehicle_stops_short_of_a_body_its_plan_did_not_know(tmp_path) -> None:
     """A vehicle left on cf3's goal, unknown to the mission (not in its tasks): cf3's plan drives
-    into it. cf3 stops short, held and reported, and nothing touches in ground truth. (With the
-    guard's switch off, `--no-tracking-guard`, cf3 drove into it: checked by hand, 2026-12-05.)"""
+    into it. cf3 stops short, held and reported, and nothing touches in ground truth. The mission
+    does not bring cf3 back (`Replan.rejoin`): it sees cf4 in the motion capture's frames, where
+    cf3's way goes. (With the guard's switch off, `--no-tracking-guard`, cf3 drove into it: checked
+    by hand, 2026-12-05.)"""
     tasks = {**TOWN_TASKS, "cf4": Task(start="WP3", goal="WP3")}  # parked on cf3's goal
     spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
 
@@ -147,6 +149,9 @@ def test_a_vehicle_stops_short_of_a_body_its_plan_did_not_know(tmp_path) -> None
     assert not watch.contacts, watch.separation_line()
     [held] = [e for _t, e in watch.events if e.vid == "cf3" and e.kind == "tracking_hold"]
     assert held.detail.startswith("stops short of cf4"), held.detail
+    assert any(e.startswith("cf3 not back yet") and "crosses where cf4 may be" in e for e in result.events), \
+        result.events  # cf4 is outside the mission: the mission sees it in the motion capture's frames
+    assert not any(e.startswith("cf3 rejoined") for e in result.events), result.events
     assert not result.ok
     for vid in tasks:
         assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])

@@ -131,6 +131,7 @@ def test_a_slow_loop_is_held_before_it_leaves_three_times_the_margin(unguarded: 
     flight = fly(**SLOW)
     assert flight.held_at is not None, "the guard never held the vehicle"
     assert "margin" in (flight.ctrl.held or "")
+    assert not flight.ctrl.rejoinable  # held for its own tracking: the mission does not bring it back
     assert flight.ctrl.mode in (Mode.HOLDING, Mode.HOVERING)
     assert flight.error_before_hold < 3.0 * MODEL.margin, flight.error_before_hold  # held past 2x (FaultParams)
     # hovering on the same slow loop stays within reach (at 9 Hz on 100 ms old poses, a loop at the

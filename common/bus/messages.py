@@ -233,6 +233,11 @@ class VehicleEvent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     kind: str
     detail: str = ""
     node: str = ""
+    rejoinable: bool = False
+    """A `tracking_hold` for another's sake (the proximity stop, the reflex to a held vehicle) or of
+    a vehicle stopped on the ground by a fault that may clear (a stale pose, a lost link) while its
+    plan moved on, not for its own tracking: the mission may bring it back into the plan once it
+    stands still, seen, and its way is clear (`Replan.rejoin`)."""
 
 
 class MocapBody(msgspec.Struct, frozen=True, forbid_unknown_fields=True, array_like=True):
@@ -343,7 +348,10 @@ class Replan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     their bodies are `sweeps`. The answer's paths are whole (prefix + new suffix), in mission time.
     With `strand`, a vehicle whose goal is out of reach is given the nearest one it can reach (its
     switch node when on the ground: it stops there) instead of failing the replan; the answer's
-    tasks carry the goals it was given."""
+    tasks carry the goals it was given. `rejoin`: vehicles that left held where they stopped and
+    come back; each one's path in `base` is the one it left, shifted in time so that it is where
+    the vehicle stands at `at` (their sweeps are not in `sweeps`); the replan fails, naming one,
+    when its way to its switch node crosses a body that left."""
 
     base: Plan
     at: float
@@ -351,6 +359,7 @@ class Replan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     sweeps: list[Sweep] = []
     goals: dict[str, str] = {}
     strand: bool = False
+    rejoin: list[str] = []
 
 
 class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -30,9 +30,11 @@ class Mode(StrEnum):
     """Following a land edge, or a fault's descent to the nearest safe point, until touchdown."""
     HOLDING = "holding"
     """On the ground, stopped by a fault (stale pose, lost link) that may clear, or by the tracking
-    guard (for good)."""
+    guard (for good, unless held for another's sake and brought back into the plan)."""
     HOVERING = "hovering"
-    """Airborne, held where it was by the tracking guard (off its plan) until the mission aborts."""
+    """Airborne, held where it was by the tracking guard (off its plan) until the mission aborts,
+    or, held for another's sake, until the mission's plan brings it back (then flying on, or in
+    its take-off)."""
     EMERGENCY_LANDING = "emergency_landing"
     """Airborne without a trustworthy pose: a blind, level descent, then motors off."""
     DONE = "done"
@@ -50,7 +52,7 @@ TRANSITIONS: dict[Mode, frozenset[Mode]] = {
     Mode.FLYING: frozenset({Mode.LANDING, Mode.HOVERING, Mode.EMERGENCY_LANDING}),
     Mode.LANDING: frozenset({Mode.PARKED, Mode.DRIVING, Mode.TAKING_OFF, Mode.HOLDING, Mode.HOVERING, Mode.DONE,
                              Mode.EMERGENCY_LANDING}),
-    Mode.HOVERING: frozenset({Mode.LANDING, Mode.EMERGENCY_LANDING}),
+    Mode.HOVERING: frozenset({Mode.FLYING, Mode.TAKING_OFF, Mode.LANDING, Mode.EMERGENCY_LANDING}),
     Mode.HOLDING: frozenset({Mode.PARKED, Mode.DRIVING, Mode.TAKING_OFF, Mode.DONE}),
     Mode.EMERGENCY_LANDING: frozenset({Mode.DONE}),
     Mode.DONE: frozenset({Mode.PARKED}),

@@ -164,8 +164,8 @@ class ExecutorService(Service):
         """Every owned vehicle's pose filter, for fusing a frame in one step."""
         self.stats = LoopStats()
         self._last_mode: dict[str, Mode] = {}
-        self._told_held: set[str] = set()
-        """Vehicles whose hold (`VehicleController.held`) was reported."""
+        self._told_held: dict[str, int] = {}
+        """Each vehicle's last hold reported (`VehicleController.holds`)."""
         self._told_aborted: list[str] = []
         """Vehicles whose mission this executor aborted while the router was lost: told once it is
         back, and again `ROUTER_SETTLE_S` later (clients reconnect one by one: a mission that came
@@ -464,11 +464,10 @@ class ExecutorService(Service):
         plan for a battery or link fault: "low_battery" / "link_lost", with the node it lands at."""
         prev, mode = self._last_mode.get(vid), ctl.mode
         self._last_mode[vid] = mode
-        if not ctl.held:
-            self._told_held.discard(vid)
-        elif vid not in self._told_held and mode in (Mode.HOVERING, Mode.HOLDING):
-            self._told_held.add(vid)  # (also held while already holding: `_left_behind`)
-            self._event.put(vid, VehicleEvent(vid=vid, t=now, kind="tracking_hold", detail=ctl.held))
+        if ctl.held and self._told_held.get(vid) != ctl.holds and mode in (Mode.HOVERING, Mode.HOLDING):
+            self._told_held[vid] = ctl.holds  # (also held while already holding: `_left_behind`)
+            self._event.put(vid, VehicleEvent(vid=vid, t=now, kind="tracking_hold", detail=ctl.held,
+                                              rejoinable=ctl.rejoinable))
             return
         if prev == mode:
             return

@@ -93,9 +93,26 @@ class ControlParams:
 
 PRE_TURN_S = 2.0
 """s: a parked vehicle turns in place towards a drive starting this soon (`_turn_before_driving`)."""
+REJOIN_LOOK_S, REJOIN_STEP_S = 10.0, 0.02
+"""s ahead a plan that brings a held vehicle back is searched for the moment its reference comes
+to the vehicle (the mission's switch time is 1-3 s ahead), and the search's step."""
 REPLAN_TOLERANCE = 0.01
 """m: how far a new plan's reference may be from the old one's at the switch (the corner blend at
 the switch node; `TrajectoryParams.max_deviation` is 5 mm)."""
+
+
+def _closest_pass(traj: Trajectory, here: tuple[float, float, float], start: float, reach: float) -> float | None:
+    """When (mission time, from `start`, within `REJOIN_LOOK_S`) the reference of `traj` first
+    passes `here` within `reach`: the nearest it comes on that pass; None if it does not."""
+    best: tuple[float, float] | None = None
+    for k in range(int(REJOIN_LOOK_S / REJOIN_STEP_S) + 1):
+        t = start + k * REJOIN_STEP_S
+        d = math.dist(here, traj.plan_position(min(t, traj.end_time)))
+        if best is not None and d > best[0]:
+            return best[1]  # moving away again: it passed
+        if d <= reach and (best is None or d <= best[0]):
+            best = (d, t)
+    return None if best is None else best[1]
 
 
 class VehicleController:
@@ -117,6 +134,10 @@ class VehicleController:
         self.pursuit = PurePursuit(self.params.wheels, self.params.pursuit)
         self.machine = ModeMachine(vid)
         self.plan: VehiclePlan | None = None
+        self.holds = 0
+        """Holds so far, each one to be reported (a refused return into the plan counts again:
+        the mission had planned the others as if it came back)."""
+        self._refused: VehiclePlan | None = None
         self._lowest_ground = lowest_ground(None)
         self.trajectory: Trajectory | None = None
         self.t0: float | None = None
@@ -141,6 +162,11 @@ class VehicleController:
         self._guard_from = 0.0  # the guard sleeps until then (after a take-over)
         self.held: str | None = None
         """Why the tracking guard holds the vehicle (None: it does not)."""
+        self.rejoinable = False
+        """Held for another's sake (`stop_short`, `yield_to`): the mission may bring it back."""
+        self._rejoin: tuple[VehiclePlan, Trajectory, float] | None = None
+        """The plan that brings a held vehicle back, its trajectory, and when (mission time) its
+        reference comes to where the vehicle stands: it follows it from then on."""
         self._hover_ref: RefSample | None = None  # where a held vehicle hovers
         self._yield: str | None = None  # another vehicle held where this one's plan goes: hold too
         self._stopped_at: tuple[float, float, float] | None = None  # where a fault on the ground stopped it
@@ -172,7 +198,8 @@ class VehicleController:
         keeps every path up to the first node at or after the switch time, so the reference is the
         same until then). A vehicle at rest after its mission takes it as a new plan (`load`).
         Refused (False, logged) when the vehicle does not follow its plan any more (fault landing,
-        held, aborted, landing) or the new plan's reference differs from the old one now."""
+        held, aborted, landing) or the new plan's reference differs from the old one now. A vehicle
+        held for another's sake takes a plan that brings it back (`_take_back`)."""
         if plan.vid != self.vid:
             raise ValueError(f"plan for {plan.vid!r} given to the controller of {self.vid!r}")
         old = self.trajectory
@@ -181,6 +208,8 @@ class VehicleController:
             return False
         if self.mode == Mode.DONE or old is None or self.t0 is None:
             return self.load(plan)  # it parked facing the way it came: it turns before driving off
+        if self.held and self.rejoinable and not self._fault_landing:
+            return self._take_back(plan, old, now)
         why = ("it is off its plan" if self._fault_landing or self._active is not old else
                "it is held" if self.held else "the mission is aborted" if self._abort else
                f"it is {self.mode}" if self.mode in (Mode.LANDING, Mode.EMERGENCY_LANDING) else "")
@@ -197,6 +226,42 @@ class VehicleController:
         self._lowest_ground = lowest_ground(plan)
         log.info("%s: switched to a new plan of %r at %.2f s", self.vid, plan.mission, rel)
         return True
+
+    def _take_back(self, plan: VehiclePlan, old: Trajectory, now: float) -> bool:
+        """A held vehicle's way back into the mission's plan (`services/mission/rejoin.py`): it
+        stays held until the new plan's reference passes where it stands, within the guard's limit
+        (`_closest_pass`), then follows it (`_supervise`). Refused (False) when the
+        reference does not come by: the hold stands and is reported again, since the mission
+        planned the others as if it came back. (Whether its way is clear is the planner's to judge,
+        `Replan.rejoin`; should it head into a body all the same, the proximity stop holds it again.)"""
+        assert self.t0 is not None
+        new = Trajectory(plan.steps, self.params.trajectory, yaw0=old.sample(old.start_time).yaw)
+        est, rel = self.estimator.estimate(now), now - self.t0
+        here = (est.x, est.y, est.z)
+        reach = self.params.faults.guard_factor * self.model.margin
+        meet = _closest_pass(new, here, rel, reach)
+        if meet is None or est.stale or self.faults.link_lost(now):
+            why = ("its pose is stale" if est.stale else "its link is lost" if self.faults.link_lost(now)
+                   else f"its new plan does not come within {reach:.3f} m of where it stands")
+            if self._refused is None or self._refused.steps != plan.steps:
+                self._refused = plan
+                self.holds += 1
+                self.held = f"{self.held}; {why}"
+                log.warning("%s: plan of %r that brings it back refused: %s; it stays held", self.vid, plan.mission, why)
+            return False
+        self._rejoin = (plan, new, meet)
+        log.info("%s: back in the plan of %r: held until %.2f s, then following it", self.vid, plan.mission, meet)
+        return True
+
+    def _resume(self, now: float) -> None:
+        """The new plan's reference has come to where the held vehicle stands: it follows it."""
+        assert self._rejoin is not None
+        plan, traj, _ = self._rejoin
+        self.plan, self.trajectory, self._active = plan, traj, traj
+        self._lowest_ground = lowest_ground(plan)
+        self.held, self.rejoinable, self._rejoin = None, False, None
+        self._yield = self._hover_ref = self._guard_since = None
+        log.info("%s: follows its plan again", self.vid)
 
     def take_over(self, state: VehicleState, now: float, pose: Pose | None = None) -> None:
         """Continue controlling a vehicle another executor was controlling (it died): adopt its
@@ -317,10 +382,12 @@ class VehicleController:
                 if rel < self._active.steps[-2].t:  # still flying level: not above its node yet
                     log.info("%s: gives its landing node up to a vehicle of another executor", self.vid)
                     self._choose_landing(rel, est)
+            if self.held and self._rejoin is not None and rel >= self._rejoin[2]:
+                self._resume(now)
             if self._fault_landing or self.held or (m.mode == Mode.LANDING and rel >= self._landing_end):
                 return  # a landing lasts until touchdown (see `_control`), even past its plan time
             if self._yield is not None and ref is not None:
-                self._hold(now, est, ref, self._yield)
+                self._hold(now, est, ref, self._yield, rejoinable=True)
                 return
             if self._guard(now, est, ref):
                 return
@@ -329,10 +396,12 @@ class VehicleController:
         if self._abort or low:
             m.request(Mode.DONE, now, self._abort or "low battery")
             return
+        if self.held and self._rejoin is not None and rel >= self._rejoin[2]:
+            self._resume(now)
         if self.held:
-            return  # stopped for good: the plan's timing is gone
+            return  # stopped until the mission brings it back (`_take_back`), if it does
         if self._yield is not None and ref is not None:
-            self._hold(now, est, ref, self._yield)
+            self._hold(now, est, ref, self._yield, rejoinable=True)
             return
         if m.mode == Mode.DRIVING and self._guard(now, est, ref):
             return
@@ -400,13 +469,17 @@ class VehicleController:
         if not f.guard or margin <= 0.0 or ref is None or self._stopped_at is None or now < self._guard_from:
             return  # (taken over: the guard waits for it to get back onto its reference)
         error = math.dist(self._stopped_at, (ref.x, ref.y, ref.z))
-        if error > f.guard_factor * margin:
+        if error > f.guard_factor * margin:  # (once the fault clears, the mission may bring it back)
             self._hold(now, est, ref, f"its plan moved on {error:.3f} m while it was stopped "
-                                      f"({self.machine.history[-1].reason if self.machine.history else 'holding'})")
+                                      f"({self.machine.history[-1].reason if self.machine.history else 'holding'})",
+                       rejoinable=True)
 
-    def _hold(self, now: float, est: Estimate, ref: RefSample, why: str) -> None:
-        """Hold the vehicle where it is for the rest of the mission: hovering, or stopped on the ground."""
-        self.held = why
+    def _hold(self, now: float, est: Estimate, ref: RefSample, why: str, rejoinable: bool = False) -> None:
+        """Hold the vehicle where it is for the rest of the mission, hovering or stopped on the
+        ground, unless (`rejoinable`: held for another's sake, or left behind by a fault that may
+        clear) the mission brings it back."""
+        self.held, self.rejoinable = why, rejoinable
+        self.holds += 1
         if self.machine.airborne:
             self._hover_ref = RefSample(ref.t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, est.yaw, 0.0,
                                         Mode.HOVERING)

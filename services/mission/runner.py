@@ -23,6 +23,7 @@ import math
 import random
 import time
 import uuid
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -46,9 +47,10 @@ from common.bus.messages import (
 from common.bus.pubsub import Publisher, QueryError, QueryTimeout, query
 from common.bus.vehicle_plans import vehicle_plans
 from common.domain.battery import charge_used_ah
-from common.domain.planfile import Plan, Task
+from common.domain.planfile import PathEntry, Plan, Task
 from common.domain.vehicle_model import VehicleModel
 from services.mission.client import MissionClient, MissionTiming
+from services.mission.rejoin import REJOINS, Candidate, progress_at, shifted_path
 from services.mission.separation import SeparationMonitor
 from services.mission.sweeps import left_vehicle
 
@@ -71,6 +73,9 @@ class MissionSpec:
     replanner: Literal["sipp", "ilp"] = "sipp"
     """Who plans the mission on after a fault or a new task: SIPP (fast), or the ILP where its time
     limit allows (a mission the ILP planned; SIPP takes over when it finds no plan in time)."""
+    rejoins: int = REJOINS
+    """How often a vehicle held for another's sake may be brought back into the plan (`rejoin.py`;
+    0: never, it stays held as any held vehicle)."""
     hover: bool = False
     """A task may end at an air node (issue 19: single-vehicle take-off, go to, land): the vehicle
     hovers there until given another goal (`add_task`), and the mission has no time limit while a
@@ -116,6 +121,10 @@ REPLAN_LEAD_S = 1.0
 """s: the switch time of a replan is this far ahead of the fault (planning + handing the plans out)."""
 STOP_MAX = 3
 """How many vehicles a replan may stop where they are (`MissionRunner._replan`) before it gives up."""
+BYSTANDERS_EVERY_S = 0.1
+"""s: the motion capture's frames are read for the bystanders at most this often."""
+GONE_KINDS = frozenset({"emergency_landing", "low_battery", "crash"})
+"""Faults after which a vehicle that left does not come back (nor after a fault landing to a node)."""
 GROUND_MODES = frozenset({"driving", "parked", "holding"})
 """Modes of a vehicle on the ground that can stop where it is."""
 REPLAN_TRIES = 2
@@ -213,10 +222,20 @@ class MissionRunner(MissionClient[MissionResult]):
         self.tasks_added = 0
         self._pending: set[str] = set()
         """Vehicles with a new goal being planned."""
+        self._rejoin: dict[str, Candidate] = {}
+        """Vehicles held for another's sake that may come back (`rejoin.py`)."""
+        self._rejoined: dict[str, int] = {}
+        """How often each vehicle came back."""
+        self._all_in: float | None = None
+        """Since when every vehicle in the mission has arrived (those that left waiting to come back)."""
+        self._left_with: dict[str, tuple[list[PathEntry], Task]] = {}
+        """The path and task each vehicle that left had (the last time it left)."""
         self._rng = random.Random(spec.seed)
         self._lifelong_task: asyncio.Task | None = None
-        self.bystanders: dict[str, tuple[float, float]] = {}
-        """Where the fleet's vehicles outside the mission stand (lifelong missions: not a free spot)."""
+        self.bystanders: dict[str, tuple[float, float, float]] = {}
+        """Where the fleet's vehicles outside the mission stand (lifelong missions: not a free spot;
+        a held vehicle does not rejoin through one: `rejoin.py`)."""
+        self._frame_t = 0.0
 
     async def prepare(self) -> str | None:
         """Each vehicle is what its gateway says (`Telemetry`): its capabilities (from the radios
@@ -228,7 +247,7 @@ class MissionRunner(MissionClient[MissionResult]):
         its gateway knows neither its battery nor its state, and the mission is refused."""
         seen: dict[str, Telemetry] = {}
         self.subscribe(self.keys.all_vehicles("telemetry"), Telemetry, lambda tel, _k: seen.__setitem__(tel.vid, tel))
-        if self.spec.lifelong_s > 0:
+        if self.spec.lifelong_s > 0 or self.spec.on_fault == "replan":
             self.subscribe(self.keys.mocap_frame, PoseFrame, self._on_frame)
         start = time.monotonic()
         while not set(self.tasks) <= set(seen) and time.monotonic() < start + CAPABILITIES_WAIT_S:
@@ -259,9 +278,12 @@ class MissionRunner(MissionClient[MissionResult]):
         return None
 
     def _on_frame(self, frame: PoseFrame, _key: str) -> None:
+        if frame.t < self._frame_t + BYSTANDERS_EVERY_S:
+            return
+        self._frame_t = frame.t
         for p in frame.poses:
             if p.vid not in self.tasks:
-                self.bystanders[p.vid] = (p.x, p.y)
+                self.bystanders[p.vid] = (p.x, p.y, p.z)
 
     def plan_request(self) -> PlanRequest:
         s = self.spec
@@ -300,9 +322,47 @@ class MissionRunner(MissionClient[MissionResult]):
     def sample(self) -> None:
         if self.spec.lifelong_s > 0 and self._lifelong_task is None and self.t0 is not None:
             self._lifelong_task = asyncio.get_running_loop().create_task(self._lifelong())
+        now = time.time()
+        due = sorted(v for v, c in self._rejoin.items() if c.due(self.states.get(v), now))
+        if due and not self.fault and (self._replanning is None or self._replanning.done()):
+            for vid in due:
+                self._rejoin[vid].tries += 1
+                self._rejoin[vid].last_try = now
+            self._replanning = asyncio.get_running_loop().create_task(self._bring_back(due))
 
-    def on_fault(self, vid: str, kind: str, text: str, node: str) -> bool:
+    async def _bring_back(self, vids: list[str]) -> None:
+        """Bring the held vehicles `vids` back into the plan (`rejoin.py`); one the planner names as
+        not able to yet is left out and the others are tried again."""
+        while (vids := [v for v in vids if v in self._rejoin]) and self.plan is not None and self.t0 is not None:
+            answer = await self._ask_replan(self.plan, self.t0, [], {}, rejoin=vids)
+            if any(v not in self._rejoin for v in vids):
+                continue  # one left for good meanwhile (an emergency landing): the others again
+            if isinstance(answer, str):
+                vid = self._blocked if self._blocked in vids else vids[0]
+                self._blocked = ""
+                if self._rejoin[vid].tries == 1:
+                    self.events.append(f"{vid} not back yet: {answer}")
+                vids.remove(vid)
+                continue
+            reply, at, took = answer
+            if (error := self._apply_replan(reply, at, took, [], {}, back=vids)) is not None:
+                self.events.append(f"{', '.join(vids)} could not rejoin: {error}")
+                return
+            for vid in vids:
+                self._rejoined[vid] = self._rejoined.get(vid, 0) + 1
+                self.left.pop(vid, None)
+                self.reports[vid].arrived = False
+                held_s = time.time() - self._rejoin.pop(vid).since
+                self.events.append(f"{vid} rejoined the mission after {held_s:.1f} s held (switch at {at:.1f} s)")
+            self.sweeps = [s for s in self.sweeps if s.vid not in vids]
+            return
+
+    def on_fault(self, vid: str, kind: str, text: str, node: str, rejoinable: bool = False) -> bool:
         if vid in self.left:
+            if rejoinable and kind == "tracking_hold":
+                self._may_rejoin(vid)
+            elif node or kind in GONE_KINDS:
+                self._rejoin.pop(vid, None)
             if text not in self.left[vid]:
                 self.left[vid] += f"; {text}"
             if node and kind in REPLAN_KINDS and self.t0 is not None:  # it now lands there: plan around that too
@@ -314,10 +374,20 @@ class MissionRunner(MissionClient[MissionResult]):
                 or self.first_plan is None or vid not in self.first_plan.paths or self.states.get(vid) is None):
             return False
         self.left[vid] = text
+        if vid in self.plan.paths:
+            self._left_with[vid] = (self.plan.paths[vid], self.plan.tasks[vid])
+        if rejoinable and kind == "tracking_hold":
+            self._may_rejoin(vid)
         self.sweeps += self._sweeps(vid, node, kind)
         self.events.append(f"{vid} left the mission ({kind}): replanning the others")
         self._queue_replan()
         return True
+
+    def _may_rejoin(self, vid: str) -> None:
+        """`vid` was held for another's sake or left behind by a fault that may clear: the mission
+        may bring it back (`rejoin.py`), unless it came back `spec.rejoins` times already."""
+        if vid in self._left_with and vid not in self._rejoin and self._rejoined.get(vid, 0) < self.spec.rejoins:
+            self._rejoin[vid] = Candidate(*self._left_with[vid], time.time())
 
     def _queue_replan(self) -> None:
         """Replan the others around the vehicles that left, after the replans already queued."""
@@ -391,17 +461,20 @@ class MissionRunner(MissionClient[MissionResult]):
             return answer
         return self._apply_replan(*answer, left, goals or {})
 
-    async def _ask_replan(self, plan: Plan, t0: float, left: list[str],
-                          goals: dict[str, str]) -> tuple[PlanReply, float, float] | str:
+    async def _ask_replan(self, plan: Plan, t0: float, left: list[str], goals: dict[str, str],
+                          rejoin: Sequence[str] = ()) -> tuple[PlanReply, float, float] | str:
         """The planner's replan of `plan` (its reply, the switch time and how long it took), asked
-        again from later when it does not come before its switch time; or why there is none."""
+        again from later when it does not come before its switch time; or why there is none. The
+        held vehicles `rejoin` come back (`rejoin.py`)."""
         late = ""
         for k in range(REPLAN_TRIES):  # a planner too slow this time is asked again, from later
             lead = REPLAN_LEAD_S * (k + 1)
             at = time.time() - t0 + lead
-            req = PlanRequest(map=self.spec.map, tasks={}, planner=self.spec.replanner, mu=self.spec.mu,
-                              time_limit=REPLAN_TIME_LIMIT_S,
-                              replan=Replan(base=plan, at=at, left=left, sweeps=self.sweeps, goals=goals, strand=True))
+            base, sweeps = self._with_rejoining(plan, rejoin, at)
+            req = PlanRequest(map=self.spec.map, tasks={}, planner="sipp" if rejoin else self.spec.replanner,
+                              mu=self.spec.mu, time_limit=REPLAN_TIME_LIMIT_S,
+                              replan=Replan(base=base, at=at, left=left, sweeps=sweeps, goals=goals, strand=True,
+                                            rejoin=list(rejoin)))
             started = time.perf_counter()
             try:
                 reply = await query(self.session, self.keys.planner_plan, req, PlanReply, timeout=lead)
@@ -421,13 +494,32 @@ class MissionRunner(MissionClient[MissionResult]):
             late = f"the replan came too late ({took:.2f} s)"
         return f"{late} ({REPLAN_TRIES} times)"
 
+    def _with_rejoining(self, plan: Plan, rejoin: Sequence[str], at: float) -> tuple[Plan, list[Sweep]]:
+        """`plan` with the held vehicles `rejoin` back in it (their paths shifted so that each is
+        where it stands at `at`: `rejoin.shifted_path`), and the sweeps of the others and of the
+        bystanders where they stand (the body it stopped for may be one)."""
+        if not rejoin:
+            return plan, self.sweeps
+        assert self.t0 is not None
+        paths, tasks = dict(plan.paths), dict(plan.tasks)
+        for vid in rejoin:
+            c, s = self._rejoin[vid], self.states[vid]
+            progress = progress_at(plan, c.path, (s.x, s.y, s.z), time.time() - self.t0 + 1.0)
+            paths[vid], tasks[vid] = shifted_path(c.path, progress, at), c.task
+        ground = min(n.pos[2] for n in plan.graph.nodes.values() if n.kind != "air")
+        t = time.time() - self.t0
+        standing = [w for vid, p in self.bystanders.items() for w in left_vehicle(vid, "tracking_hold", p, t, ground, None)]
+        return (msgspec.structs.replace(plan, paths=paths, tasks=tasks),
+                [s for s in self.sweeps if s.vid not in rejoin] + standing)
+
     def _apply_replan(self, reply: PlanReply, at: float, took: float, left: list[str],
-                      goals: dict[str, str]) -> str | None:
+                      goals: dict[str, str], back: Sequence[str] = ()) -> str | None:
         """Take the planner's replan (`_ask_replan`): the vehicles it strands, the new goals, the
-        plans handed out; why not, if it left a new goal out of reach."""
+        plans handed out (`back`: the held vehicles it brings back); why not, if it left a new goal
+        out of reach."""
         assert self.plan is not None and self.t0 is not None and reply.plan is not None
         wanted = {v: goals.get(v, t.goal) for v, t in self.plan.tasks.items()}
-        short = {v: t.goal for v, t in reply.plan.tasks.items() if t.goal != wanted[v]}
+        short = {v: t.goal for v, t in reply.plan.tasks.items() if t.goal != wanted.get(v, t.goal)}
         if refused := sorted(set(short) & set(goals)):
             return f"{', '.join(f'{wanted[v]!r}' for v in refused)} out of reach"
         self.replans.append(took)
@@ -442,7 +534,8 @@ class MissionRunner(MissionClient[MissionResult]):
             self.reports[vid].arrived = False
             self.stranded.pop(vid, None)
         self.hand_out(self.t0)
-        why = f"around {', '.join(self.left)}" if left else f"for {', '.join(goals)}" if goals else "again"
+        why = (f"around {', '.join(self.left)}" if left else f"for {', '.join(goals)}" if goals
+               else f"with {', '.join(back)} back" if back else "again")
         self.events.append(f"replanned {len(self.plan.paths)} vehicles {why} in {took:.2f} s (switch at {at:.1f} s, "
                            f"{reply.planner})")
         return None
@@ -502,7 +595,8 @@ class MissionRunner(MissionClient[MissionResult]):
                         break  # one at a time: the plan changed
 
     def _clear_of_bystanders(self, plan: Plan, node: str) -> bool:
-        return all(math.dist(plan.graph.nodes[node].pos[:2], p) > BYSTANDER_CLEARANCE for p in self.bystanders.values())
+        return all(math.dist(plan.graph.nodes[node].pos[:2], p[:2]) > BYSTANDER_CLEARANCE
+                   for p in self.bystanders.values())
 
     @staticmethod
     def _in_air(plan: Plan, node: str) -> bool:
@@ -513,7 +607,10 @@ class MissionRunner(MissionClient[MissionResult]):
             return None
         if self._pending:
             return None
-        if (self.left or self.stranded) and all(r.arrived for v, r in self.reports.items() if v not in self.left):
+        others_in = all(r.arrived for v, r in self.reports.items() if v not in self.left)
+        self._all_in = (self._all_in or now) if others_in else None
+        if ((self.left or self.stranded) and others_in
+                and not any(c.pending(now, self._all_in) for c in self._rejoin.values())):
             short = "".join(f"; {v} stopped short of {g!r}" for v, g in self.stranded.items())
             return f"every other vehicle arrived; left: {'; '.join(self.left.values()) or 'none'}{short}"
         if all(r.arrived for r in self.reports.values()):

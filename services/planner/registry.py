@@ -17,6 +17,7 @@ from common.domain.planfile import Plan, Task
 from common.errors import InputError
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.maps.loading import GraphProblem, load_graph, problem_from_request
+from services.planner.replanning import rejoin_blocked
 from services.planner.result import PlanResult, to_plan
 
 log = logging.getLogger(__name__)
@@ -85,9 +86,13 @@ def solve_replan(req: PlanRequest) -> PlanReply:
         graph = load_graph(base.map, uniform=base.planner == "ilp")
     except InputError as exc:
         return PlanReply(ok=False, error=str(exc))
-    unknown = sorted((set(rp.left) | set(rp.goals)) - set(base.paths))
+    unknown = sorted((set(rp.left) | set(rp.goals) | set(rp.rejoin)) - set(base.paths))
     if unknown:
         return PlanReply(ok=False, error=f"replan: {', '.join(unknown)} not in the plan")
+    if rp.rejoin and req.planner != "sipp":
+        return PlanReply(ok=False, error="replan: vehicles rejoin with sipp (their paths are shifted off the ILP's time steps)")
+    if (blocked := rejoin_blocked(graph, rp)) is not None:
+        return PlanReply(ok=False, error=f"replan: {blocked[0]} cannot rejoin yet: {blocked[1]}", failed_vehicle=blocked[0])
     missing = sorted(g for g in rp.goals.values() if g not in graph.index)
     if missing:
         return PlanReply(ok=False, error=f"replan: no node {', '.join(map(repr, missing))} on map {base.map!r}")
@@ -124,8 +129,11 @@ def _replan_with(graph: FleetGraph, req: PlanRequest, planner: str, time_limit: 
     tasks = {vid: msgspec.structs.replace(base.tasks[vid], goal=result.paths[vid][-1].node
                                           if vid in result.stranded else rp.goals.get(vid, base.tasks[vid].goal))
              for vid in result.paths}
+    if stuck := sorted(set(result.stranded) & set(rp.rejoin)):
+        return PlanReply(ok=False, error=f"replan: {stuck[0]} cannot rejoin yet: its goal is out of reach "
+                                         f"({result.stranded[stuck[0]]})", failed_vehicle=stuck[0]), None
     plan = to_plan(graph, base.map, base.planner, base.mu, tasks, result)
-    report = validate_plan(plan, check_cost=False)
+    report = validate_plan(plan, check_cost=False, since=rp.at)
     if report.ok:  # priced by the validator: whole paths, the executed prefix and the new suffix
         return PlanReply(ok=True, plan=msgspec.structs.replace(plan, cost=report.cost), planner=planner), None
     rank = {vid: i for i, vid in enumerate(result.priority)}

@@ -103,5 +103,28 @@ def touched_by_segment(graph: FleetGraph, p0: tuple[float, float, float], p1: tu
     return nodes, edges
 
 
+def rejoin_blocked(graph: FleetGraph, replan: Replan) -> tuple[str, str] | None:
+    """A vehicle that rejoins (`Replan.rejoin`) whose way from where it stands to its switch node
+    (the last step of its prefix, over [at, its arrival there]) a body that left could touch then
+    (`touched_by_segment`: the whole edge, conservatively), and whose body; None when
+    every rejoining vehicle's way is clear. (The prefix is flown unchanged: the planner cannot
+    route it around a body, and the validator knows only paths, not the bodies that left.)"""
+    at = replan.at
+    for vid in replan.rejoin:
+        path = replan.base.paths[vid]
+        k = next((i for i, e in enumerate(path) if e.t >= at), None)
+        if k is None:
+            continue  # at rest at the end of its path: planned from there
+        a, b = path[max(k - 1, 0)], path[k]
+        u, v = graph.index[a.node], graph.index[b.node]
+        for sweep in replan.sweeps:
+            if sweep.vid == vid or sweep.t0 > b.t or (not sweep.rest and sweep.t1 < at):
+                continue
+            nodes, edges = touched_by_segment(graph, sweep.p0, sweep.p1, sweep.reach)
+            if (u == v and v in nodes) or (u != v and graph.edge_index[(u, v)] in edges):
+                return vid, f"its way to {b.node!r} crosses where {sweep.vid} may be"
+    return None
+
+
 def failed(vid: str, reason: str, t0: float) -> PlanResult:
     return PlanResult(ok=False, error=f"{vid}: {reason}", failed_vehicle=vid, planning_time_s=time.perf_counter() - t0)

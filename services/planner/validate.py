@@ -478,14 +478,18 @@ def _concat(parts: list[_Hits]) -> _Hits:
 
 
 def find_contacts(
-    names: list[str], times: list[np.ndarray], points: list[np.ndarray], radius: float, height: float
+    names: list[str], times: list[np.ndarray], points: list[np.ndarray], radius: float, height: float,
+    since: float = -math.inf,
 ) -> tuple[list[Contact], float]:
     """Every contact episode between the piecewise-linear trajectories (vehicle v at points[v][i] at
-    times[v][i], parked before and after), and the min_separation of ValidationReport (§IV)."""
+    times[v][i], parked before and after) from `since` on, and the min_separation of
+    ValidationReport (§IV)."""
     n = len(names)
     if n < 2:
         return [], math.inf
     grid = np.unique(np.concatenate(times))
+    if since > -math.inf:
+        grid = np.unique(np.append(grid[grid > since], since))
     grid = np.append(grid, grid[-1] + 1.0)  # one interval with everyone parked at their goals
     step = SLAB * max(1, POSITION_BUDGET // (n * SLAB))
     parts = []
@@ -519,9 +523,11 @@ def _truncate(errors: list[str]) -> list[str]:
     return errors[:MAX_ERRORS] + [f"... and {len(errors) - MAX_ERRORS} more errors"]
 
 
-def validate_plan(plan: Plan, check_cost: bool = True) -> ValidationReport:
+def validate_plan(plan: Plan, check_cost: bool = True, since: float = -math.inf) -> ValidationReport:
     """Check a plan against paper 000 §IV (satisfying, conflict-free), §V-C (battery) and §V-B (cost);
-    without `check_cost`, the report's cost prices a plan that has none of its own yet."""
+    without `check_cost`, the report's cost prices a plan that has none of its own yet. A replan's
+    bodies are checked from its switch time (`since`) on: before it is history, flown or not
+    (a vehicle that rejoins a mission has a path shifted in time: `Replan.rejoin`)."""
     graph, errors = _index_graph(plan.graph)
     model_errors = _check_model(plan)
     errors += model_errors
@@ -537,7 +543,8 @@ def validate_plan(plan: Plan, check_cost: bool = True) -> ValidationReport:
     cost = sum(s.cost for s in stats.values()) if all_priced else math.nan
     if all_priced and check_cost:
         errors += _cost_errors(cost, plan.cost)
-    contacts, min_sep = find_contacts(traced, *_trace(plan, graph, traced), plan.model.radius, plan.model.height)
+    contacts, min_sep = find_contacts(traced, *_trace(plan, graph, traced), plan.model.radius, plan.model.height,
+                                      since)
     errors += [c.describe() for c in contacts]
     return ValidationReport(
         errors=_truncate(errors),

@@ -1,0 +1,134 @@
+"""A vehicle held for another's sake (the proximity stop, the reflex) or left behind by a fault that
+cleared comes back into the running mission (`Replan.rejoin`, `services/mission/rejoin.py`): its
+old path shifted in time so that it is where the vehicle stands at the switch, planned on from its
+next node, validated from the switch on; refused while its way crosses a body that left. Its
+executor holds it until the new reference comes to it, then follows it."""
+
+from __future__ import annotations
+
+import math
+
+import msgspec
+import pytest
+
+from common.bus.messages import PlanRequest, Replan, Sweep
+from common.domain.planfile import Plan
+from common.flight.modes import Mode
+from services.executor.vehicle_controller import VehicleController
+from services.mission.rejoin import progress_at, shifted_path
+from services.mission.sweeps import held
+from services.planner.registry import solve
+from services.planner.validate import validate_plan
+from services.sim.crazyflie.physics import SimFlyingCar
+from tests.support.closed_loop import plan_for, run
+from tests.test_replan import TASKS, plan_of
+from tests.test_tracking_guard import MODEL, STEPS, T0
+
+pytestmark = pytest.mark.compute
+
+
+def drive_time(plan: Plan, vid: str) -> float:
+    """A time at which `vid` drives mid-edge (the middle of its longest drive)."""
+    path, nodes = plan.paths[vid], plan.graph.nodes
+    a, b = max(((a, b) for a, b in zip(path, path[1:], strict=False) if a.node != b.node
+                and nodes[a.node].kind != "air" and nodes[b.node].kind != "air"), key=lambda ab: ab[1].t - ab[0].t)
+    return 0.5 * (a.t + b.t)
+
+
+def held_plan(base: Plan, vid: str, t: float) -> tuple[Plan, tuple[float, float, float]]:
+    """The plan of the others after `vid` was held at its plan's position at `t` (and where)."""
+    here = base.position(vid, t)
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+                              replan=Replan(base=base, at=t + 1.0, left=[vid], sweeps=held(vid, here, t, 0.0))))
+    assert reply.ok and reply.plan is not None, reply.error
+    return reply.plan, here
+
+
+def test_where_a_held_vehicle_stands_on_its_path_and_the_path_shifted_to_it() -> None:
+    base = plan_of()
+    t = drive_time(base, "cf3")
+    path = base.paths["cf3"]
+    here = base.position("cf3", t)
+    assert progress_at(base, path, here, t + 1.0) == pytest.approx(t, abs=1e-6)
+    off = (here[0] + 0.02, here[1], here[2])  # beside its path: the nearest point on it
+    assert math.dist(base.position("cf3", progress_at(base, path, off, t + 1.0)), here) < 0.021
+    shifted = shifted_path(path, t, t + 7.5)
+    later = msgspec.structs.replace(base, paths={**base.paths, "cf3": shifted})
+    assert math.dist(later.position("cf3", t + 7.5), here) < 1e-6
+    assert [e.node for e in shifted] == [e.node for e in path]
+
+
+def test_a_held_driver_rejoins_from_where_it_stands_and_reaches_its_goal() -> None:
+    base = plan_of()
+    t = drive_time(base, "cf3")
+    others, here = held_plan(base, "cf3", t)
+    assert "cf3" not in others.paths
+    at = t + 6.0
+    back = msgspec.structs.replace(others, paths={**others.paths, "cf3": shifted_path(base.paths["cf3"], t, at)},
+                                   tasks={**others.tasks, "cf3": base.tasks["cf3"]})
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, replan=Replan(base=back, at=at, rejoin=["cf3"])))
+    assert reply.ok and reply.plan is not None, reply.error
+    plan = reply.plan
+    assert set(plan.paths) == set(TASKS)
+    assert math.dist(plan.position("cf3", at), here) < 1e-6  # on its way on from where it stands
+    assert plan.paths["cf3"][-1].node == TASKS["cf3"].goal
+    report = validate_plan(plan, check_cost=False, since=at)
+    assert report.ok, report.errors
+
+
+def test_a_vehicle_does_not_rejoin_through_a_body_that_left() -> None:
+    base = plan_of()
+    t = drive_time(base, "cf3")
+    others, _ = held_plan(base, "cf3", t)
+    at = t + 6.0
+    ahead = base.position("cf3", t + 1.0)  # on the edge it drives along: a body rests there
+    back = msgspec.structs.replace(others, paths={**others.paths, "cf3": shifted_path(base.paths["cf3"], t, at)},
+                                   tasks={**others.tasks, "cf3": base.tasks["cf3"]})
+    blocked = Replan(base=back, at=at, rejoin=["cf3"], sweeps=[Sweep("cf9", ahead, ahead, t, t, rest=True)])
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, replan=blocked))
+    assert not reply.ok and reply.failed_vehicle == "cf3", reply
+    assert "cf3 cannot rejoin yet: its way to" in reply.error and "cf9" in reply.error, reply.error
+
+
+def stopped_short() -> tuple[VehicleController, SimFlyingCar, float]:
+    """The reference path's vehicle stopped short mid-drive (on r1 -> r2) and standing still; the
+    plan time of where it stands."""
+    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    ctrl = VehicleController("cf1", MODEL, owner="test")
+    ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
+    r1, r2 = STEPS[1], STEPS[2]
+    run(ctrl, sim, T0 + 0.5 * (r1.t + r2.t))
+    assert ctrl.mode == Mode.DRIVING and ctrl.stop_short("stops short of cf9: a test")
+    run(ctrl, sim, sim.t + 2.0)
+    assert ctrl.mode == Mode.HOLDING and ctrl.held is not None and ctrl.rejoinable
+    progress = r1.t + (sim.x - r1.pos[0]) / (r2.pos[0] - r1.pos[0]) * (r2.t - r1.t)
+    return ctrl, sim, progress
+
+
+def shifted(delay: float) -> list:
+    return [msgspec.structs.replace(s, t=round(s.t + delay, 6)) for s in STEPS]
+
+
+def test_a_vehicle_stopped_short_waits_for_its_new_reference_then_drives_on_to_its_goal() -> None:
+    ctrl, sim, progress = stopped_short()
+    switch = sim.t - T0 + 1.5
+    assert ctrl.replan(plan_for("cf1", shifted(switch - progress), MODEL, t0=T0), sim.t)
+    still = (sim.x, sim.y)
+    run(ctrl, sim, sim.t + 1.2)
+    assert ctrl.mode == Mode.HOLDING and math.dist(still, (sim.x, sim.y)) < 0.005  # its reference not here yet
+    run(ctrl, sim, sim.t + 1.0)
+    assert ctrl.held is None and ctrl.mode == Mode.DRIVING
+    run(ctrl, sim, T0 + switch - progress + STEPS[-1].t + 3.0)
+    assert ctrl.mode == Mode.DONE and ctrl.held is None, (ctrl.mode, ctrl.held)
+    assert math.dist((sim.x, sim.y, sim.z), STEPS[-1].pos) < 0.05  # flew the rest and parked at its goal
+
+
+def test_a_plan_whose_reference_does_not_come_by_is_refused_and_the_hold_reported_again() -> None:
+    ctrl, sim, _ = stopped_short()
+    holds = ctrl.holds
+    assert not ctrl.replan(plan_for("cf1", STEPS, MODEL, t0=T0), sim.t)  # not shifted: its reference is far on
+    assert ctrl.holds == holds + 1 and "does not come within" in (ctrl.held or ""), ctrl.held
+    assert not ctrl.replan(plan_for("cf1", STEPS, MODEL, t0=T0), sim.t)  # sent again: one report
+    assert ctrl.holds == holds + 1
+    run(ctrl, sim, sim.t + 1.0)
+    assert ctrl.mode == Mode.HOLDING
