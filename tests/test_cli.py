@@ -29,3 +29,9 @@ def test_a_demo_with_no_positive_lead_is_refused_before_any_process_starts(lead:
     out = subprocess.run([sys.executable, "-m", "services.cli", "demo", "--lead", lead, "--out", "/nonexistent/demo"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and f"--lead: {lead}: must be positive" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_a_mission_with_a_negative_rejoin_count_is_refused_before_it_connects() -> None:
+    out = subprocess.run([sys.executable, "-m", "services.cli", "mission", "run", "maps/scenarios/town_8.yaml",
+                          "--rejoins", "-1", "--connect", "tcp/127.0.0.1:9"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "--rejoins: -1: must be 0 or more" in out.stderr and "Traceback" not in out.stderr

@@ -7,15 +7,19 @@ executor holds it until the new reference comes to it, then follows it."""
 from __future__ import annotations
 
 import math
+import time
 
 import msgspec
 import pytest
 
+from common.bus.keys import Keys
 from common.bus.messages import PlanRequest, Replan, Sweep
+from common.bus.session import ZenohConfig
 from common.domain.planfile import Plan
 from common.flight.modes import Mode
 from services.executor.vehicle_controller import VehicleController
-from services.mission.rejoin import progress_at, shifted_path
+from services.mission.rejoin import Candidate, progress_at, shifted_path
+from services.mission.runner import MissionRunner, MissionSpec
 from services.mission.sweeps import held
 from services.planner.registry import solve
 from services.planner.validate import validate_plan
@@ -132,3 +136,20 @@ def test_a_plan_whose_reference_does_not_come_by_is_refused_and_the_hold_reporte
     assert ctrl.holds == holds + 1
     run(ctrl, sim, sim.t + 1.0)
     assert ctrl.mode == Mode.HOLDING
+
+
+def test_a_mission_whose_every_vehicle_left_waits_for_one_more_try_of_those_that_may_come_back() -> None:
+    """Every vehicle held (a soak's first mission, every pose stale at once): the mission does not
+    end while a held vehicle that may come back has not been tried since nothing moves any more;
+    then it ends without it. (It crashed on the time limit of no vehicle at all.)"""
+    tasks = {"cf3": TASKS["cf3"]}
+    plan = plan_of(tasks=tasks)
+    runner = MissionRunner(MissionSpec(map="town", tasks=tasks), ZenohConfig.client("tcp/127.0.0.1:9"),
+                           Keys("rejoin"), progress=False)
+    now = time.time()
+    runner.plan, runner.t0 = plan, now - 10.0
+    runner.left["cf3"] = "cf3: tracking_hold its plan moved on 0.062 m while it was stopped (pose stale)"
+    runner._rejoin["cf3"] = Candidate(plan.paths["cf3"], plan.tasks["cf3"], since=now - 1.0)
+    assert runner.end_reason(now) is None
+    runner._rejoin["cf3"].tries, runner._rejoin["cf3"].last_try = 1, now + 0.1  # tried, not back
+    assert runner.end_reason(now + 0.2) == f"every other vehicle arrived; left: {runner.left['cf3']}"

@@ -32,6 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--replanner", choices=["sipp", "ilp"], default="sipp",
                    help="who plans the others on after a fault or a new task: sipp (fast), or ilp (with "
                         "--planner ilp; sipp takes over when the ILP finds no plan within the replan's time)")
+    p.add_argument("--rejoins", type=int, default=None,
+                   help="how often a vehicle held for another's sake, or stopped by a fault that cleared, may be "
+                        "brought back into the plan (default 3; 0: it stays held)")
     p.add_argument("--lifelong", action="store_true",
                    help="keep giving every vehicle that arrives a random free parking spot for --minutes")
     p.add_argument("--minutes", type=float, default=5.0, help="with --lifelong: how long to keep adding tasks")
@@ -112,6 +115,10 @@ def spec_from_args(args: argparse.Namespace):
     extra = {"mission": args.id} if args.id else {}
     if args.lifelong and args.minutes <= 0:
         raise InputError("fleet mission run", "--minutes", f"{args.minutes:g}: must be positive")
+    if args.rejoins is not None:
+        if args.rejoins < 0:
+            raise InputError("fleet mission run", "--rejoins", f"{args.rejoins}: must be 0 or more")
+        extra["rejoins"] = args.rejoins
     if args.replanner == "ilp" and args.planner != "ilp":
         raise InputError("fleet mission run", "--replanner", "ilp replans the ILP's plans: give --planner ilp too")
     return MissionSpec(map=map_name, tasks=dict(scen.tasks), planner=args.planner, mu=args.mu,

@@ -609,8 +609,9 @@ class MissionRunner(MissionClient[MissionResult]):
             return None
         others_in = all(r.arrived for v, r in self.reports.items() if v not in self.left)
         self._all_in = (self._all_in or now) if others_in else None
-        if ((self.left or self.stranded) and others_in
-                and not any(c.pending(now, self._all_in) for c in self._rejoin.values())):
+        if (self.left or self.stranded) and others_in:
+            if any(c.pending(now, self._all_in) for c in self._rejoin.values()):
+                return None  # (bounded: `Candidate.pending`)
             short = "".join(f"; {v} stopped short of {g!r}" for v, g in self.stranded.items())
             return f"every other vehicle arrived; left: {'; '.join(self.left.values()) or 'none'}{short}"
         if all(r.arrived for r in self.reports.values()):
