@@ -351,7 +351,7 @@ class Replan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     tasks carry the goals it was given. `rejoin`: vehicles that left held where they stopped and
     come back; each one's path in `base` is the one it left, shifted in time so that it is where
     the vehicle stands at `at` (their sweeps are not in `sweeps`); the replan fails, naming one,
-    when its way to its switch node crosses a body that left."""
+    when its way to its switch node crosses a body of `sweeps`."""
 
     base: Plan
     at: float

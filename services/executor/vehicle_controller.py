@@ -163,7 +163,8 @@ class VehicleController:
         self.held: str | None = None
         """Why the tracking guard holds the vehicle (None: it does not)."""
         self.rejoinable = False
-        """Held for another's sake (`stop_short`, `yield_to`): the mission may bring it back."""
+        """Held for another's sake (`stop_short`, `yield_to`) or left behind by a fault that may
+        clear (`_left_behind`), not for its own tracking: the mission may bring it back."""
         self._rejoin: tuple[VehiclePlan, Trajectory, float] | None = None
         """The plan that brings a held vehicle back, its trajectory, and when (mission time) its
         reference comes to where the vehicle stands: it follows it from then on."""
@@ -199,7 +200,7 @@ class VehicleController:
         same until then). A vehicle at rest after its mission takes it as a new plan (`load`).
         Refused (False, logged) when the vehicle does not follow its plan any more (fault landing,
         held, aborted, landing) or the new plan's reference differs from the old one now. A vehicle
-        held for another's sake takes a plan that brings it back (`_take_back`)."""
+        held for another's sake (`rejoinable`) takes a plan that brings it back (`_take_back`)."""
         if plan.vid != self.vid:
             raise ValueError(f"plan for {plan.vid!r} given to the controller of {self.vid!r}")
         old = self.trajectory
