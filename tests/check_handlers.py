@@ -92,7 +92,12 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/faults.py",
               "    def link_lost(self, now: float) -> bool:\n",
               "    def link_lost(self, now: float) -> bool:\n        return False  # disabled\n"),),
-        "tests/test_faults_radio.py::test_a_link_lost_mid_flight_lands_the_vehicle_and_the_others_fly_on"),
+        "tests/test_faults_radio.py::test_a_link_lost_mid_flight_lands_the_vehicle_and_one_lost_while_driving_comes_back"),
+    Handling(
+        "a vehicle held by a fault that cleared brought back",
+        "mission: no vehicle comes back (`REJOINS` 0)",
+        (Edit("services/mission/rejoin.py", "REJOINS = 3\n", "REJOINS = 0\n"),),
+        "tests/test_faults_radio.py::test_a_link_lost_mid_flight_lands_the_vehicle_and_one_lost_while_driving_comes_back"),
     Handling(
         "the executor's low-battery landing",
         "executor: `low` always False in its supervision (the event still comes at the planned landing)",

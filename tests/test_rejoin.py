@@ -13,7 +13,7 @@ import msgspec
 import pytest
 
 from common.bus.keys import Keys
-from common.bus.messages import PlanRequest, Replan, Sweep
+from common.bus.messages import PlanRequest, Replan, Sweep, VehiclePlan
 from common.bus.session import ZenohConfig
 from common.domain.planfile import Plan
 from common.flight.modes import Mode
@@ -109,14 +109,20 @@ def stopped_short() -> tuple[VehicleController, SimFlyingCar, float]:
     return ctrl, sim, progress
 
 
-def shifted(delay: float) -> list:
-    return [msgspec.structs.replace(s, t=round(s.t + delay, 6)) for s in STEPS]
+def back(delay: float = 0.0) -> VehiclePlan:
+    """The reference path later by `delay`, as a plan that brings the vehicle back."""
+    steps = [msgspec.structs.replace(s, t=round(s.t + delay, 6)) for s in STEPS]
+    return msgspec.structs.replace(plan_for("cf1", steps, MODEL, t0=T0), rejoin=True)
 
 
 def test_a_vehicle_stopped_short_waits_for_its_new_reference_then_drives_on_to_its_goal() -> None:
     ctrl, sim, progress = stopped_short()
     switch = sim.t - T0 + 1.5
-    assert ctrl.replan(plan_for("cf1", shifted(switch - progress), MODEL, t0=T0), sim.t)
+    plan = back(switch - progress)
+    # a plan of the mission that does not say it brings the vehicle back is refused (one asked for
+    # before the hold, handed out after it, had a held vehicle drive on unplanned for: a soak)
+    assert not ctrl.replan(msgspec.structs.replace(plan, rejoin=False), sim.t)
+    assert ctrl.replan(plan, sim.t)
     still = (sim.x, sim.y)
     run(ctrl, sim, sim.t + 1.2)
     assert ctrl.mode == Mode.HOLDING and math.dist(still, (sim.x, sim.y)) < 0.005  # its reference not here yet
@@ -130,9 +136,9 @@ def test_a_vehicle_stopped_short_waits_for_its_new_reference_then_drives_on_to_i
 def test_a_plan_whose_reference_does_not_come_by_is_refused_and_the_hold_reported_again() -> None:
     ctrl, sim, _ = stopped_short()
     holds = ctrl.holds
-    assert not ctrl.replan(plan_for("cf1", STEPS, MODEL, t0=T0), sim.t)  # not shifted: its reference is far on
+    assert not ctrl.replan(back(), sim.t)  # not shifted: its reference is far on
     assert ctrl.holds == holds + 1 and "does not come within" in (ctrl.held or ""), ctrl.held
-    assert not ctrl.replan(plan_for("cf1", STEPS, MODEL, t0=T0), sim.t)  # sent again: one report
+    assert not ctrl.replan(back(), sim.t)  # sent again: one report
     assert ctrl.holds == holds + 1
     run(ctrl, sim, sim.t + 1.0)
     assert ctrl.mode == Mode.HOLDING

@@ -152,6 +152,10 @@ class VehiclePlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     steps: list[PlanStep]
     model: PlanModel
     t0: float = 0.0
+    rejoin: bool = False
+    """This plan brings the vehicle, held, back into its mission (`Replan.rejoin`): its executor
+    takes it although the vehicle is held (any other plan of a held vehicle is refused: one asked
+    for before the hold, handed out after it, had a held vehicle drive on unplanned for)."""
 
 
 class VehicleState(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

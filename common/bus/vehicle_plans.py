@@ -3,13 +3,16 @@ the drone's and the UGV's `VehicleTeamPlan` (paper 002): what an executor follow
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 from common.bus.messages import PlanStep, TeamTask, VehiclePlan, VehicleTeamPlan
 from common.domain.planfile import Plan
 from common.domain.team_plan import TeamPlan
 
 
-def vehicle_plans(plan: Plan, mission: str, t0: float = 0.0) -> dict[str, VehiclePlan]:
-    """One VehiclePlan per vehicle: path entries with node position, node kind and arriving edge kind."""
+def vehicle_plans(plan: Plan, mission: str, t0: float = 0.0, back: Collection[str] = ()) -> dict[str, VehiclePlan]:
+    """One VehiclePlan per vehicle: path entries with node position, node kind and arriving edge kind;
+    `back`: the held vehicles this plan brings back (`VehiclePlan.rejoin`)."""
     kinds = {(u, v): k for u, v, k in plan.graph.edges}
     out: dict[str, VehiclePlan] = {}
     for vid, path in plan.paths.items():
@@ -20,7 +23,8 @@ def vehicle_plans(plan: Plan, mission: str, t0: float = 0.0) -> dict[str, Vehicl
             edge = kinds[(prev, entry.node)] if prev is not None and prev != entry.node else ""
             steps.append(PlanStep(node=entry.node, t=entry.t, pos=node.pos, kind=node.kind, edge=edge))
             prev = entry.node
-        out[vid] = VehiclePlan(vid=vid, mission=mission, map=plan.map, steps=steps, model=plan.model, t0=t0)
+        out[vid] = VehiclePlan(vid=vid, mission=mission, map=plan.map, steps=steps, model=plan.model, t0=t0,
+                               rejoin=vid in back)
     return out
 
 

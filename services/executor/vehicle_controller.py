@@ -200,7 +200,8 @@ class VehicleController:
         same until then). A vehicle at rest after its mission takes it as a new plan (`load`).
         Refused (False, logged) when the vehicle does not follow its plan any more (fault landing,
         held, aborted, landing) or the new plan's reference differs from the old one now. A vehicle
-        held for another's sake (`rejoinable`) takes a plan that brings it back (`_take_back`)."""
+        held for another's sake (`rejoinable`) takes a plan that brings it back (`VehiclePlan.rejoin`,
+        `_take_back`)."""
         if plan.vid != self.vid:
             raise ValueError(f"plan for {plan.vid!r} given to the controller of {self.vid!r}")
         old = self.trajectory
@@ -209,7 +210,7 @@ class VehicleController:
             return False
         if self.mode == Mode.DONE or old is None or self.t0 is None:
             return self.load(plan)  # it parked facing the way it came: it turns before driving off
-        if self.held and self.rejoinable and not self._fault_landing:
+        if self.held and self.rejoinable and plan.rejoin and not self._fault_landing:
             return self._take_back(plan, old, now)
         why = ("it is off its plan" if self._fault_landing or self._active is not old else
                "it is held" if self.held else "the mission is aborted" if self._abort else

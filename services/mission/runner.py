@@ -226,6 +226,8 @@ class MissionRunner(MissionClient[MissionResult]):
         """Vehicles held for another's sake that may come back (`rejoin.py`)."""
         self._rejoined: dict[str, int] = {}
         """How often each vehicle came back."""
+        self._back: frozenset[str] = frozenset()
+        """The held vehicles the current plan brings back (`VehiclePlan.rejoin`)."""
         self._all_in: float | None = None
         """Since when every vehicle in the mission has arrived (those that left waiting to come back)."""
         self._left_with: dict[str, tuple[list[PathEntry], Task]] = {}
@@ -316,7 +318,7 @@ class MissionRunner(MissionClient[MissionResult]):
         32-vehicle city934 mission spent a tenth of its process's time remaking them)."""
         assert self.plan is not None and self._plans is not None
         if self._handed is None or self._handed[0] is not self.plan or self._handed[1] != t0:
-            self._handed = (self.plan, t0, vehicle_plans(self.plan, self.mission, t0))
+            self._handed = (self.plan, t0, vehicle_plans(self.plan, self.mission, t0, self._back))
         self._plans.put_all(self._handed[2])
 
     def sample(self) -> None:
@@ -523,7 +525,7 @@ class MissionRunner(MissionClient[MissionResult]):
         if refused := sorted(set(short) & set(goals)):
             return f"{', '.join(f'{wanted[v]!r}' for v in refused)} out of reach"
         self.replans.append(took)
-        self.plan = reply.plan
+        self.plan, self._back = reply.plan, frozenset(back)
         for vid, node in short.items():
             self.stranded.setdefault(vid, wanted[vid])
             self.reports[vid].arrived = False
