@@ -94,6 +94,13 @@ HANDLINGS: tuple[Handling, ...] = (
               "    def link_lost(self, now: float) -> bool:\n        return False  # disabled\n"),),
         "tests/test_faults_radio.py::test_a_link_lost_mid_flight_lands_the_vehicle_and_one_lost_while_driving_comes_back"),
     Handling(
+        "no yield when the plan leaves the held vehicle",
+        "executor: `yield_to` yields whatever its plan does next",
+        (Edit("services/executor/vehicle_controller.py",
+              "        if not any(gap(*p) < now_gap - YIELD_APPROACH for ahead, p in places if ahead >= 0.0):\n",
+              "        if False:\n"),),
+        "tests/test_tracking_guard.py::test_a_vehicle_whose_plan_leaves_a_held_one_beside_it_goes_on"),
+    Handling(
         "a vehicle held by a fault that cleared brought back",
         "mission: no vehicle comes back (`REJOINS` 0)",
         (Edit("services/mission/rejoin.py", "REJOINS = 3\n", "REJOINS = 0\n"),),
@@ -312,8 +319,8 @@ HANDLINGS: tuple[Handling, ...] = (
         "the reflex to a vehicle coming down",
         "executor: `yield_to` treats a descending vehicle as one held where it was",
         (Edit("services/executor/vehicle_controller.py",
-              "            level = z - pos[2] < reach_z if descending else abs(z - pos[2]) < reach_z\n",
-              "            level = abs(z - pos[2]) < reach_z\n"),),
+              "                       (z - pos[2] if descending else abs(z - pos[2])) - reach_z)\n",
+              "                       abs(z - pos[2]) - reach_z)\n"),),
         "tests/test_tracking_guard.py::test_a_vehicle_whose_plan_passes_under_one_coming_down_holds_too"),
     Handling(
         "the bodies judged at every instant of the ground truth",

@@ -213,6 +213,23 @@ def test_a_vehicle_whose_plan_goes_where_another_is_held_holds_too() -> None:
         assert math.dist(held, (sim.x, sim.y, sim.z)) < 0.05  # it stays there
 
 
+def test_a_vehicle_whose_plan_leaves_a_held_one_beside_it_goes_on() -> None:
+    """Within reach of a held vehicle but on a plan that takes it away (or keeps its distance), a
+    vehicle does not yield: holding would keep it near. (A 32-vehicle soak: cf16, late, stopped
+    short 1.6 cm behind cf07; cf07 yielded to it and the two, closer than the plan's envelopes,
+    could not be planned back into the mission.) One whose plan comes nearer yields."""
+    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    ctrl = VehicleController("cf1", MODEL, owner="test")
+    ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
+    r1, r2 = STEPS[1], STEPS[2]  # a drive along +x
+    run(ctrl, sim, T0 + r1.t + 1.0)
+    assert ctrl.mode == Mode.DRIVING
+    now = sim.t
+    behind = (sim.x - 2.0 * MODEL.radius - 0.02, sim.y, sim.z)  # 2 cm from contact, behind it
+    assert not ctrl.yield_to("cf9", behind, now)
+    assert ctrl.yield_to("cf9", (sim.x + 0.3, sim.y, sim.z), now)  # ahead, on its way
+
+
 def test_a_vehicle_whose_plan_passes_under_one_coming_down_holds_too() -> None:
     """Another vehicle's emergency landing comes straight down from where it was: a vehicle whose
     plan passes under it within `yield_s` holds (on the ground, or in the air below it); one that

@@ -62,6 +62,11 @@ YIELD_STEP_S = 0.05
 """s between the plan positions `VehicleController.yield_to` looks at (0.05 s is at most 1.5 cm of flight)."""
 YIELD_UNSEEN_MAX = 0.5
 """m: the most `yield_to` widens its reach for a held vehicle's time unseen."""
+YIELD_APPROACH = 0.005
+"""m: how much nearer to the held vehicle its plan must bring a vehicle for it to yield (one whose
+plan keeps its distance or leaves goes on: in a 32-vehicle soak cf07, stopped short of by cf16
+behind it, yielded to cf16 and the two, closer than the plan's envelopes, could not be planned
+back into the mission; `services/mission/rejoin.py`)."""
 YIELD_BEHIND_S = 1.0
 """s of its plan behind now that `yield_to` looks at too: a vehicle may lag its reference by up to
 the guard's burst (3x a 3 cm margin: 0.9 s of driving)."""
@@ -501,7 +506,8 @@ class VehicleController:
         its last pose in a 32-vehicle soak, where a neighbour drove into it), at the fastest of its
         speeds, up to `YIELD_UNSEEN_MAX`. (A vehicle that came down in an emergency landing on a
         road was driven into by one on its plan before the replan around it switched: a 32-vehicle
-        soak, 7.6 cm deep.) Whether it will hold."""
+        soak, 7.6 cm deep.) Not if its plan does not bring it nearer to `vid` than it is
+        (`YIELD_APPROACH`): holding would keep it near, going on takes it away. Whether it will hold."""
         f = self.params.faults
         traj = self._active
         if f.yield_s <= 0.0 or traj is None or not self._may_yield():
@@ -516,9 +522,16 @@ class VehicleController:
         places = [(-1.0, (est.x, est.y, est.z))] + [
             (k * YIELD_STEP_S, traj.plan_position(min(max(rel + k * YIELD_STEP_S, 0.0), traj.end_time)))
             for k in range(-int(YIELD_BEHIND_S / YIELD_STEP_S), int(f.yield_s / YIELD_STEP_S) + 1)]
+
+        def gap(x: float, y: float, z: float) -> float:  # < 0: within reach (the column below, descending)
+            return max(math.hypot(x - pos[0], y - pos[1]) - reach_xy,
+                       (z - pos[2] if descending else abs(z - pos[2])) - reach_z)
+
+        now_gap = gap(est.x, est.y, est.z)
+        if not any(gap(*p) < now_gap - YIELD_APPROACH for ahead, p in places if ahead >= 0.0):
+            return False  # its plan keeps its distance or leaves: holding would keep it near
         for ahead, (x, y, z) in places:
-            level = z - pos[2] < reach_z if descending else abs(z - pos[2]) < reach_z
-            if level and math.hypot(x - pos[0], y - pos[1]) < reach_xy:
+            if gap(x, y, z) < 0.0:
                 where = "where it is" if ahead < -YIELD_BEHIND_S else f"where its plan goes in {max(ahead, 0.0):.1f} s"
                 what = "coming down from" if descending else "held at"
                 self._yield = f"yields to {vid}, {what} ({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f}), {where}"
