@@ -122,7 +122,10 @@ def test_a_vehicle_stopped_short_waits_for_its_new_reference_then_drives_on_to_i
     # a plan of the mission that does not say it brings the vehicle back is refused (one asked for
     # before the hold, handed out after it, had a held vehicle drive on unplanned for: a soak)
     assert not ctrl.replan(msgspec.structs.replace(plan, rejoin=False), sim.t)
-    assert ctrl.replan(plan, sim.t)
+    assert ctrl.replan(back(switch - progress - 0.5), sim.t)
+    # while it waits for its reference, the mission's next plan (another fault's replan, which keeps
+    # its way to its next node) replaces the one that brought it back
+    assert ctrl.replan(msgspec.structs.replace(plan, rejoin=False), sim.t)
     still = (sim.x, sim.y)
     run(ctrl, sim, sim.t + 1.2)
     assert ctrl.mode == Mode.HOLDING and math.dist(still, (sim.x, sim.y)) < 0.005  # its reference not here yet

@@ -215,8 +215,8 @@ class VehicleController:
             return False
         if self.mode == Mode.DONE or old is None or self.t0 is None:
             return self.load(plan)  # it parked facing the way it came: it turns before driving off
-        if self.held and self.rejoinable and plan.rejoin and not self._fault_landing:
-            return self._take_back(plan, old, now)
+        if self.held and self.rejoinable and (plan.rejoin or self._rejoin is not None) and not self._fault_landing:
+            return self._take_back(plan, old, now)  # (a plan after the one that brought it back replaces it)
         why = ("it is off its plan" if self._fault_landing or self._active is not old else
                "it is held" if self.held else "the mission is aborted" if self._abort else
                f"it is {self.mode}" if self.mode in (Mode.LANDING, Mode.EMERGENCY_LANDING) else "")
@@ -239,7 +239,8 @@ class VehicleController:
         stays held until the new plan's reference passes where it stands, within the guard's limit
         (`_closest_pass`), then follows it (`_supervise`). Refused (False) when the
         reference does not come by: the hold stands and is reported again, since the mission
-        planned the others as if it came back. (Whether its way is clear is the planner's to judge,
+        planned the others as if it came back. A later plan of the mission while it waits (another
+        fault's replan) replaces it. (Whether its way is clear is the planner's to judge,
         `Replan.rejoin`; should it head into a body all the same, the proximity stop holds it again.)"""
         assert self.t0 is not None
         new = Trajectory(plan.steps, self.params.trajectory, yaw0=old.sample(old.start_time).yaw)
