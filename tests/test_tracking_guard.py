@@ -221,8 +221,7 @@ def test_a_vehicle_whose_plan_leaves_a_held_one_beside_it_goes_on() -> None:
     sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
     ctrl = VehicleController("cf1", MODEL, owner="test")
     ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
-    r1, r2 = STEPS[1], STEPS[2]  # a drive along +x
-    run(ctrl, sim, T0 + r1.t + 1.0)
+    run(ctrl, sim, T0 + STEPS[1].t + 1.0)  # on its drive from r1 to r2, along +x
     assert ctrl.mode == Mode.DRIVING
     now = sim.t
     behind = (sim.x - 2.0 * MODEL.radius - 0.02, sim.y, sim.z)  # 2 cm from contact, behind it
