@@ -94,18 +94,20 @@ def test_a_vehicle_does_not_rejoin_through_a_body_that_left() -> None:
     assert "cf3 cannot rejoin yet: its way to" in reply.error and "cf9" in reply.error, reply.error
 
 
-def stopped_short() -> tuple[VehicleController, SimFlyingCar, float]:
-    """The reference path's vehicle stopped short mid-drive (on r1 -> r2) and standing still; the
-    plan time of where it stands."""
+def stopped_short(flying: bool = False) -> tuple[VehicleController, SimFlyingCar, float]:
+    """The reference path's vehicle stopped short mid-drive (on r1 -> r2, along +x) or mid-flight
+    (a1 -> a2, along +x) and standing still; the plan time of where it stands."""
     sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
     ctrl = VehicleController("cf1", MODEL, owner="test")
     ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
-    r1, r2 = STEPS[1], STEPS[2]
-    run(ctrl, sim, T0 + 0.5 * (r1.t + r2.t))
-    assert ctrl.mode == Mode.DRIVING and ctrl.stop_short("stops short of cf9: a test")
+    i = next(k for k, s in enumerate(STEPS) if s.node == ("a1" if flying else "r1"))
+    a, b = STEPS[i], STEPS[i + 1]
+    run(ctrl, sim, T0 + 0.5 * (a.t + b.t))
+    moving, held = (Mode.FLYING, Mode.HOVERING) if flying else (Mode.DRIVING, Mode.HOLDING)
+    assert ctrl.mode == moving and ctrl.stop_short("stops short of cf9: a test")
     run(ctrl, sim, sim.t + 2.0)
-    assert ctrl.mode == Mode.HOLDING and ctrl.held is not None and ctrl.rejoinable
-    progress = r1.t + (sim.x - r1.pos[0]) / (r2.pos[0] - r1.pos[0]) * (r2.t - r1.t)
+    assert ctrl.mode == held and ctrl.held is not None and ctrl.rejoinable
+    progress = a.t + (sim.x - a.pos[0]) / (b.pos[0] - a.pos[0]) * (b.t - a.t)
     return ctrl, sim, progress
 
 
@@ -115,8 +117,9 @@ def back(delay: float = 0.0) -> VehiclePlan:
     return msgspec.structs.replace(plan_for("cf1", steps, MODEL, t0=T0), rejoin=True)
 
 
-def test_a_vehicle_stopped_short_waits_for_its_new_reference_then_drives_on_to_its_goal() -> None:
-    ctrl, sim, progress = stopped_short()
+@pytest.mark.parametrize("flying", [False, True], ids=["driving", "flying"])
+def test_a_vehicle_stopped_short_waits_for_its_new_reference_then_goes_on_to_its_goal(flying: bool) -> None:
+    ctrl, sim, progress = stopped_short(flying)
     switch = sim.t - T0 + 1.5
     plan = back(switch - progress)
     # a plan of the mission that does not say it brings the vehicle back is refused (one asked for
@@ -126,11 +129,12 @@ def test_a_vehicle_stopped_short_waits_for_its_new_reference_then_drives_on_to_i
     # while it waits for its reference, the mission's next plan (another fault's replan, which keeps
     # its way to its next node) replaces the one that brought it back
     assert ctrl.replan(msgspec.structs.replace(plan, rejoin=False), sim.t)
-    still = (sim.x, sim.y)
+    still = (sim.x, sim.y, sim.z)
     run(ctrl, sim, sim.t + 1.2)
-    assert ctrl.mode == Mode.HOLDING and math.dist(still, (sim.x, sim.y)) < 0.005  # its reference not here yet
+    held, moving = (Mode.HOVERING, Mode.FLYING) if flying else (Mode.HOLDING, Mode.DRIVING)
+    assert ctrl.mode == held and math.dist(still, (sim.x, sim.y, sim.z)) < 0.02  # its reference not here yet
     run(ctrl, sim, sim.t + 1.0)
-    assert ctrl.held is None and ctrl.mode == Mode.DRIVING
+    assert ctrl.held is None and ctrl.mode == moving
     run(ctrl, sim, T0 + switch - progress + STEPS[-1].t + 3.0)
     assert ctrl.mode == Mode.DONE and ctrl.held is None, (ctrl.mode, ctrl.held)
     assert math.dist((sim.x, sim.y, sim.z), STEPS[-1].pos) < 0.05  # flew the rest and parked at its goal
