@@ -360,6 +360,9 @@ class MissionRunner(MissionClient[MissionResult]):
             return
 
     def on_fault(self, vid: str, kind: str, text: str, node: str, rejoinable: bool = False) -> bool:
+        state = self.states.get(vid)
+        if kind == "link_lost" and not node and state is not None and state.mode != "done":
+            return True  # the gateway's word (`LinkHealth`): the executor reports what it does (a hold, a landing)
         if vid in self.left:
             if rejoinable and kind == "tracking_hold":
                 self._may_rejoin(vid)
