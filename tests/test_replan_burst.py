@@ -1,6 +1,7 @@
 """Faults in a burst are replanned once (issue 15): a mission whose vehicles are held one after
 another while a replan is under way plans the others on once more after it, around every vehicle
-that left, instead of once per fault. A real planner over zenoh; the mission's own replanning
+that left, instead of once per fault; a fault while a held vehicle is being brought back
+(`Replan.rejoin`) is replanned first. A real planner over zenoh; the mission's own replanning
 (`MissionRunner.on_fault`), driven with the states its executors would have reported."""
 
 from __future__ import annotations
@@ -92,3 +93,68 @@ def test_a_burst_of_holds_during_a_replan_is_replanned_once_after_it(zenoh_route
     fly_burst(zenoh_router, runner)
     assert runner.asked == 2 and runner.replans_skipped == 2, (runner.asked, runner.events)
     assert any("the replan of a later fault tries again" in e for e in runner.events), runner.events
+
+
+class RejoinDuringFault(Burst):
+    """`FIRST` held for another's sake at its start spot; while the replan that would bring it back
+    asks the planner, `BURST[0]` is held for its own tracking."""
+
+    def __init__(self, router: str) -> None:
+        super().__init__(router)
+        self.burst = []
+        self.fault_during: str | None = BURST[0]
+
+    async def _ask_replan(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        if kwargs.get("rejoin") and self.fault_during:
+            vid, self.fault_during = self.fault_during, None
+            assert self.on_fault(vid, "tracking_hold", f"{vid}: held", "")
+        return await super()._ask_replan(*args, **kwargs)
+
+    async def main(self) -> None:
+        try:
+            reply = await query(self.session, self.keys.planner_plan, self.plan_request(), PlanReply, timeout=30)
+            assert self.accept(reply) is None, reply.error
+            assert self.plan is not None
+            self.t0 = time.time() - 0.5
+            for vid, path in self.plan.paths.items():
+                x, y, z = self.plan.graph.nodes[path[0].node].pos
+                mode = "holding" if vid == FIRST else "parked"
+                self.states[vid] = VehicleState(vid=vid, t=time.time(), owner="e1", mode=mode, x=x, y=y, z=z,
+                                                yaw=0.0, mission=self.mission)
+            assert self.on_fault(FIRST, "tracking_hold", f"{FIRST}: stops short of cf9", "", rejoinable=True)
+            await self._replanning
+            for attempt in range(2):  # the first is overtaken by the fault, the second brings it back
+                self._rejoin[FIRST].since = self._rejoin[FIRST].last_try = time.time() - 5.0  # due
+                self.sample()
+                while self._replanning is not None and not self._replanning.done():
+                    await self._replanning
+                assert FIRST in self.left if attempt == 0 else FIRST not in self.left, (attempt, self.events)
+        finally:
+            self.stop()
+
+
+@pytest.mark.timeout(60)
+def test_a_fault_during_a_held_vehicles_return_is_replanned_first(zenoh_router: str) -> None:
+    """A vehicle's fault while the replan that brings a held one back asks the planner: that
+    replan's answer is dropped and the fault's replan goes first (the others planned around the
+    new hold); the next try brings the held vehicle back, its plan saying so."""
+    runner = RejoinDuringFault(zenoh_router)
+
+    async def main() -> None:
+        cfg = ZenohConfig.client(zenoh_router)
+        planner = PlannerService("planner", "p1", cfg, KEYS)
+        serving = asyncio.create_task(planner.run())
+        try:
+            await asyncio.sleep(0.5)
+            assert await runner.run() == 0
+        finally:
+            planner.stop()
+            await serving
+
+    asyncio.run(main())
+    assert not runner.fault, (runner.fault, runner.events)
+    assert runner.plan is not None and FIRST in runner.plan.paths and BURST[0] not in runner.plan.paths
+    assert runner._back == {FIRST}, runner._back
+    assert any(e.startswith(f"{FIRST} rejoined the mission") for e in runner.events), runner.events
+    around = [e for e in runner.events if e.startswith("replanned") and f"around {FIRST}, {BURST[0]}" in e]
+    assert around, runner.events  # the fault's replan, around both, before the return

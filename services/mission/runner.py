@@ -334,16 +334,23 @@ class MissionRunner(MissionClient[MissionResult]):
 
     async def _bring_back(self, vids: list[str]) -> None:
         """Bring the held vehicles `vids` back into the plan (`rejoin.py`); one the planner names as
-        not able to yet is left out and the others are tried again."""
+        not able to yet is left out and the others are tried again, unless another fault's replan
+        is waiting (it goes first) or the planner named none (its time ran out, the plan failed
+        validation: the next try)."""
+        faults = self._fault_replans
         while (vids := [v for v in vids if v in self._rejoin]) and self.plan is not None and self.t0 is not None:
             answer = await self._ask_replan(self.plan, self.t0, [], {}, rejoin=vids)
+            if self._fault_replans != faults:
+                return
             if any(v not in self._rejoin for v in vids):
                 continue  # one left for good meanwhile (an emergency landing): the others again
             if isinstance(answer, str):
-                vid = self._blocked if self._blocked in vids else vids[0]
-                self._blocked = ""
-                if self._rejoin[vid].tries == 1:
-                    self.events.append(f"{vid} not back yet: {answer}")
+                vid, self._blocked = self._blocked, ""
+                for v in vids if vid not in vids else [vid]:
+                    if self._rejoin[v].tries == 1:
+                        self.events.append(f"{v} not back yet: {answer}")
+                if vid not in vids:
+                    return
                 vids.remove(vid)
                 continue
             reply, at, took = answer
