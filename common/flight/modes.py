@@ -30,10 +30,10 @@ class Mode(StrEnum):
     """Following a land edge, or a fault's descent to the nearest safe point, until touchdown."""
     HOLDING = "holding"
     """On the ground, stopped by a fault (stale pose, lost link) that may clear, or by the tracking
-    guard (for good, unless held for another's sake and brought back into the plan)."""
+    guard (for good, unless held not for its own tracking and brought back into the plan)."""
     HOVERING = "hovering"
     """Airborne, held where it was by the tracking guard (off its plan) until the mission aborts,
-    or, held for another's sake, until the mission's plan brings it back (then flying on, or in
+    or, held not for its own tracking, until the mission's plan brings it back (then flying on, or in
     its take-off)."""
     EMERGENCY_LANDING = "emergency_landing"
     """Airborne without a trustworthy pose: a blind, level descent, then motors off."""

@@ -205,7 +205,7 @@ class VehicleController:
         same until then). A vehicle at rest after its mission takes it as a new plan (`load`).
         Refused (False, logged) when the vehicle does not follow its plan any more (fault landing,
         held, aborted, landing) or the new plan's reference differs from the old one now. A vehicle
-        held for another's sake (`rejoinable`) takes a plan that brings it back (`VehiclePlan.rejoin`,
+        held not for its own tracking (`rejoinable`) takes a plan that brings it back (`VehiclePlan.rejoin`,
         `_take_back`)."""
         if plan.vid != self.vid:
             raise ValueError(f"plan for {plan.vid!r} given to the controller of {self.vid!r}")

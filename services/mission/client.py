@@ -141,7 +141,7 @@ class MissionClient(Service, Generic[R]):
 
     def on_fault(self, vid: str, kind: str, text: str, node: str, rejoinable: bool = False) -> bool:
         """A fault of one vehicle (`kind`: its event, `node`: where its executor lands it, if it
-        said; `rejoinable`: held for another's sake, `VehicleEvent.rejoinable`); whether the variant
+        said; `rejoinable`: held not for its own tracking, `VehicleEvent.rejoinable`); whether the variant
         handles it (the mission goes on) instead of ending the mission."""
         return False
 

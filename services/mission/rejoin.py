@@ -1,14 +1,17 @@
-"""Bringing back into a running mission a vehicle that was held for another's sake (`Replan.rejoin`).
+"""Bringing a held vehicle back into its running mission (`Replan.rejoin`).
 
-A vehicle that stopped short of another body (the proximity stop) or held because another vehicle
-was held where its plan goes (the reflex) leaves the mission like any held vehicle: the others are
-replanned around where it stands. Its own tracking was sound (`VehicleEvent.rejoinable`), so once
-it has stood still for `REJOIN_AFTER_S` the mission asks the planner to take it back: its old path,
-shifted in time so that the path has it where it stands at the replan's switch time
-(`shifted_path`), planned on from its next node like every other vehicle. Its executor holds it
-until its new reference comes to it, then follows it (`VehicleController.replan`). The planner
-refuses while the vehicle's way to its next node crosses a body that left (the one it stopped
-for, still standing there): the mission asks again every `REJOIN_EVERY_S`, `REJOIN_TRIES` times.
+A vehicle that stopped short of another body (the proximity stop), held because another vehicle
+was held where its plan goes (the reflex), or stopped on the ground by a fault that may clear (a
+stale pose, a lost link) while its plan moved on leaves the mission like any held vehicle: the
+others are replanned around where it stands. It was not held for its own tracking (its executor
+says so: `VehicleEvent.rejoinable`), so once it has stood still, seen, for `REJOIN_AFTER_S` the
+mission asks the planner to take it back: its old path, shifted in time so that the path has it
+where it stands at the replan's switch time (`progress_at`, `shifted_path`), planned on from its
+next node like every other vehicle. The planner refuses while the vehicle's way to its next node
+crosses a body that left or a vehicle outside the mission (the one it stopped for may be either):
+the mission asks again every `REJOIN_EVERY_S`, `REJOIN_TRIES` times a hold. The plan says it
+brings the vehicle back (`VehiclePlan.rejoin`); its executor holds it until the new reference
+passes where it stands, then follows it (`VehicleController._take_back`).
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ HELD_MODES = frozenset({"holding", "hovering"})
 
 @dataclass
 class Candidate:
-    """A vehicle held for another's sake: the path and task it left with, and its tries so far."""
+    """A held vehicle that may come back: the path and task it left with, and its tries so far."""
 
     path: list[PathEntry]
     task: Task

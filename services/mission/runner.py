@@ -74,7 +74,7 @@ class MissionSpec:
     """Who plans the mission on after a fault or a new task: SIPP (fast), or the ILP where its time
     limit allows (a mission the ILP planned; SIPP takes over when it finds no plan in time)."""
     rejoins: int = REJOINS
-    """How often a vehicle held for another's sake may be brought back into the plan (`rejoin.py`;
+    """How often a held vehicle (not for its own tracking) may be brought back into the plan (`rejoin.py`;
     0: never, it stays held as any held vehicle)."""
     hover: bool = False
     """A task may end at an air node (issue 19: single-vehicle take-off, go to, land): the vehicle
@@ -223,7 +223,7 @@ class MissionRunner(MissionClient[MissionResult]):
         self._pending: set[str] = set()
         """Vehicles with a new goal being planned."""
         self._rejoin: dict[str, Candidate] = {}
-        """Vehicles held for another's sake that may come back (`rejoin.py`)."""
+        """Held vehicles that may come back (`rejoin.py`)."""
         self._rejoined: dict[str, int] = {}
         """How often each vehicle came back."""
         self._back: frozenset[str] = frozenset()
