@@ -44,16 +44,21 @@ class Burst(MissionRunner):
             assert self.on_fault(vid, "tracking_hold", f"{vid}: held", "")
         return await super()._ask_replan(*args, **kwargs)
 
+    async def start_parked(self, holding: str = "") -> None:
+        """The mission's plan accepted and started half a second ago, every vehicle at its start
+        spot, parked (`holding`: that one holding)."""
+        reply = await query(self.session, self.keys.planner_plan, self.plan_request(), PlanReply, timeout=30)
+        assert self.accept(reply) is None, reply.error
+        assert self.plan is not None
+        self.t0 = time.time() - 0.5
+        for vid, path in self.plan.paths.items():
+            x, y, z = self.plan.graph.nodes[path[0].node].pos
+            self.states[vid] = VehicleState(vid=vid, t=time.time(), owner="e1", mode="holding" if vid == holding else "parked",
+                                            x=x, y=y, z=z, yaw=0.0, mission=self.mission)
+
     async def main(self) -> None:
         try:
-            reply = await query(self.session, self.keys.planner_plan, self.plan_request(), PlanReply, timeout=30)
-            assert self.accept(reply) is None, reply.error
-            assert self.plan is not None
-            self.t0 = time.time() - 0.5
-            for vid, path in self.plan.paths.items():
-                x, y, z = self.plan.graph.nodes[path[0].node].pos
-                self.states[vid] = VehicleState(vid=vid, t=time.time(), owner="e1", mode="parked", x=x, y=y, z=z,
-                                                yaw=0.0, mission=self.mission)
+            await self.start_parked()
             assert self.on_fault(FIRST, "tracking_hold", f"{FIRST}: held", "")
             while self._replanning is not None and not self._replanning.done():  # (the burst queues more)
                 await self._replanning
@@ -62,13 +67,11 @@ class Burst(MissionRunner):
             self.stop()
 
 
-def fly_burst(router: str, runner: Burst) -> None:
-    """Run `runner` against a planner on `router`: no fault of the mission's, and the last plan
-    leaves out every vehicle held."""
+def with_planner(router: str, runner: Burst) -> None:
+    """Run `runner` against a planner on `router`; no fault of the mission's."""
 
     async def main() -> None:
-        cfg = ZenohConfig.client(router)
-        planner = PlannerService("planner", "p1", cfg, KEYS)
+        planner = PlannerService("planner", "p1", ZenohConfig.client(router), KEYS)
         serving = asyncio.create_task(planner.run())
         try:
             await asyncio.sleep(0.5)
@@ -79,6 +82,11 @@ def fly_burst(router: str, runner: Burst) -> None:
 
     asyncio.run(main())
     assert not runner.fault, (runner.fault, runner.events)
+
+
+def fly_burst(router: str, runner: Burst) -> None:
+    """Run `runner` against a planner on `router`: the last plan leaves out every vehicle held."""
+    with_planner(router, runner)
     assert runner.plan is not None
     assert set(runner.plan.paths) == set(TASKS) - {FIRST, *BURST}, sorted(runner.plan.paths)
 
@@ -112,15 +120,7 @@ class RejoinDuringFault(Burst):
 
     async def main(self) -> None:
         try:
-            reply = await query(self.session, self.keys.planner_plan, self.plan_request(), PlanReply, timeout=30)
-            assert self.accept(reply) is None, reply.error
-            assert self.plan is not None
-            self.t0 = time.time() - 0.5
-            for vid, path in self.plan.paths.items():
-                x, y, z = self.plan.graph.nodes[path[0].node].pos
-                mode = "holding" if vid == FIRST else "parked"
-                self.states[vid] = VehicleState(vid=vid, t=time.time(), owner="e1", mode=mode, x=x, y=y, z=z,
-                                                yaw=0.0, mission=self.mission)
+            await self.start_parked(holding=FIRST)
             assert self.on_fault(FIRST, "tracking_hold", f"{FIRST}: stops short of cf9", "", rejoinable=True)
             await self._replanning
             for attempt in range(2):  # the first is overtaken by the fault, the second brings it back
@@ -139,20 +139,7 @@ def test_a_fault_during_a_held_vehicles_return_is_replanned_first(zenoh_router: 
     replan's answer is dropped and the fault's replan goes first (the others planned around the
     new hold); the next try brings the held vehicle back, its plan saying so."""
     runner = RejoinDuringFault(zenoh_router)
-
-    async def main() -> None:
-        cfg = ZenohConfig.client(zenoh_router)
-        planner = PlannerService("planner", "p1", cfg, KEYS)
-        serving = asyncio.create_task(planner.run())
-        try:
-            await asyncio.sleep(0.5)
-            assert await runner.run() == 0
-        finally:
-            planner.stop()
-            await serving
-
-    asyncio.run(main())
-    assert not runner.fault, (runner.fault, runner.events)
+    with_planner(zenoh_router, runner)
     assert runner.plan is not None and FIRST in runner.plan.paths and BURST[0] not in runner.plan.paths
     assert runner._back == {FIRST}, runner._back
     assert any(e.startswith(f"{FIRST} rejoined the mission") for e in runner.events), runner.events
