@@ -55,6 +55,11 @@ from services.mission.separation import SeparationMonitor
 from services.mission.sweeps import left_vehicle
 
 
+def ground_height(plan: Plan) -> float:
+    """The lowest ground node's height: where a column below a held vehicle ends (`sweeps.py`)."""
+    return min(n.pos[2] for n in plan.graph.nodes.values() if n.kind != "air")
+
+
 @dataclass(frozen=True)
 class MissionSpec:
     map: str
@@ -412,7 +417,7 @@ class MissionRunner(MissionClient[MissionResult]):
         assert self.plan is not None and self.t0 is not None
         state = self.states[vid]
         nodes = self.plan.graph.nodes
-        ground = min(n.pos[2] for n in nodes.values() if n.kind != "air")
+        ground = ground_height(self.plan)
         return left_vehicle(vid, kind, (state.x, state.y, state.z), time.time() - self.t0, ground,
                             nodes[node].pos if node in nodes else None)
 
@@ -453,7 +458,7 @@ class MissionRunner(MissionClient[MissionResult]):
         reason = f"{vid}: stopped where it is, no plan around the vehicles that left ({error})"
         self._abort_pub.put(MissionAbort(mission=self.mission, reason=reason, vehicles=[vid]))
         self.left[vid] = reason
-        ground = min(n.pos[2] for n in self.plan.graph.nodes.values() if n.kind != "air")
+        ground = ground_height(self.plan)
         self.sweeps += left_vehicle(vid, "tracking_hold", (state.x, state.y, state.z), time.time() - self.t0,
                                     ground, None)
         self.events.append(reason)
@@ -518,7 +523,7 @@ class MissionRunner(MissionClient[MissionResult]):
             c, s = self._rejoin[vid], self.states[vid]
             progress = progress_at(plan, c.path, (s.x, s.y, s.z), time.time() - self.t0 + 1.0)
             paths[vid], tasks[vid] = shifted_path(c.path, progress, at), c.task
-        ground = min(n.pos[2] for n in plan.graph.nodes.values() if n.kind != "air")
+        ground = ground_height(plan)
         t = time.time() - self.t0
         standing = [w for vid, p in self.bystanders.items() for w in left_vehicle(vid, "tracking_hold", p, t, ground, None)]
         return (msgspec.structs.replace(plan, paths=paths, tasks=tasks),
