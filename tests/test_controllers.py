@@ -22,7 +22,15 @@ from common.crazyflie.thrust import (
 )
 from common.domain.vehicle_model import G, VehicleModel
 from common.flight.estimator import Estimate
-from common.flight.lqr import FlightLqr, FlightModel, LqrWeights, continuous_model, discretise, lqr_gain
+from common.flight.lqr import (
+    FlightLqr,
+    FlightModel,
+    LqrWeights,
+    axis_gains,
+    continuous_model,
+    discretise,
+    lqr_gain,
+)
 from common.flight.modes import Mode
 from services.executor.pure_pursuit import PurePursuit
 from services.executor.trajectory import RefSample, Trajectory
@@ -80,6 +88,19 @@ def test_gain_solves_the_discrete_riccati_equation_and_stabilises_the_model() ->
     k2 = lqr_gain(model, LqrWeights(pos=0.01))
     assert k2[1, 0] > k[1, 0] > 0
     assert max(abs(np.linalg.eigvals(ad - bd @ k2))) < 1.0
+
+
+@pytest.mark.parametrize("mass", [0.027, 0.041, 0.08])
+def test_the_gain_sees_each_axis_alone_and_a_coupled_gain_is_refused(mass: float) -> None:
+    """The command is computed per axis (`axis_gains`): it needs the gain's other entries to be
+    zero, for any mass (drag) and weights; a gain that couples the axes is refused, not used."""
+    k = lqr_gain(FlightModel(drag_rate=0.009 / mass), LqrWeights(pos=0.02, tilt=0.2))
+    gains = axis_gains(k)
+    assert sum(abs(g) for row in gains for g in row) == pytest.approx(float(np.abs(k).sum()), rel=1e-9)
+    coupled = k.copy()
+    coupled[0, 0] = 0.5  # roll from the error along x
+    with pytest.raises(ValueError, match="couples the axes"):
+        axis_gains(coupled)
 
 
 def test_zero_error_gives_the_hover_command() -> None:
