@@ -1,0 +1,36 @@
+"""How the executor's control cycle takes the motion capture's frames (`ExecutorService._fuse`): a
+cycle that found several frames waiting (it ran late) fuses each owned vehicle's newest pose once,
+and remembers every body where its newest frame saw it."""
+
+from __future__ import annotations
+
+import pytest
+
+from common.bus.keys import Keys
+from common.bus.messages import FramePose, PoseFrame
+from common.bus.session import ZenohConfig
+from common.domain.vehicle_model import VehicleModel
+from services.executor.service import ExecutorService
+from services.executor.vehicle_controller import VehicleController
+
+pytestmark = pytest.mark.compute
+
+
+def test_a_late_cycle_fuses_each_vehicles_newest_pose_once() -> None:
+    svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("frames"))  # never run: no session
+    for vid in ("cf1", "cf2"):
+        svc.controllers[vid] = VehicleController(vid, VehicleModel(), owner="e1", bank=svc.bank)
+    first = [PoseFrame(t=10.0 + 0.01 * k, seq=k, poses=[FramePose("cf1", 0.001 * k, 0.0, 0.0, 0.0),
+                                                         FramePose("cf2", 1.0, 0.001 * k, 0.0, 0.0)])
+             for k in range(3)]
+    svc._fuse(first[:1])  # the first pose starts each filter
+    # a late cycle: two frames waited, cf2 only in the older one
+    late = [first[1], PoseFrame(t=10.02, seq=2, poses=[FramePose("cf1", 0.002, 0.0, 0.0, 0.0)])]
+    svc._fuse(late)
+    cf1, cf2 = (svc.controllers[v].estimator for v in ("cf1", "cf2"))
+    assert (cf1.accepted, cf1.rejected, cf1.t) == (2, 0, 10.02)  # the newer frame's pose only
+    assert (cf2.accepted, cf2.t) == (2, 10.01)  # its newest pose, from the older frame
+    assert svc.last_seen["cf1"][0].seq == 2 and svc.last_seen["cf2"][0].seq == 1
+    svc.bodies.settle(10.02)
+    assert svc.bodies.pos[svc.bodies.rows["cf1"]].tolist() == [0.002, 0.0, 0.0]
+    assert svc.bodies.pos[svc.bodies.rows["cf2"]].tolist() == [1.0, 0.001, 0.0]
