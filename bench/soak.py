@@ -44,6 +44,11 @@ MAP = "city934"
 SERVICES = ("executor", "gateway", "sim", "mocap", "planner")
 END_TRUTH_S = 1.0
 """How long the soak listens to the simulator's ground truth at its end (every vehicle's, at `truth_hz`)."""
+REST_WAIT_S = 40.0
+"""s the soak waits at its end for every vehicle to be at rest on the ground (ground truth): a
+failed mission's abort lands the vehicles still in the air, by their safe landings (to a node,
+then down), which the soak's end overtook: a 32-vehicle soak judged cf10 "not at rest" while it
+was coming down."""
 _PAGE_KB = os.sysconf("SC_PAGE_SIZE") / 1024
 _TICKS = os.sysconf("SC_CLK_TCK")
 
@@ -111,6 +116,8 @@ class SoakLog:
     final: dict[str, SimTruth] = field(default_factory=dict)
     """Each vehicle's ground truth once the soak is over (`END_TRUTH_S`): where the fleet left it."""
     vehicles: int = 0
+    rest_after: float = 0.0
+    """s from the last mission's end until every vehicle was at rest (`REST_WAIT_S` at most)."""
 
     def sim_figures(self) -> dict[str, float | str]:
         """The simulators' latest figures, summed (hardest touchdown: the largest; `hardest`: the
@@ -180,10 +187,13 @@ async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], sec
                 await asyncio.sleep(max(0.0, seconds - log.idle_from))
                 break
             tasks = draw_tasks(graph, {vid: t.goal for vid, t in tasks.items()}, rng)
-        await asyncio.sleep(2.5)  # everyone's last stats
         truths = subscribe(session, fleet.keys.all_sim_truth, SimTruth,
                            lambda m, _k: log.final.__setitem__(m.vid, m))
-        await asyncio.sleep(END_TRUTH_S)
+        ended = time.time()
+        await asyncio.sleep(max(END_TRUTH_S, 2.5))  # every vehicle's truth, everyone's last stats
+        while (log.not_at_rest() or len(log.final) < log.vehicles) and time.time() - ended < REST_WAIT_S:
+            await asyncio.sleep(0.5)
+        log.rest_after = time.time() - ended
         truths.close()
     finally:
         sampler.cancel()
@@ -214,7 +224,8 @@ def report(log: SoakLog, seconds: float) -> str:
              f"closest bodies {100 * gap:.1f} cm; machine load average {min(log.load, default=0):.1f}-"
              f"{max(log.load, default=0):.1f} on {os.cpu_count()} cores"]
     sim, aloft = log.sim_figures(), log.not_at_rest()
-    lines.append(f"at the end (ground truth): {len(log.final) - len(aloft)}/{log.vehicles} vehicles at rest "
+    lines.append(f"at the end (ground truth, {log.rest_after:.0f} s after the last mission): "
+                 f"{len(log.final) - len(aloft)}/{log.vehicles} vehicles at rest "
                  f"on the ground{' (not: ' + ', '.join(aloft) + ')' if aloft else ''}; "
                  f"hardest touchdowns (m/s) {sim.get('hardest') or '-'}; motors cut in the air "
                  f"{sim.get('watchdog_cuts', 0):.0f}x")
@@ -272,6 +283,7 @@ def summary(log: SoakLog) -> dict:
                for name in ("pose_to_radio_p50", "pose_to_radio_p99", "frame_to_radio_p50", "frame_to_radio_p99")},
             "growth_mb_per_min": {name: mb_per_min(points) for name, points in log.series.items()},
             "vehicles": log.vehicles, "heard_at_end": sorted(log.final), "not_at_rest": log.not_at_rest(),
+            "rest_after_s": log.rest_after,
             "touchdown_max_mps": sim["touchdown_max_mps"], "watchdog_cuts": sim["watchdog_cuts"],
             "drops": {name: st.drops for name, st in log.stats.items()}}
 
