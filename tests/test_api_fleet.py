@@ -63,7 +63,9 @@ def test_the_api_lists_plans_runs_refuses_a_busy_vehicle_and_aborts(fleet_up) ->
 
         events: list[MissionEvent] = []
         # cf6 drives down the east edge (out of the way of the examples' vehicles when it stops)
-        mission = fleet.start_mission("town", {"cf6": ("EP10", "EP9")}, on_event=events.append)
+        with pytest.raises(ValueError, match="rejoins must be 0 or more"):
+            fleet.start_mission("town", {"cf6": ("EP10", "EP9")}, rejoins=-1)
+        mission = fleet.start_mission("town", {"cf6": ("EP10", "EP9")}, rejoins=1, on_event=events.append)
         for event in mission.events():
             if event.kind == "progress" and event.step >= 2:
                 break
