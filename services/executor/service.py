@@ -315,9 +315,9 @@ class ExecutorService(Service):
         """Take a cycle's `frames` (oldest first): every body's position for the proximity stop,
         every vehicle's newest pose remembered, and that pose of each owned vehicle fused, all at
         once. Only the newest: a cycle that found several frames waiting runs late (a starved
-        process), and fusing each of them made every late cycle costlier than the last (under a
-        profiler's load, 80 vehicles' cycles fused two frames each, half the loop's time); a pose a
-        hundredth of a second older adds next to nothing to the estimate."""
+        process), and fusing each of them made every late cycle costlier than an on-time one
+        (an executor of 80 under a profiler fused 1.9 frames a cycle, 30 % of its loop's time); a
+        pose a hundredth of a second older adds next to nothing to the estimate."""
         fresh: dict[str, tuple[PoseFrame, FramePose]] = {}
         for frame in frames:
             self.bodies.update(frame)
