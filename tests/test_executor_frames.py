@@ -1,8 +1,11 @@
-"""How the executor's control cycle takes the motion capture's frames (`ExecutorService._fuse`): a
-cycle that found several frames waiting (it ran late) fuses each owned vehicle's newest pose once,
-and remembers every body where its newest frame saw it."""
+"""The executor's control cycle: how it takes the motion capture's frames (`ExecutorService._fuse`:
+a cycle that found several frames waiting, it ran late, fuses each owned vehicle's newest pose
+once, and remembers every body where its newest frame saw it), and how it spreads the vehicles'
+states over its cycles (`ExecutorService._cycle`)."""
 
 from __future__ import annotations
+
+from collections import Counter
 
 import pytest
 
@@ -16,8 +19,12 @@ from services.executor.vehicle_controller import VehicleController
 pytestmark = pytest.mark.compute
 
 
+def service() -> ExecutorService:
+    return ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("frames"))  # never run: no session
+
+
 def test_a_late_cycle_fuses_each_vehicles_newest_pose_once() -> None:
-    svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("frames"))  # never run: no session
+    svc = service()
     for vid in ("cf1", "cf2"):
         svc.controllers[vid] = VehicleController(vid, VehicleModel(), owner="e1", bank=svc.bank)
     first = [PoseFrame(t=10.0 + 0.01 * k, seq=k, poses=[FramePose("cf1", 0.001 * k, 0.0, 0.0, 0.0),
@@ -34,3 +41,30 @@ def test_a_late_cycle_fuses_each_vehicles_newest_pose_once() -> None:
     svc.bodies.settle(10.02)
     assert svc.bodies.pos[svc.bodies.rows["cf1"]].tolist() == [0.002, 0.0, 0.0]
     assert svc.bodies.pos[svc.bodies.rows["cf2"]].tolist() == [1.0, 0.001, 0.0]
+
+
+class Sent:
+    """Stands in for the bus's publishers (`KeyedPublishers.put`): what each cycle put, by key."""
+
+    def __init__(self) -> None:
+        self.puts: list[str] = []
+
+    def put(self, key: str, _msg: object) -> None:
+        self.puts.append(key)
+
+
+def test_each_vehicles_state_goes_out_once_in_five_cycles_and_every_cycle_sends_a_fifth() -> None:
+    svc = service()
+    vids = [f"cf{i:02d}" for i in range(12)]
+    for vid in vids:
+        svc.controllers[vid] = VehicleController(vid, VehicleModel(), owner="e1", bank=svc.bank)
+    svc._cmd, svc._batch, svc._event = Sent(), Sent(), Sent()
+    per_cycle, per_vehicle = [], Counter()
+    for n in range(20):
+        svc._state = states = Sent()
+        svc._cycle(100.0 + 0.01 * n, n, 0.0, 0.0)
+        per_cycle.append(len(states.puts))
+        per_vehicle.update(states.puts)
+    assert svc.state_every == 5
+    assert all(c in (2, 3) for c in per_cycle), per_cycle  # 12 vehicles over 5 cycles: never all at once
+    assert per_vehicle == {vid: 4 for vid in vids}  # 20 cycles: each vehicle's state 4 times (20 Hz)

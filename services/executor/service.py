@@ -435,9 +435,12 @@ class ExecutorService(Service):
             self.controllers[closing.mover].stop_short(closing.why())
 
     def _cycle(self, now: float, n: int, pose_t: float, pose_arrived: float) -> None:
-        """Tick every owned controller; commands out as one batch per gateway."""
+        """Tick every owned controller; commands out as one batch per gateway. Each vehicle's
+        state goes out one cycle in `state_every`, the vehicles' turns spread over the cycles
+        (all in one cycle, 80 vehicles' states made that cycle about 1 ms longer than the others:
+        8-17 us a put)."""
         batches: dict[str, list[Cmd]] = {}
-        for vid, ctl in list(self.controllers.items()):
+        for k, (vid, ctl) in enumerate(list(self.controllers.items())):
             try:
                 cmd = ctl.tick(now)
             except Exception as exc:  # one vehicle's bug must not take the others down
@@ -448,7 +451,7 @@ class ExecutorService(Service):
                 self._cmd.put(vid, cmd)
             else:
                 batches.setdefault(gateway, []).append(cmd)
-            if n % self.state_every == 0:
+            if (n + k) % self.state_every == 0:
                 self._state.put(vid, ctl.state())
             self._report_mode(vid, ctl, now)
         sent = time.time()
