@@ -383,7 +383,7 @@ def test_the_router_hop_benchmark_measures_every_transport(tmp_path: Path) -> No
     """`bench.router_hop` (docs/bus.md, "The hot path and the router"): frames reach every subscriber
     through the router, over peer links and in shared memory, and the table and the PNG come out."""
     run = subprocess.run([sys.executable, "-m", "bench.router_hop", "--bodies", "8", "--seconds", "1",
-                          "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=600)
+                          "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=1100)
     assert run.returncode == 0, run.stderr[-2000:]
     rows = [line.split() for line in run.stdout.splitlines() if line.split()[1:2] == ["subscriber"]]
     assert sorted(row[0] for row in rows) == ["peer", "peer", "router", "router", "shm", "shm"], run.stdout
