@@ -378,10 +378,12 @@ def test_token_of_a_killed_or_hung_process_disappears_within_a_second(
         assert gone_after >= LEASE_MS / 1000 * 0.9
 
 
-@pytest.mark.compute
 def test_the_router_hop_benchmark_measures_every_transport(tmp_path: Path) -> None:
     """`bench.router_hop` (docs/bus.md, "The hot path and the router"): frames reach every subscriber
-    through the router, over peer links and in shared memory, and the table and the PNG come out."""
+    through the router, over peer links and in shared memory, and the table and the PNG come out.
+    Not in the compute lane: its processes must get the CPU within its 1.5 s of settling (at idle
+    priority beside the flights a peer subscriber connected after the publisher had finished and
+    got no frame)."""
     run = subprocess.run([sys.executable, "-m", "bench.router_hop", "--bodies", "8", "--seconds", "1",
                           "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=1100)
     assert run.returncode == 0, run.stderr[-2000:]
