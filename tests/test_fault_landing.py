@@ -16,7 +16,8 @@ from common.bus.messages import Pose, VehicleState
 from common.bus.pubsub import Publisher
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
-from services.executor.faults import safe_landing_steps
+from common.flight.modes import Mode
+from services.executor.faults import STRAIGHT_DOWN, safe_landing_steps
 from services.executor.service import ExecutorService
 from services.executor.vehicle_controller import VehicleController
 from services.sim.crazyflie.physics import SimFlyingCar
@@ -94,3 +95,68 @@ def test_two_fault_landings_of_an_abort_that_chose_one_node_part(other: str, nod
     if node == "l1":  # never came down near the node it gave up
         low = [r for r in records if r.t > abort and r.truth.z < 0.4]
         assert low and min(math.dist((r.truth.x, r.truth.y), PADS["l2"][:2]) for r in low) > 0.5
+
+
+def test_with_every_node_taken_it_lands_straight_down_if_clear_below_else_nowhere() -> None:
+    above = (1.2, 0.45, 0.5)  # over the flight between l1 and l2
+    on_l1, on_l2 = (*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)
+    assert safe_landing_steps(above, 0.0, STEPS, MODEL, [on_l2])[-1].node == "l1"
+    down = safe_landing_steps(above, 0.0, STEPS, MODEL, [on_l1, on_l2])
+    assert down is not None and down[-1].node == STRAIGHT_DOWN and down[-1].pos == (1.2, 0.45, 0.0)
+    assert safe_landing_steps(above, 0.0, STEPS, MODEL, [on_l1, on_l2, (1.25, 0.45, 0.0)]) is None
+    assert safe_landing_steps(above, 0.0, STEPS, MODEL, [(1.2, 0.45, 0.6)])[-1].node == "l1"  # above it: no matter
+
+
+def hovering_abort(bodies: Callable[[float], list[tuple[float, float, float]]], spend_reserve_at: float = math.inf
+                   ) -> tuple[VehicleController, SimFlyingCar, list, float]:
+    """cf2 held by the proximity stop 1 s into its flight from l1 to l2 (hovering about 0.3 m past
+    l1), then its mission aborted: the records, and when the abort came."""
+    t0 = 0.5
+    held = t0 + next(s.t for s in STEPS if s.node == "a1") + 1.0
+    abort = held + 2.0
+    sim = SimFlyingCar("cf2", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    now = [0.0]
+    ctrl = VehicleController("cf2", MODEL, owner="e1", bodies=lambda: bodies(now[0] - abort))
+    ctrl.on_pose(Pose(vid="cf2", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=sim.yaw))
+    ctrl.load(plan_for("cf2", STEPS, MODEL, t0=t0))
+
+    def hook(t: float) -> None:
+        now[0] = t
+        if t >= held and not ctrl.held:
+            ctrl.stop_short("a test's")
+        if t >= abort and not ctrl._abort:
+            ctrl.abort("abort")
+        if t >= abort + spend_reserve_at:
+            ctrl.charge_used_ah = max(ctrl.charge_used_ah, MODEL.capacity_ah)
+
+    return ctrl, sim, run(ctrl, sim, abort + 12.0, Mocap(), on_tick=hook), abort
+
+
+def test_a_fault_landing_with_nowhere_clear_hovers_until_the_vehicle_below_drives_off() -> None:
+    """The abort finds vehicles on both nodes of cf2's plan and one parked right below it, which
+    drives off 3 s later: cf2 hovers where it is until then and comes straight down after it (it
+    used to land on the nearest node all the same: onto the vehicle there, as in a 32-vehicle soak)."""
+    nodes = [(*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)]
+    below: list[tuple[float, float, float]] = []
+
+    def bodies(since_abort: float) -> list[tuple[float, float, float]]:
+        return nodes + (below if since_abort < 3.0 else [])
+
+    ctrl, sim, records, abort = hovering_abort(bodies)
+    at_abort = next(r.truth for r in records if r.t >= abort)
+    below.append((at_abort.x, at_abort.y, 0.0))
+    ctrl, sim, records, abort = hovering_abort(bodies)  # again, the vehicle below there from the start
+    waiting = [r for r in records if abort + 0.1 <= r.t < abort + 3.0]
+    assert all(r.mode == Mode.HOVERING and r.truth.z > 0.4 for r in waiting)
+    *_, hold, landing, landed = ctrl.machine.history  # (held already: it hovers on)
+    assert (hold.reason, landing.reason, landed.reason) == ("a test's", "abort", "landed after fault")
+    assert abort + 3.0 <= landing.t < abort + 3.0 + 0.6  # chosen again every 0.5 s
+    assert math.dist((sim.x, sim.y), below[0][:2]) < 0.05 and sim.z < 0.01
+    assert ctrl.landing_step is not None and ctrl.landing_step.node == STRAIGHT_DOWN
+
+
+def test_a_fault_landing_with_its_reserve_spent_takes_the_nearest_node_all_the_same() -> None:
+    nodes = [(*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)]
+    ctrl, sim, records, abort = hovering_abort(lambda _s: nodes + [(0.95, 0.45, 0.0)], spend_reserve_at=2.0)
+    assert all(r.truth.z > 0.4 for r in records if abort + 0.1 <= r.t < abort + 2.0)
+    assert math.dist((sim.x, sim.y, sim.z), PADS["l1"]) < 0.03

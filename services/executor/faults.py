@@ -142,6 +142,10 @@ class FaultMonitor:
         return not tel.link_ok or now - self._telemetry_at > self.params.link_timeout_s
 
 
+STRAIGHT_DOWN = "below"
+"""The node name of a fault landing straight down from where the vehicle is (`safe_landing_steps`)."""
+
+
 def landing_nodes(plan: Sequence[PlanStep]) -> list[PlanStep]:
     """The entries of `plan` where it lands or from where it takes off."""
     return [s for i, s in enumerate(plan)
@@ -155,21 +159,29 @@ def in_column(node: tuple[float, float, float], body: tuple[float, float, float]
 
 
 def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence[PlanStep],
-                       model: VehicleModel, bodies: Iterable[tuple[float, float, float]] = ()) -> list[PlanStep]:
+                       model: VehicleModel, bodies: Iterable[tuple[float, float, float]] = ()
+                       ) -> list[PlanStep] | None:
     """Path entries from `pos` at time `t`: level flight to above the plan's ground node nearest
     in the horizontal, then a descent onto it, at the model's fly and land speeds. The nodes where
     the plan takes off or lands come first: they are under the airspace it flies in (other ground
     nodes, e.g. a parking spot next to a landing node, may lie under a no-fly zone). A node with one
     of the other `bodies` below the vehicle in its column (two radii and a margin of it: a vehicle
-    parked there, or another's fault landing heading there) is passed over for the next nearest;
-    with every node taken, the nearest."""
+    parked there, or another's fault landing heading there) is passed over for the next nearest.
+    With every node taken, straight down onto the plan's lowest ground (node `STRAIGHT_DOWN`), if no body is
+    below the vehicle in its own column (the column a replan keeps clear below a vehicle that left:
+    `services/mission/sweeps.py`); else None: there is nowhere to land without landing on a body.
+    (Taking the nearest node all the same brought a held vehicle of a 32-vehicle soak's abort down
+    onto the vehicle parked on it, at 0.76 m/s.)"""
     ground = landing_nodes(plan) or [s for s in plan if s.kind != "air"]
     below = [b for b in bodies if b[2] < pos[2]]
     free = [s for s in ground if all(not in_column(s.pos, b, model) for b in below)]
-    if not ground:
-        target = PlanStep(node="below", t=0.0, pos=(pos[0], pos[1], 0.0), kind="land")
+    if free:
+        target = min(free, key=lambda s: math.hypot(s.pos[0] - pos[0], s.pos[1] - pos[1]))
+    elif any(in_column(pos, b, model) for b in below):
+        return None
     else:
-        target = min(free or ground, key=lambda s: math.hypot(s.pos[0] - pos[0], s.pos[1] - pos[1]))
+        floor = min((s.pos[2] for s in ground), default=0.0)
+        target = PlanStep(node=STRAIGHT_DOWN, t=0.0, pos=(pos[0], pos[1], floor), kind="land")
     gx, gy, gz = target.pos
     steps = [PlanStep(node="fault", t=t, pos=pos, kind="air")]
     reach = math.hypot(gx - pos[0], gy - pos[1])

@@ -59,7 +59,7 @@ from common.bus.service import Service
 from common.bus.stats import percentile_figures, publish_stats
 from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
 from common.flight.modes import Mode
-from services.executor.faults import FaultParams
+from services.executor.faults import STRAIGHT_DOWN, FaultParams
 from services.executor.proximity import Bodies, ProximityParams
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
@@ -473,7 +473,8 @@ class ExecutorService(Service):
 
     def _report_mode(self, vid: str, ctl: VehicleController, now: float) -> None:
         """Tell everyone (`vehicle/<vid>/event`) when a vehicle enters a fault mode, or leaves its
-        plan for a battery or link fault: "low_battery" / "link_lost", with the node it lands at."""
+        plan for a battery or link fault: "low_battery" / "link_lost", with the node it lands at
+        (none: it lands where it is, stopped, or hovers with nowhere clear to land)."""
         prev, mode = self._last_mode.get(vid), ctl.mode
         self._last_mode[vid] = mode
         if ctl.held and self._told_held.get(vid) != ctl.holds and mode in (Mode.HOVERING, Mode.HOLDING):
@@ -484,16 +485,20 @@ class ExecutorService(Service):
         if prev == mode:
             return
         kind, detail, node = FAULT_MODES.get(mode), f"from {prev}", ""
-        leaves_plan = mode == Mode.LANDING or (mode == Mode.DONE and prev != Mode.LANDING)
+        leaves_plan = (mode == Mode.LANDING or (mode == Mode.DONE and prev != Mode.LANDING)
+                       or (mode == Mode.HOVERING and not ctl.held))  # (a fault landing with nowhere clear)
         if kind is None and leaves_plan:
             if ctl.faults.low_battery(ctl.charge_used_ah, now):
                 kind = "low_battery"
             elif ctl.faults.link_lost(now):
                 kind = "link_lost"
             node = ctl.landing_node or ""
-            where = f"landing at {node}" if node else "landing here" if mode == Mode.LANDING else "stopped here"
+            where = ("landing straight down" if node == STRAIGHT_DOWN else f"landing at {node}" if node
+                     else "landing here" if mode == Mode.LANDING
+                     else "hovering here, nowhere clear to land" if mode == Mode.HOVERING else "stopped here")
             detail = f"from {prev}: {where}"
-        if kind is not None:
+        if kind is not None:  # its state first: the mission reads the event by the mode it is in
+            self._state.put(vid, ctl.state())
             self._event.put(vid,
                 VehicleEvent(vid=vid, t=now, kind=kind, detail=detail, node=node))
 

@@ -104,6 +104,9 @@ to the vehicle (the mission's switch time is 1-3 s ahead), and the search's step
 REPLAN_TOLERANCE = 0.01
 """m: how far a new plan's reference may be from the old one's at the switch (the corner blend at
 the switch node; `TrajectoryParams.max_deviation` is 5 mm)."""
+LANDING_RETRY_S = 0.5
+"""s between the choices of a fault landing that found every node it may land on taken (it hovers
+where it is meanwhile: `VehicleController._choose_landing`)."""
 
 
 def _closest_pass(traj: Trajectory, here: tuple[float, float, float], start: float, reach: float) -> float | None:
@@ -157,6 +160,8 @@ class VehicleController:
         self._active: Trajectory | None = self.trajectory  # the plan's, or a fault landing's
         self._fault_landing = False
         self._choose_again = False  # another executor's fault landing took its node (`landing_wanted_by`)
+        self._landing_retry: float | None = None  # a fault landing hovers, every node taken: choose again then
+        self._landing_reason = ""  # why the fault landing (low battery, lost link, the abort)
         self._ground_z = 0.0  # height of the ground the vehicle took off from or lands on
         self._landing_end = 0.0
         self._hold_since: float | None = None
@@ -387,9 +392,11 @@ class VehicleController:
                 return
             if self._choose_again and self._active is not None:
                 self._choose_again = False
-                if rel < self._active.steps[-2].t:  # still flying level: not above its node yet
+                if m.mode == Mode.LANDING and rel < self._active.steps[-2].t:  # not above its node yet
                     log.info("%s: gives its landing node up to a vehicle of another executor", self.vid)
-                    self._choose_landing(rel, est)
+                    self._choose_landing(now, rel, est)
+            if self._landing_retry is not None and now >= self._landing_retry:
+                self._choose_landing(now, rel, est)
             if self.held and self._rejoin is not None and rel >= self._rejoin[2]:
                 self._resume(now)
             if self._fault_landing or self.held or (m.mode == Mode.LANDING and rel >= self._landing_end):
@@ -489,12 +496,16 @@ class VehicleController:
         self.held, self.rejoinable = why, rejoinable
         self.holds += 1
         if self.machine.airborne:
-            self._hover_ref = RefSample(ref.t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, est.yaw, 0.0,
-                                        Mode.HOVERING)
+            self._hover_ref = self._hover_here(ref.t, est)
             self.machine.request(Mode.HOVERING, now, why)
         elif self.machine.mode != Mode.HOLDING:
             self.machine.request(Mode.HOLDING, now, why)
         log.warning("%s: held by the tracking guard: %s", self.vid, why)
+
+    @staticmethod
+    def _hover_here(t: float, est: Estimate) -> RefSample:
+        """A reference that holds the vehicle still where it is estimated, facing as it does."""
+        return RefSample(t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, est.yaw, 0.0, Mode.HOVERING)
 
     def yield_to(self, vid: str, pos: tuple[float, float, float], now: float, unseen_s: float = 0.0,
                  descending: bool = False) -> bool:
@@ -599,20 +610,41 @@ class VehicleController:
         """Leave the plan for the nearest ground node; a planned landing already under way just
         ends the mission at its touchdown."""
         self._fault_landing = True
-        self._hover_ref = None
         if self.machine.mode == Mode.LANDING:
             log.info("%s: %s while landing: the mission ends at touchdown", self.vid, reason)
             return
-        self._choose_landing(rel, est)
-        self.machine.request(Mode.LANDING, now, reason)
+        self._landing_reason = reason
+        self._choose_landing(now, rel, est)
 
-    def _choose_landing(self, rel: float, est: Estimate) -> None:
-        """The fault landing's path from where the vehicle is, clear of the other bodies."""
+    def _choose_landing(self, now: float, rel: float, est: Estimate) -> None:
+        """The fault landing's path from where the vehicle is, clear of the other bodies
+        (`safe_landing_steps`). With nowhere to land that is clear, it hovers where it is and
+        chooses again every `LANDING_RETRY_S` (a vehicle below may drive off, another's landing
+        choose elsewhere), until its battery's reserve is spent too: then the nearest node, taken
+        or not (a controlled landing onto a body rather than a fall)."""
         assert self.trajectory is not None
-        steps = safe_landing_steps((est.x, est.y, est.z), rel, self.trajectory.steps, self.model, self._bodies())
+        here = (est.x, est.y, est.z)
+        steps = safe_landing_steps(here, rel, self.trajectory.steps, self.model, self._bodies())
+        if steps is None and self.charge_used_ah >= self.model.capacity_ah:
+            log.warning("%s: its battery's reserve is spent with every node it may land on taken: "
+                        "lands on the nearest", self.vid)
+            steps = safe_landing_steps(here, rel, self.trajectory.steps, self.model)
+        if steps is None:
+            if self._landing_retry is None:
+                log.warning("%s: %s, with a body below every node it may land on and below itself: "
+                            "hovers where it is until one is clear", self.vid, self._landing_reason)
+            self._landing_retry = now + LANDING_RETRY_S
+            self._active = self.trajectory  # (no landing node claimed: `landing_step`)
+            if self.machine.mode != Mode.HOVERING:
+                self._hover_ref = self._hover_here(rel, est)
+                self.machine.request(Mode.HOVERING, now, f"{self._landing_reason}: nowhere clear to land")
+            return
+        self._landing_retry = self._hover_ref = None
         self._active = Trajectory(steps, self.params.trajectory, yaw0=est.yaw)
         self._landing_end = steps[-1].t
         self._ground_z = steps[-1].pos[2]
+        if self.machine.mode != Mode.LANDING:
+            self.machine.request(Mode.LANDING, now, self._landing_reason)
 
     def landing_wanted_by(self, vid: str, at: tuple[float, float, float]) -> None:
         """Another executor's vehicle `vid` announced a fault landing coming down at `at`. Two fault

@@ -373,7 +373,7 @@ class MissionRunner(MissionClient[MissionResult]):
 
     def on_fault(self, vid: str, kind: str, text: str, node: str, rejoinable: bool = False) -> bool:
         state = self.states.get(vid)
-        if kind == "link_lost" and not node and state is not None and state.mode != "done":
+        if kind == "link_lost" and not node and state is not None and state.mode not in ("done", "hovering"):
             return True  # the gateway's word (`LinkHealth`): the executor reports what it does (a hold, a landing)
         if vid in self.left:
             if rejoinable and kind == "tracking_hold":
