@@ -135,7 +135,7 @@ def hovering_abort(bodies: Callable[[float], list[tuple[float, float, float]]], 
 def test_a_fault_landing_with_nowhere_clear_hovers_until_the_vehicle_below_drives_off() -> None:
     """The abort finds vehicles on both nodes of cf2's plan and one parked right below it, which
     drives off 3 s later: cf2 hovers where it is until then and comes straight down after it (it
-    used to land on the nearest node all the same: onto the vehicle there, as in a 32-vehicle soak)."""
+    used to land on the nearest node all the same: onto the vehicle there)."""
     nodes = [(*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)]
     below: list[tuple[float, float, float]] = []
 

@@ -169,9 +169,8 @@ def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence
     parked there, or another's fault landing heading there) is passed over for the next nearest.
     With every node taken, straight down onto the plan's lowest ground (node `STRAIGHT_DOWN`), if no body is
     below the vehicle in its own column (the column a replan keeps clear below a vehicle that left:
-    `services/mission/sweeps.py`); else None: there is nowhere to land without landing on a body.
-    (Taking the nearest node all the same brought a held vehicle of a 32-vehicle soak's abort down
-    onto the vehicle parked on it, at 0.76 m/s.)"""
+    `services/mission/sweeps.py`); else None: there is nowhere to land without landing on a body
+    (the nearest node all the same would come down onto the vehicle parked there)."""
     ground = landing_nodes(plan) or [s for s in plan if s.kind != "air"]
     below = [b for b in bodies if b[2] < pos[2]]
     free = [s for s in ground if all(not in_column(s.pos, b, model) for b in below)]
