@@ -332,7 +332,7 @@ HANDLINGS: tuple[Handling, ...] = (
         "a fault landing keeps off another vehicle's column",
         "executor: a fault landing comes down on the nearest landing node, whoever stands there",
         (Edit("services/executor/faults.py", "    free = [s for s in ground if all(",
-              "    free = [] and [s for s in ground if all("),),
+              "    free = ground or [s for s in ground if all("),),
         "tests/test_closed_loop.py::test_an_abort_lands_on_the_nearest_landing_node_clear_of_the_vehicles_standing_there"),
     Handling(
         "another executor's fault landing kept off",
@@ -347,6 +347,12 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/vehicle_controller.py", "            self._choose_again = True\n",
               "            self._choose_again = False\n"),),
         "tests/test_fault_landing.py::test_two_fault_landings_of_an_abort_that_chose_one_node_part[cf1-l1]"),
+    Handling(
+        "a fault landing with nowhere clear goes straight down or hovers",
+        "executor: with a body below every node of its plan, a fault landing takes the nearest all the same",
+        (Edit("services/executor/faults.py", "    if free:\n", "    if free or ground:\n"),
+         Edit("services/executor/faults.py", "        target = min(free, key=", "        target = min(free or ground, key=")),
+        "tests/test_fault_landing.py::test_a_fault_landing_with_nowhere_clear_hovers_until_the_vehicle_below_drives_off"),
 )
 
 
