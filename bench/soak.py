@@ -10,9 +10,12 @@ goals. Collected while it runs:
   the executors' missed control deadlines and pose-to-command latency, the simulator's lag;
 - each process's resident memory and CPU time from /proc, every `--sample-s` seconds.
 
-Printed as tables at the end; `soak.png` plots memory and latency over time.
+Printed as tables at the end; `soak.png` plots memory and latency over time. With `--trace FILE`
+a recorder process keeps every vehicle's ground truth, state, events and telemetry for tracing a
+contact or a hold by time afterwards (`bench/trace.py`).
 
     python -m bench.soak [--minutes 5] [--vehicles 80] [--executors 2] [--per-radio 8] [--truth-hz 50] [--sim-priority 0]
+                         [--trace FILE]
     FLEET_SOAK_MINUTES=20 make soak        # the same through pytest -m soak (tests/test_soak.py)
 """
 
@@ -22,8 +25,12 @@ import asyncio
 import json
 import os
 import random
+import subprocess
+import sys
 import time
 from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -83,6 +90,28 @@ def soak_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: 
                        extra_args={"sim": ["--truth-hz", str(truth_hz), "--thrust-spread", str(thrust_spread),
                                            "--priority", str(sim_priority)]},
                        gateway=GatewayParams(log_period_s=LOG_PERIOD_S))
+
+
+@contextmanager
+def recording(fleet: LocalFleet, path: Path | None) -> Iterator[None]:
+    """`bench.trace record` into `path` (None: nothing) while the block runs, as the operator's role."""
+    if path is None:
+        yield
+        return
+    env = {**os.environ, "FLEET_ZENOH_USER": "mission",
+           "FLEET_ZENOH_PASSWORD_FILE": str(fleet.credentials.password_file("mission"))}
+    env.pop("FLEET_ZENOH_PASSWORD", None)
+    recorder = subprocess.Popen([sys.executable, "-m", "bench.trace", "record", str(path), "--connect", fleet.endpoint,
+                                 "--fleet", fleet.keys.fleet], stdin=subprocess.PIPE, env=env)
+    try:
+        yield
+    finally:
+        assert recorder.stdin is not None
+        recorder.stdin.close()
+        try:
+            recorder.wait(30.0)
+        except subprocess.TimeoutExpired:
+            recorder.kill()
 
 
 def proc_sample(pid: int) -> tuple[float, float] | None:
@@ -303,7 +332,8 @@ def figure(log: SoakLog, out: str | Path) -> Path:
 
 def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: int = 8, truth_hz: float = 50.0,
              sample_s: float = 5.0, seed: int = 0, run_dir: Path = Path("out/soak/run"),
-             out: str | Path = "out", thrust_spread: float = 0.0, sim_priority: int = 0) -> SoakLog:
+             out: str | Path = "out", thrust_spread: float = 0.0, sim_priority: int = 0,
+             trace: Path | None = None) -> SoakLog:
     """Start the fleet, soak it for `minutes`, print the report and save the figure."""
     graph = load_graph(MAP)
     rng = random.Random(seed)
@@ -311,7 +341,7 @@ def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: 
     starts = {f"cf{i + 1:02d}": s for i, s in enumerate(rng.sample(spots, vehicles))}
     tasks = draw_tasks(graph, starts, rng)
     with soak_fleet(MAP, tasks, run_dir, executors, per_radio, truth_hz, thrust_spread=thrust_spread,
-                    sim_priority=sim_priority) as fleet:
+                    sim_priority=sim_priority) as fleet, recording(fleet, trace):
         log = asyncio.run(soak(fleet, graph, tasks, 60.0 * minutes, sample_s, seed))
     print(report(log, 60.0 * minutes))
     print(f"saved {figure(log, out)}")
@@ -334,9 +364,11 @@ def main() -> None:
                              "the world it stands for does not wait for a loaded machine")
     parser.add_argument("--run-dir", default="out/soak/run", help="logs and state of the fleet's processes")
     parser.add_argument("--summary", help="also write the verdicts and memory growth here (JSON)")
+    parser.add_argument("--trace", type=Path, metavar="FILE",
+                        help="record every vehicle's truth, state, events and telemetry here (`python -m bench.trace show`)")
     args = parser.parse_args()
     log = run_soak(args.minutes, args.vehicles, args.executors, args.per_radio, args.truth_hz, args.sample_s,
-                   args.seed, Path(args.run_dir), args.out, args.thrust_spread, args.sim_priority)
+                   args.seed, Path(args.run_dir), args.out, args.thrust_spread, args.sim_priority, args.trace)
     if args.summary:
         Path(args.summary).write_text(json.dumps(summary(log), indent=1))
 
