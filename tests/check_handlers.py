@@ -353,6 +353,13 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/faults.py", "    if free:\n", "    if free or ground:\n"),
          Edit("services/executor/faults.py", "        target = min(free, key=", "        target = min(free or ground, key=")),
         "tests/test_fault_landing.py::test_a_fault_landing_with_nowhere_clear_hovers_until_the_vehicle_below_drives_off"),
+    Handling(
+        "a held vehicle taken over stays held",
+        "executor: a take-over takes up the vehicle's old plan, held or not",
+        (Edit("services/executor/vehicle_controller.py",
+              "        if rel is not None and (state.held or mode == Mode.HOVERING):",
+              "        if False and rel is not None and (state.held or mode == Mode.HOVERING):"),),
+        "tests/test_takeover.py::test_a_held_vehicle_taken_over_stays_held_where_it_is[3.0-holding]"),
 )
 
 

@@ -117,3 +117,24 @@ def test_take_over_after_a_partition_starts_from_the_latest_pose_at_rest() -> No
     second = run(b, sim, T0 + STEPS[-1].t + 3.0, mocap)
     assert max(r.truth.z for r in second) < max(s.pos[2] for s in STEPS) + 0.15
     assert b.mode == Mode.DONE and math.dist((sim.x, sim.y, sim.z), STEPS[-1].pos) < 0.05
+
+
+@pytest.mark.parametrize("at, held", [(FLY - 2.0, Mode.HOVERING), (3.0, Mode.HOLDING)])
+def test_a_held_vehicle_taken_over_stays_held_where_it_is(at: float, held: Mode) -> None:
+    """The first owner held its vehicle (the proximity stop, in flight and driving); the mission
+    planned the others around it. The new owner keeps it there: it used to take up its old plan
+    again, back into the others' space."""
+    sim, plan, a, mocap = first_owner(6)
+    run(a, sim, T0 + at, mocap)
+    assert a.stop_short("a test's")
+    run(a, sim, T0 + at + 1.0, mocap)
+    a.tick(sim.t)
+    state = a.state()
+    assert state.mode == held and state.held == "a test's" and state.rejoinable
+    here = (sim.x, sim.y, sim.z)
+    b = VehicleController("cf1", MODEL, owner="exec-b")
+    b.load(plan)
+    b.take_over(state, sim.t)
+    second = run(b, sim, T0 + STEPS[-1].t + 2.0, mocap)
+    assert max(math.dist((r.truth.x, r.truth.y, r.truth.z), here) for r in second) < 0.05
+    assert b.mode == held and b.state().held == "a test's" and b.holds == 1

@@ -182,6 +182,11 @@ class VehicleState(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     landing: tuple[float, float, float] | None = None
     """Where a fault landing (abort, low battery, lost link) comes down; None otherwise. Another
     executor's fault landing keeps off it (`safe_landing_steps`)."""
+    held: str = ""
+    """Why the tracking guard or the proximity stop holds the vehicle where it is ("": it is not
+    held); `rejoinable`: held for another's sake, the mission may bring it back. An executor that
+    takes the vehicle over keeps the hold (the mission planned the others around it)."""
+    rejoinable: bool = False
 
 
 class Telemetry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

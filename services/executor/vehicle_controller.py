@@ -283,7 +283,8 @@ class VehicleController:
         partition the state is a lease old: fusing the pose after it would read the vehicle's
         displacement meanwhile (the gateway landing it) as a velocity, and the controller chased
         that velocity (a resumed vehicle climbed to 1.5 m and landed 1.5 m off the map). A fault
-        landing in progress is restarted towards the nearest safe point."""
+        landing in progress is restarted towards the nearest safe point; a held vehicle stays held
+        (`_keep_hold`)."""
         try:
             mode = Mode(state.mode)
         except ValueError:
@@ -308,6 +309,19 @@ class VehicleController:
             self._begin_safe_landing(now, rel, self.estimator.estimate(now), "landing continued after take-over")
         elif rel is not None and mode == Mode.LANDING:
             self._enter_landing(self._active, rel)
+        if rel is not None and (state.held or mode == Mode.HOVERING):
+            self._keep_hold(state, rel, now)
+
+    def _keep_hold(self, state: VehicleState, rel: float, now: float) -> None:
+        """A vehicle held where it is (or hovering for a fault landing with nowhere clear to land)
+        when it was taken over stays held there: the mission planned the others around it (its plan
+        would take it back into their space). The hold is reported again by this executor."""
+        self.held = state.held or f"hovering when taken over from {state.owner}"
+        self.rejoinable = state.rejoinable
+        self.holds += 1
+        if self.machine.airborne:
+            self._hover_ref = self._hover_here(rel, self.estimator.estimate(now))
+        log.warning("%s: taken over held: %s", self.vid, self.held)
 
     def start(self, t0: float) -> None:
         """The mission starts at `t0` (the plan's step times are relative to it)."""
@@ -826,4 +840,5 @@ class VehicleController:
             step=traj.segment(now - self.t0) if traj is not None and self.t0 is not None else 0,
             steps=len(traj.steps) if traj is not None else 0,
             tracking_error=err, charge_used_ah=self.charge_used_ah, arrived=arrived,
-            landing=landing.pos if (landing := self.landing_step) is not None else None)
+            landing=landing.pos if (landing := self.landing_step) is not None else None,
+            held=self.held or "", rejoinable=self.rejoinable)
