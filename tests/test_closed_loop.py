@@ -308,6 +308,19 @@ def test_a_voltage_not_measured_yet_is_not_a_low_battery() -> None:
     assert monitor.low_battery(0.0, 4.4)
 
 
+def test_the_reserve_is_spent_at_the_capacity_or_near_the_firmwares_shutdown_voltage() -> None:
+    """What ends a fault landing's wait for a clear node (`VehicleController._choose_landing`): the
+    charge used reaches the whole capacity, or the voltage stays under 3.1 V for a second (the
+    firmware shuts down after 5 s under 3.0 V); 0 V is no measurement."""
+    monitor = FaultMonitor(MODEL)
+    assert not monitor.reserve_spent(MODEL.usable_ah, 0.0) and monitor.reserve_spent(MODEL.capacity_ah, 0.0)
+    for k, vbat in enumerate([0.0] * 20 + [3.2] * 20 + [3.05] * 9):
+        monitor.on_telemetry(Telemetry(vid="cf1", t=0.1 * k, gateway="sim", vbat=vbat, link_quality=1.0, sent=0,
+                                       dropped=0, cmd_rate_hz=100.0), 0.1 * k)
+    assert monitor.low_battery(0.0, 4.8) and not monitor.reserve_spent(0.0, 4.8)  # 0.8 s under 3.1 V
+    assert monitor.reserve_spent(0.0, 5.0)
+
+
 def test_abort_lands_a_flying_vehicle_and_stops_a_driving_one() -> None:
     in_air = T0 + TAKEOFF + 2.0
     ctrl, sim, _ = fly_plan(until=in_air + 6.0, hook=abort_at(in_air))

@@ -33,7 +33,9 @@ never at the same time (a vehicle that sank to the ground while its link was los
 @dataclass(frozen=True, slots=True)
 class FaultParams:
     """vbat_low: V under load (the Crazyflie firmware warns at 3.2 V; a margin above it);
-    link_timeout_s: telemetry silence meaning a lost link; max_hold_s: longest ground hold before
+    vbat_critical: V under load for `vbat_low_s` at which the reserve counts as spent (a fault
+    landing waiting for a clear node lands on the nearest: the firmware shuts the vehicle down after
+    5 s under 3.0 V, `PM_BAT_CRITICAL_LOW_VOLTAGE` and `_TIMEOUT` in its `pm.h`); link_timeout_s: telemetry silence meaning a lost link; max_hold_s: longest ground hold before
     giving up the plan; emergency descent: speed (m/s), gain on its error (1/s), acceleration
     limit (m/s^2), and the wait past the predicted touchdown before the motors stop, as a
     fraction of the predicted descent time plus a margin (s); descent_bias_max: the largest
@@ -67,6 +69,7 @@ class FaultParams:
     be asked again: `services.mission.runner.REPLAN_TRIES`); 0 disables the reflex."""
 
     vbat_low: float = 3.3
+    vbat_critical: float = 3.1
     vbat_low_s: float = 1.0
     link_timeout_s: float = 1.0
     max_hold_s: float = 3.0
@@ -110,6 +113,11 @@ class EmergencyDescent:
     cut: float | None = None
 
 
+def _since(since: float | None, holds: bool, now: float) -> float | None:
+    """Since when a condition that `holds` now has held (None: it does not)."""
+    return (now if since is None else since) if holds else None
+
+
 class FaultMonitor:
     """Battery and link health of one vehicle from its telemetry and estimated charge."""
 
@@ -119,20 +127,29 @@ class FaultMonitor:
         self.last_telemetry: Telemetry | None = None
         self._telemetry_at = -math.inf
         self._vbat_low_since: float | None = None
+        self._vbat_critical_since: float | None = None
 
     def on_telemetry(self, tel: Telemetry, now: float) -> None:
         self.last_telemetry = tel
         self._telemetry_at = now
-        if 0.0 < tel.vbat < self.params.vbat_low:  # 0: not measured yet (no log block came)
-            if self._vbat_low_since is None:
-                self._vbat_low_since = now
-        else:
-            self._vbat_low_since = None
+        measured = tel.vbat > 0.0  # 0: not measured yet (no log block came)
+        low = measured and tel.vbat < self.params.vbat_low
+        critical = measured and tel.vbat < self.params.vbat_critical
+        self._vbat_low_since = _since(self._vbat_low_since, low, now)
+        self._vbat_critical_since = _since(self._vbat_critical_since, critical, now)
 
     def low_battery(self, charge_used_ah: float, now: float) -> bool:
         if charge_used_ah >= self.model.usable_ah:
             return True
         since = self._vbat_low_since
+        return since is not None and now - since >= self.params.vbat_low_s
+
+    def reserve_spent(self, charge_used_ah: float, now: float) -> bool:
+        """The battery's reserve is gone too: the charge used reaches the capacity, or the voltage
+        stays under `vbat_critical` for `vbat_low_s`."""
+        if charge_used_ah >= self.model.capacity_ah:
+            return True
+        since = self._vbat_critical_since
         return since is not None and now - since >= self.params.vbat_low_s
 
     def link_lost(self, now: float) -> bool:

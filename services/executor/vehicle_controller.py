@@ -639,7 +639,7 @@ class VehicleController:
         assert self.trajectory is not None
         here = (est.x, est.y, est.z)
         steps = safe_landing_steps(here, rel, self.trajectory.steps, self.model, self._bodies())
-        if steps is None and self.charge_used_ah >= self.model.capacity_ah:
+        if steps is None and self.faults.reserve_spent(self.charge_used_ah, now):
             log.warning("%s: its battery's reserve is spent with every node it may land on taken: "
                         "lands on the nearest", self.vid)
             steps = safe_landing_steps(here, rel, self.trajectory.steps, self.model)
