@@ -35,9 +35,9 @@ class FaultParams:
     """vbat_low: V under load (the Crazyflie firmware warns at 3.2 V; a margin above it);
     vbat_critical: V under load for `vbat_low_s` at which the reserve counts as spent (a fault
     landing waiting for a clear node lands on the nearest: the firmware shuts the vehicle down after
-    5 s under 3.0 V, `PM_BAT_CRITICAL_LOW_VOLTAGE` and `_TIMEOUT` in its `pm.h`); link_timeout_s: telemetry silence meaning a lost link; max_hold_s: longest ground hold before
-    giving up the plan; emergency descent: speed (m/s), gain on its error (1/s), acceleration
-    limit (m/s^2), and the wait past the predicted touchdown before the motors stop, as a
+    5 s under 3.0 V, `PM_BAT_CRITICAL_LOW_VOLTAGE` and `_TIMEOUT` in its `pm.h`); link_timeout_s:
+    telemetry silence meaning a lost link; max_hold_s: longest ground hold before giving up the plan;
+    emergency descent: speed (m/s), gain on its error (1/s), acceleration limit (m/s^2), and the wait past the predicted touchdown before the motors stop, as a
     fraction of the predicted descent time plus a margin (s); descent_bias_max: the largest
     thrust-model error (m/s^2) the blind descent allows for (`PoseEstimator.lift_error`; the flight
     integrators' bias, which a stalled loop winds up to 5.5, the descent used to keep: climbs to
