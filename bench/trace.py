@@ -197,6 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "record":
             recorder = Recorder(zconfig_from_args(args), keys_from_args(args), args.file)
+            print(f"recording to {args.file} until stdin closes", flush=True)
             stop = threading.Event()
             threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
             while not stop.wait(FLUSH_S):
