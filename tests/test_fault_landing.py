@@ -12,8 +12,8 @@ import pytest
 import zenoh
 
 from common.bus.keys import Keys
-from common.bus.messages import Pose, VehicleState
-from common.bus.pubsub import Publisher
+from common.bus.messages import Pose, Telemetry, VehicleEvent, VehicleState
+from common.bus.pubsub import Publisher, subscribe
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
@@ -160,3 +160,60 @@ def test_a_fault_landing_with_its_reserve_spent_takes_the_nearest_node_all_the_s
     ctrl, sim, records, abort = hovering_abort(lambda _s: nodes + [(0.95, 0.45, 0.0)], spend_reserve_at=2.0)
     assert all(r.truth.z > 0.4 for r in records if abort + 0.1 <= r.t < abort + 2.0)
     assert math.dist((sim.x, sim.y, sim.z), PADS["l1"]) < 0.03
+
+
+@pytest.mark.timeout(60)
+def test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_straight_down(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
+    """The executor's events for a fault landing that waits (what the mission plans the others
+    around): cf2's link is lost in flight with bodies on both nodes of its plan and one right below
+    it, which drives off 2 s later. Heard on the bus, both marked as the executor's report of what
+    it does (`acted`: the mission tells them from a gateway's `link_lost`, which it leaves to the
+    executor): "link_lost from flying: hovering here, nowhere clear to land", then "link_lost from
+    hovering: landing straight down" naming the node `STRAIGHT_DOWN` (a descent for the replan)."""
+    nodes = [(*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)]
+    below: list[tuple[float, float, float]] = []
+    heard: list[tuple[str, str, bool]] = []
+    t0 = 0.5
+    lost = t0 + next(s.t for s in STEPS if s.node == "a1") + 1.0
+
+    async def scenario() -> VehicleController:
+        svc = ExecutorService("e1", ZenohConfig.client(zenoh_router), KEYS)
+        run_svc = asyncio.create_task(svc.run())
+        session = zsession()
+
+        def on_event(event: VehicleEvent, _key: str) -> None:
+            heard.append((event.kind, f"{event.detail} ({event.node})", event.acted))
+
+        events = subscribe(session, KEYS.vehicle("cf2", "event"), VehicleEvent, on_event)
+        await asyncio.sleep(0.5)
+        sim = SimFlyingCar("cf2", MODEL, pos=STEPS[0].pos, yaw=0.0)
+        ctrl = VehicleController("cf2", MODEL, owner="e1", bodies=lambda: nodes + below)
+        ctrl.on_pose(Pose(vid="cf2", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=sim.yaw))
+        ctrl.load(plan_for("cf2", STEPS, MODEL, t0=t0))
+
+        def hook(now: float) -> None:
+            link_ok = now < lost
+            if round(now / 0.01) % 10 == 0:
+                ctrl.on_telemetry(Telemetry(vid="cf2", t=now, gateway="sim", vbat=4.0, link_quality=1.0, sent=0,
+                                            dropped=0, cmd_rate_hz=100.0, link_ok=link_ok), now)
+            if now >= lost and not below and not ctrl._fault_landing:
+                below.append((sim.x, sim.y, 0.0))
+            if below and now >= lost + 2.0:
+                below.clear()
+            if ctrl._seen is not None:
+                svc._report_mode("cf2", ctrl, now)
+
+        try:
+            run(ctrl, sim, lost + 6.0, Mocap(), telemetry_every=0, on_tick=hook)
+            await asyncio.sleep(0.5)
+        finally:
+            events.close()
+            svc.stop()
+            assert await run_svc == 0
+        return ctrl
+
+    ctrl = asyncio.run(scenario())
+    assert heard == [("link_lost", "from flying: hovering here, nowhere clear to land ()", True),
+                     ("link_lost", f"from hovering: landing straight down ({STRAIGHT_DOWN})", True)], heard
+    assert ctrl.mode == Mode.DONE

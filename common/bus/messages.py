@@ -247,6 +247,10 @@ class VehicleEvent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     a vehicle stopped on the ground by a fault that may clear (a stale pose, a lost link) while its
     plan moved on, not for its own tracking: the mission may bring it back into the plan once it
     stands still, seen, and its way is clear (`Replan.rejoin`)."""
+    acted: bool = False
+    """Its executor's report of what it does about a fault of its vehicle (it holds, lands, stops or
+    hovers with nowhere clear to land), not another service's word on its health (a gateway's
+    `link_lost`): a mission plans the others around the former (`MissionRunner.on_fault`)."""
 
 
 class MocapBody(msgspec.Struct, frozen=True, forbid_unknown_fields=True, array_like=True):

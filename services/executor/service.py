@@ -480,7 +480,7 @@ class ExecutorService(Service):
         if ctl.held and self._told_held.get(vid) != ctl.holds and mode in (Mode.HOVERING, Mode.HOLDING):
             self._told_held[vid] = ctl.holds  # (also held while already holding: `_left_behind`)
             self._event.put(vid, VehicleEvent(vid=vid, t=now, kind="tracking_hold", detail=ctl.held,
-                                              rejoinable=ctl.rejoinable))
+                                              rejoinable=ctl.rejoinable, acted=True))
             return
         if prev == mode:
             return
@@ -497,10 +497,9 @@ class ExecutorService(Service):
                      else "landing here" if mode == Mode.LANDING
                      else "hovering here, nowhere clear to land" if mode == Mode.HOVERING else "stopped here")
             detail = f"from {prev}: {where}"
-        if kind is not None:  # its state first: the mission reads the event by the mode it is in
-            self._state.put(vid, ctl.state())
+        if kind is not None:
             self._event.put(vid,
-                VehicleEvent(vid=vid, t=now, kind=kind, detail=detail, node=node))
+                VehicleEvent(vid=vid, t=now, kind=kind, detail=detail, node=node, acted=True))
 
 
 def cmd_executor(args: argparse.Namespace) -> int:

@@ -139,10 +139,12 @@ class MissionClient(Service, Generic[R]):
     def progress_line(self, now: float) -> str:
         return ""
 
-    def on_fault(self, vid: str, kind: str, text: str, node: str, rejoinable: bool = False) -> bool:
+    def on_fault(self, vid: str, kind: str, text: str, node: str, rejoinable: bool = False,
+                 acted: bool = False) -> bool:
         """A fault of one vehicle (`kind`: its event, `node`: where its executor lands it, if it
-        said; `rejoinable`: held not for its own tracking, `VehicleEvent.rejoinable`); whether the variant
-        handles it (the mission goes on) instead of ending the mission."""
+        said; `rejoinable`: held not for its own tracking, `VehicleEvent.rejoinable`; `acted`: its
+        executor's report of what it does, `VehicleEvent.acted`); whether the variant handles it
+        (the mission goes on) instead of ending the mission."""
         return False
 
     def on_state(self, state: VehicleState) -> None:
@@ -288,7 +290,7 @@ class MissionClient(Service, Generic[R]):
 
     def _fault(self, event: VehicleEvent, text: str) -> None:
         """A fault of one vehicle: the variant's to handle (`on_fault`), or the mission's."""
-        if not self.on_fault(event.vid, event.kind, text, event.node, event.rejoinable):
+        if not self.on_fault(event.vid, event.kind, text, event.node, event.rejoinable, event.acted):
             self.fault = self.fault or text
 
     def elapsed(self) -> float:

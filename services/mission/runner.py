@@ -371,9 +371,9 @@ class MissionRunner(MissionClient[MissionResult]):
             self.sweeps = [s for s in self.sweeps if s.vid not in vids]
             return
 
-    def on_fault(self, vid: str, kind: str, text: str, node: str, rejoinable: bool = False) -> bool:
-        state = self.states.get(vid)
-        if kind == "link_lost" and not node and state is not None and state.mode not in ("done", "hovering"):
+    def on_fault(self, vid: str, kind: str, text: str, node: str, rejoinable: bool = False,
+                 acted: bool = False) -> bool:
+        if kind == "link_lost" and not acted:
             return True  # the gateway's word (`LinkHealth`): the executor reports what it does (a hold, a landing)
         if vid in self.left:
             if rejoinable and kind == "tracking_hold":
