@@ -145,3 +145,30 @@ def test_a_fault_during_a_held_vehicles_return_is_replanned_first(zenoh_router: 
     assert any(e.startswith(f"{FIRST} rejoined the mission") for e in runner.events), runner.events
     around = [e for e in runner.events if e.startswith("replanned") and f"around {FIRST}, {BURST[0]}" in e]
     assert around, runner.events  # the fault's replan, around both, before the return
+
+
+class LinkWords(Burst):
+    """`FIRST`'s link lost, in two words: its gateway's (`LinkHealth`: no log block for a second),
+    then its executor's report of what it does about it (`VehicleEvent.acted`)."""
+
+    def __init__(self, router: str) -> None:
+        super().__init__(router)
+        self.burst = []
+
+    async def main(self) -> None:
+        try:
+            await self.start_parked()
+            assert self.on_fault(FIRST, "link_lost", f"{FIRST}: link_lost no log block for 1.00 s", "")
+            assert FIRST not in self.left and self._replanning is None  # the gateway's word: left to the executor
+            assert self.on_fault(FIRST, "link_lost", f"{FIRST}: link_lost from driving: stopped here", "", acted=True)
+            assert FIRST in self.left and self._replanning is not None
+            await self._replanning
+        finally:
+            self.stop()
+
+
+@pytest.mark.timeout(60)
+def test_a_gateways_link_lost_is_left_to_the_executor_whose_report_takes_the_vehicle_out(zenoh_router: str) -> None:
+    runner = LinkWords(zenoh_router)
+    with_planner(zenoh_router, runner)
+    assert runner.plan is not None and FIRST not in runner.plan.paths
