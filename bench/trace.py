@@ -26,7 +26,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -106,6 +106,18 @@ def read(path: Path) -> Iterator[Row]:
             yield from rows
 
 
+def decoded(path: Path, kinds: Iterable[str] = KINDS) -> Iterator[tuple[float, str, Any]]:
+    """(arrival time, kind, message) of the recording's rows of `kinds`; an undecodable one is skipped."""
+    decoders = {kind: msgspec.msgpack.Decoder(KINDS[kind]) for kind in kinds}
+    for t, key, payload in read(path):
+        decoder = decoders.get(kind := kind_of(key))
+        if decoder is not None:
+            try:
+                yield t, kind, decoder.decode(payload)
+            except msgspec.DecodeError:
+                continue
+
+
 def moment(text: str, day: float) -> float:
     """Epoch seconds of `text`: epoch seconds, or HH:MM:SS[.fff] (a comma too) local time on the day of `day`."""
     try:
@@ -136,38 +148,22 @@ def line(dt: float, kind: str, msg: Any, t: float) -> str:
 
 def events(path: Path, vehicles: set[str]) -> list[str]:
     """Every event of `vehicles` in the recording, with its local time of arrival."""
-    decoder = msgspec.msgpack.Decoder(VehicleEvent)
-    out = []
-    for t, key, payload in read(path):
-        if kind_of(key) == "event":
-            try:
-                msg = decoder.decode(payload)
-            except msgspec.DecodeError:
-                continue
-            if msg.vid in vehicles:
-                stamp = datetime.datetime.fromtimestamp(t).strftime("%H:%M:%S.%f")[:-3]
-                out.append(f"{stamp} {msg.vid:>5} {msg.kind} {msg.detail}")
-    return out
+    return [f"{datetime.datetime.fromtimestamp(t).strftime('%H:%M:%S.%f')[:-3]} {msg.vid:>5} {msg.kind} {msg.detail}"
+            for t, _kind, msg in decoded(path, ["event"]) if msg.vid in vehicles]
 
 
 def show(path: Path, vehicles: set[str], at: str, before: float, after: float, every: float) -> list[str]:
     """The timeline of `vehicles` from `before` s before the moment `at` to `after` s after it:
     events at once, truth, states and telemetry at most one per `every` s each (a mode change at once)."""
-    decoders = {kind: msgspec.msgpack.Decoder(typ) for kind, typ in KINDS.items()}
     out: list[str] = []
     when: float | None = None
     last: dict[tuple[str, str], tuple[float, str]] = {}
-    for t, key, payload in read(path):
+    for t, kind, msg in decoded(path):
         when = moment(at, t) if when is None else when
         if t < when - before:
             continue
         if t > when + after:
             break
-        kind = kind_of(key)
-        try:
-            msg = decoders[kind].decode(payload)
-        except msgspec.DecodeError:
-            continue
         if msg.vid not in vehicles:
             continue
         mode = msg.mode if kind == "state" else ""

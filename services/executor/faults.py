@@ -139,17 +139,15 @@ class FaultMonitor:
         self._vbat_critical_since = _since(self._vbat_critical_since, critical, now)
 
     def low_battery(self, charge_used_ah: float, now: float) -> bool:
-        if charge_used_ah >= self.model.usable_ah:
-            return True
-        since = self._vbat_low_since
-        return since is not None and now - since >= self.params.vbat_low_s
+        return charge_used_ah >= self.model.usable_ah or self._long_enough(self._vbat_low_since, now)
 
     def reserve_spent(self, charge_used_ah: float, now: float) -> bool:
         """The battery's reserve is gone too: the charge used reaches the capacity, or the voltage
         stays under `vbat_critical` for `vbat_low_s`."""
-        if charge_used_ah >= self.model.capacity_ah:
-            return True
-        since = self._vbat_critical_since
+        return charge_used_ah >= self.model.capacity_ah or self._long_enough(self._vbat_critical_since, now)
+
+    def _long_enough(self, since: float | None, now: float) -> bool:
+        """A voltage condition has held since `since` (None: it does not) for `vbat_low_s`."""
         return since is not None and now - since >= self.params.vbat_low_s
 
     def link_lost(self, now: float) -> bool:
