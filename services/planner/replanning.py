@@ -90,17 +90,21 @@ def touched_by_segment(graph: FleetGraph, p0: tuple[float, float, float], p1: tu
         return ((np.hypot(d[..., 0], d[..., 1]) < reach) & (np.abs(d[..., 2]) < h + step + extra)).any(axis=-1)
 
     pos = np.asarray(graph.pos, dtype=float)
-    nodes = np.flatnonzero(touch(pos))
-    tail, head = pos[graph.edges[:, 0]], pos[graph.edges[:, 1]]
-    length = np.linalg.norm(head - tail, axis=1)
-    m = max(2, int(np.ceil(length.max(initial=0.0) / step)) + 1)
-    f = np.linspace(0.0, 1.0, m)
-    samples = tail[:, None, :] + f[None, :, None] * (head - tail)[:, None, :]  # (E, M, 3)
-    # only edges near the segment's bounding box are sampled finely
+    # only the nodes and edges near the segment's bounding box are looked at closely (every edge
+    # sampled, then most thrown away, made a 32-vehicle replan's 76 sweeps 0.47 of its 0.6 s)
     lo, hi = seg.min(axis=0) - reach - h, seg.max(axis=0) + reach + h
+    close = np.flatnonzero(((pos >= lo) & (pos <= hi)).all(axis=1))
+    nodes = close[touch(pos[close])]
+    tail, head = pos[graph.edges[:, 0]], pos[graph.edges[:, 1]]
     near = np.flatnonzero(((np.minimum(tail, head) <= hi) & (np.maximum(tail, head) >= lo)).all(axis=1))
-    edges = near[touch(samples[near]).any(axis=1)] if len(near) else near
-    return nodes, edges
+    if not len(near):
+        return nodes, near
+    length = np.linalg.norm(head - tail, axis=1)
+    m = max(2, int(np.ceil(length.max() / step)) + 1)
+    f = np.linspace(0.0, 1.0, m)
+    tail, head = tail[near], head[near]
+    samples = tail[:, None, :] + f[None, :, None] * (head - tail)[:, None, :]  # (near edges, M, 3)
+    return nodes, near[touch(samples).any(axis=1)]
 
 
 def rejoin_blocked(graph: FleetGraph, replan: Replan) -> tuple[str, str] | None:
