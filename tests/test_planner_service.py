@@ -1,9 +1,11 @@
 """The planner service over real zenoh: a plan request answered with a validated plan and the
-vehicles' plans published; bad requests answered with clear errors; an absent planner fails fast."""
+vehicles' plans published; bad requests answered with clear errors; an absent planner fails fast;
+a request planned only while its requester waits (`PlanRequest.reply_within`)."""
 
 from __future__ import annotations
 
 import asyncio
+import time
 
 import pytest
 
@@ -17,6 +19,10 @@ from services.planner.validate import validate_plan
 
 KEYS = Keys("ptest")
 TASKS = {"cf1": Task(start="WP1", goal="EP4"), "cf2": Task(start="EP1", goal="WP6")}
+EIGHT = {**TASKS, "cf3": Task(start="WP10", goal="EP8"), "cf4": Task(start="EP7", goal="WP9"),
+         "cf5": Task(start="WP7", goal="WP3"), "cf6": Task(start="EP2", goal="WP2"),
+         "cf7": Task(start="WP4", goal="EP5"), "cf8": Task(start="EP3", goal="WP5")}
+"""Eight vehicles on the town map: the ILP plans them until its time limit (5 s -> 5.05 s)."""
 
 
 async def _with_planner(endpoint: str, body):
@@ -25,7 +31,7 @@ async def _with_planner(endpoint: str, body):
     client = open_session(ZenohConfig.client(endpoint))
     try:
         await asyncio.sleep(0.3)
-        return await body(client)
+        return await body(client, svc)
     finally:
         svc.stop()
         assert await task == 0
@@ -34,7 +40,7 @@ async def _with_planner(endpoint: str, body):
 
 @pytest.mark.timeout(60)
 def test_plan_request_returns_a_valid_plan_and_publishes_vehicle_plans(zenoh_router: str) -> None:
-    async def body(client):
+    async def body(client, _svc):
         got: dict[str, VehiclePlan] = {}
         sub = subscribe(client, KEYS.all_vehicles("plan"), VehiclePlan, lambda p, _k: got.__setitem__(p.vid, p))
         await asyncio.sleep(0.2)
@@ -62,9 +68,10 @@ def test_plan_request_returns_a_valid_plan_and_publishes_vehicle_plans(zenoh_rou
     (PlanRequest(map="town", tasks={"cf1": Task(start="Wb0", goal="EP4")}), "tasks.cf1.start"),
     (PlanRequest(map="town", tasks=TASKS, planner="magic"), "unknown planner"),
     (PlanRequest(map="town", tasks=TASKS, mu=2.0), "mu"),
+    (PlanRequest(map="town", tasks=TASKS, reply_within=-1.0), "reply_within"),
 ])
 def test_bad_requests_get_clear_errors(zenoh_router: str, request_: PlanRequest, message: str) -> None:
-    async def body(client):
+    async def body(client, _svc):
         return await query(client, KEYS.planner_plan, request_, PlanReply, timeout=30)
 
     reply = asyncio.run(_with_planner(zenoh_router, body))
@@ -82,3 +89,36 @@ def test_no_planner_fails_fast(zenoh_router: str) -> None:
 
     with pytest.raises(QueryError):
         asyncio.run(body())
+
+
+@pytest.mark.timeout(60)
+def test_a_request_whose_requester_stopped_waiting_is_not_planned(zenoh_router: str) -> None:
+    """Plans are made one at a time: a request queued behind a long one until its `reply_within`
+    ran out is answered "expired" without planning (counted), while the one before it is planned."""
+    async def body(client, svc):
+        slow = PlanRequest(map="town", tasks=EIGHT, planner="ilp", time_limit=2.0)
+        first = asyncio.create_task(query(client, KEYS.planner_plan, slow, PlanReply, timeout=30))
+        await asyncio.sleep(0.5)
+        quick = PlanRequest(map="town", tasks=TASKS, planner="sipp", time_limit=20, reply_within=0.5)
+        second = await query(client, KEYS.planner_plan, quick, PlanReply, timeout=30)
+        return await first, second, svc.counters["plans_expired"], svc.counters["plans_ok"]
+
+    first, second, expired, planned = asyncio.run(_with_planner(zenoh_router, body))
+    assert first.ok and first.plan is not None
+    assert not second.ok and "expired" in second.error and second.plan is None
+    assert (expired, planned) == (1, 1)
+
+
+@pytest.mark.timeout(60)
+def test_a_request_is_planned_within_what_is_left_of_its_wait(zenoh_router: str) -> None:
+    """A time limit longer than the requester waits is cut to the wait: the ILP that plans eight
+    vehicles for its whole time limit answers within the 1.5 s its requester waits, not 30 s."""
+    async def body(client, _svc):
+        req = PlanRequest(map="town", tasks=EIGHT, planner="ilp", time_limit=30.0, reply_within=1.5)
+        start = time.monotonic()
+        reply = await query(client, KEYS.planner_plan, req, PlanReply, timeout=40)
+        return reply, time.monotonic() - start
+
+    reply, took = asyncio.run(_with_planner(zenoh_router, body))
+    assert reply.ok and reply.plan is not None and validate_plan(reply.plan).ok
+    assert took < 4.0, f"answered after {took:.1f} s"

@@ -379,7 +379,9 @@ class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Query payload of `planner/plan`. `map` is a shipped map name or a path readable by the planner.
     A team request (planner "collab") gives `team` and no `tasks`; `map` is a collab map. A `replan`
     request plans a running mission on (its `map` must be the base plan's; `planner` is the replanner:
-    sipp, or ilp for a plan the ILP made)."""
+    sipp, or ilp for a plan the ILP made). `reply_within`: how long (s) the requester waits for the
+    reply from sending it (0: as long as it takes); the planner drops a request that waited that
+    long behind others and plans one that waited part of it within what is left (`services/planner/service.py`)."""
 
     map: str
     tasks: dict[str, Task]
@@ -390,6 +392,7 @@ class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     seed: int = 0
     team: TeamTask | None = None
     replan: Replan | None = None
+    reply_within: float = 0.0
 
 
 class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -324,9 +324,11 @@ class AsyncFleet:
         return self._graphs[map]
 
     async def _ask_planner(self, request: PlanRequest, time_limit: float) -> PlanReply:
+        wait = time_limit + PLANNER_MARGIN_S
         try:
-            reply = await query(self.session, self.keys.planner_plan, request, PlanReply,
-                                timeout=time_limit + PLANNER_MARGIN_S, find_s=SERVICE_START_S)
+            reply = await query(self.session, self.keys.planner_plan,
+                                msgspec.structs.replace(request, reply_within=wait), PlanReply,
+                                timeout=wait, find_s=SERVICE_START_S)
         except QueryError as exc:
             raise PlanningError(f"the planner is unreachable or failed: {exc}") from None
         if not reply.ok:

@@ -31,6 +31,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
+import msgspec
+
 from common.bus.messages import MissionAbort, MissionStart, PlanReply, PlanRequest, VehicleEvent, VehicleState
 from common.bus.pubsub import SERVICE_START_S, QueryError, QueryTimeout, query
 from common.bus.service import Service
@@ -175,7 +177,8 @@ class MissionClient(Service, Generic[R]):
             return self.conclude(False, error)
         wait = self.planner_wait_s()
         try:
-            reply = await query(self.session, self.keys.planner_plan, self.plan_request(), PlanReply, timeout=wait,
+            request = msgspec.structs.replace(self.plan_request(), reply_within=wait)
+            reply = await query(self.session, self.keys.planner_plan, request, PlanReply, timeout=wait,
                                 find_s=SERVICE_START_S)
         except QueryTimeout:
             return self.conclude(False, f"the planner did not answer within {wait:.0f} s")

@@ -489,7 +489,7 @@ class MissionRunner(MissionClient[MissionResult]):
             at = time.time() - t0 + lead
             base, sweeps = self._with_rejoining(plan, rejoin, at)
             req = PlanRequest(map=self.spec.map, tasks={}, planner="sipp" if rejoin else self.spec.replanner,
-                              mu=self.spec.mu, time_limit=REPLAN_TIME_LIMIT_S,
+                              mu=self.spec.mu, time_limit=REPLAN_TIME_LIMIT_S, reply_within=lead,
                               replan=Replan(base=base, at=at, left=left, sweeps=sweeps, goals=goals, strand=True,
                                             rejoin=list(rejoin)))
             started = time.perf_counter()

@@ -52,6 +52,8 @@ def solve(req: PlanRequest) -> PlanReply:
         return PlanReply(ok=False, error=f"mu must be in [0, 1], got {req.mu}")
     if req.time_limit <= 0:
         return PlanReply(ok=False, error="time_limit must be positive")
+    if req.reply_within < 0:
+        return PlanReply(ok=False, error=f"reply_within must be 0 (no limit) or positive, got {req.reply_within}")
     if req.replan is not None:
         return solve_replan(req)
     solver: Solver = _load(PLANNERS[req.planner])

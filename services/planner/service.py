@@ -10,7 +10,9 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import time
 
+import msgspec
 import zenoh
 
 from common.bus.args import keys_from_args, run_service, zconfig_from_args
@@ -44,8 +46,27 @@ class PlannerService(Service):
         return await asyncio.to_thread(graph_of, req)
 
     async def handle(self, req: PlanRequest) -> PlanReply:
-        async with self._lock:  # one plan at a time: planning is CPU-bound
-            log.info("plan request: map %s, %d vehicles, %s, mu %.2f", req.map, len(req.tasks), req.planner, req.mu)
+        """One plan at a time (planning is CPU-bound), and only while its requester waits
+        (`PlanRequest.reply_within`): a request that waited that long behind others is answered
+        "expired" without planning, one that waited part of it is planned within what is left.
+        (On a loaded machine a mission's replans, each waited for a second or two, queued behind
+        ones their mission had given up on: a 32-vehicle soak's planner was working on requests
+        8 s old, a core's worth of CPU spent on answers nobody read.)"""
+        arrived = time.monotonic()
+        async with self._lock:
+            waited = time.monotonic() - arrived
+            if req.reply_within > 0.0:
+                left = req.reply_within - waited
+                if left <= 0.0:
+                    self.counters.inc("plans_expired")
+                    log.info("plan request expired: waited %.2f s behind other plans, its requester %.2f s",
+                             waited, req.reply_within)
+                    return PlanReply(ok=False, error=f"expired: waited {waited:.2f} s behind other plans "
+                                                     f"(the requester waits {req.reply_within:.2f} s)")
+                if left < req.time_limit:
+                    req = msgspec.structs.replace(req, time_limit=left)
+            log.info("plan request: map %s, %d vehicles, %s, mu %.2f, time limit %.2f s (waited %.2f s)",
+                     req.map, len(req.tasks), req.planner, req.mu, req.time_limit, waited)
             reply = await asyncio.to_thread(solve, req)
         self.counters.inc("plans_ok" if reply.ok else "plans_failed")
         if reply.ok and req.mission and reply.plan is not None and self._plans is not None:
