@@ -50,8 +50,8 @@ class PlannerService(Service):
         (`PlanRequest.reply_within`): a request that waited that long behind others is answered
         "expired" without planning, one that waited part of it is planned within what is left.
         (On a loaded machine a mission's replans, each waited for a second or two, queued behind
-        ones their mission had given up on: a 32-vehicle soak's planner was working on requests
-        8 s old, a core's worth of CPU spent on answers nobody read.)"""
+        ones their mission had given up on: in a 32-vehicle soak they waited up to 8 s, and the
+        planner spent its CPU on answers nobody read.)"""
         arrived = time.monotonic()
         async with self._lock:
             waited = time.monotonic() - arrived
