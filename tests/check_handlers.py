@@ -360,6 +360,18 @@ HANDLINGS: tuple[Handling, ...] = (
               "        if rel is not None and (state.held or mode == Mode.HOVERING):",
               "        if False and rel is not None and (state.held or mode == Mode.HOVERING):"),),
         "tests/test_takeover.py::test_a_held_vehicle_taken_over_stays_held_where_it_is[3.0-holding]"),
+    Handling(
+        "a request its requester gave up on is not planned",
+        "planner: every request planned for its whole time limit, however long it queued",
+        (Edit("services/planner/service.py", "            if req.reply_within > 0.0:",
+              "            if False and req.reply_within > 0.0:"),),
+        "tests/test_planner_service.py::test_a_request_whose_requester_stopped_waiting_is_not_planned"),
+    Handling(
+        "a request planned within what is left of its wait",
+        "planner: every request planned for its whole time limit, however long it queued",
+        (Edit("services/planner/service.py", "            if req.reply_within > 0.0:",
+              "            if False and req.reply_within > 0.0:"),),
+        "tests/test_planner_service.py::test_a_request_is_planned_within_what_is_left_of_its_wait"),
 )
 
 
