@@ -372,6 +372,12 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/planner/service.py", "            if req.reply_within > 0.0:",
               "            if False and req.reply_within > 0.0:"),),
         "tests/test_planner_service.py::test_a_request_is_planned_within_what_is_left_of_its_wait"),
+    Handling(
+        "a rejoining vehicle in contact named",
+        "planner: a replan that failed validation names no vehicle",
+        (Edit("services/planner/registry.py", "                     failed_vehicle=rejoining), later",
+              "                     failed_vehicle=\"\"), later"),),
+        "tests/test_rejoin.py::test_two_held_vehicles_within_reach_of_each_other_rejoin_one_named_refused"),
 )
 
 

@@ -15,7 +15,7 @@ import pytest
 from common.bus.keys import Keys
 from common.bus.messages import PlanRequest, Replan, Sweep, VehiclePlan
 from common.bus.session import ZenohConfig
-from common.domain.planfile import Plan
+from common.domain.planfile import PathEntry, Plan, Task
 from common.flight.modes import Mode
 from services.executor.vehicle_controller import VehicleController
 from services.mission.rejoin import Candidate, progress_at, shifted_path
@@ -92,6 +92,29 @@ def test_a_vehicle_does_not_rejoin_through_a_body_that_left() -> None:
     reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, replan=blocked))
     assert not reply.ok and reply.failed_vehicle == "cf3", reply
     assert "cf3 cannot rejoin yet: its way to" in reply.error and "cf9" in reply.error, reply.error
+
+
+def test_two_held_vehicles_within_reach_of_each_other_rejoin_one_named_refused() -> None:
+    """Two held vehicles that stand within reach of each other (stopped short of one another)
+    cannot both come back: the planner finds them in contact and names one of them, so that the
+    mission leaves it out and brings the others back (named by no one, no vehicle came back: the
+    mission retried them all, a 32-vehicle soak's planner spending a second a try)."""
+    base = plan_of()
+    t = drive_time(base, "cf3")
+    path = base.paths["cf3"]
+    a, b = next((a, b) for a, b in zip(path, path[1:], strict=False) if a.t < t < b.t)
+    head_on = [PathEntry(node=b.node, t=a.t), PathEntry(node=a.node, t=b.t)]  # cf5 meets it mid-edge
+    both = msgspec.structs.replace(base, paths={**base.paths, "cf5": head_on},
+                                   tasks={**base.tasks, "cf5": Task(start=b.node, goal=TASKS["cf3"].start)})
+    assert math.dist(both.position("cf3", t), both.position("cf5", t)) < 1e-6
+    others, _ = held_plan(base, "cf3", t)
+    at = t + 6.0
+    back = msgspec.structs.replace(others, paths={**others.paths, "cf3": shifted_path(path, t, at),
+                                                  "cf5": shifted_path(head_on, t, at)},
+                                   tasks={**others.tasks, "cf3": base.tasks["cf3"], "cf5": both.tasks["cf5"]})
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=2, replan=Replan(base=back, at=at, rejoin=["cf3", "cf5"])))
+    assert not reply.ok and "contact: cf3 and cf5" in reply.error, reply.error
+    assert reply.failed_vehicle in ("cf3", "cf5")
 
 
 def stopped_short(flying: bool = False) -> tuple[VehicleController, SimFlyingCar, float]:

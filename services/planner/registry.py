@@ -140,7 +140,11 @@ def _replan_with(graph: FleetGraph, req: PlanRequest, planner: str, time_limit: 
         return PlanReply(ok=True, plan=msgspec.structs.replace(plan, cost=report.cost), planner=planner), None
     rank = {vid: i for i, vid in enumerate(result.priority)}
     later = next((max(c.a, c.b, key=lambda v: rank[v]) for c in report.contacts if c.a in rank and c.b in rank), None)
-    return PlanReply(ok=False, error="replan failed validation: " + "; ".join(report.errors[:5])), later
+    # a rejoining vehicle in contact is named: its mission leaves it out and brings the others back
+    # (named by no one, none came back: two held vehicles stood within reach of each other)
+    rejoining = next((v for c in report.contacts for v in (c.a, c.b) if v in rp.rejoin), "")
+    return PlanReply(ok=False, error="replan failed validation: " + "; ".join(report.errors[:5]),
+                     failed_vehicle=rejoining), later
 
 
 def solve_on_graph(req: PlanRequest) -> PlanReply:
