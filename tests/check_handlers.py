@@ -378,6 +378,14 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/planner/registry.py", "                     failed_vehicle=rejoining), later",
               "                     failed_vehicle=\"\"), later"),),
         "tests/test_rejoin.py::test_two_held_vehicles_within_reach_of_each_other_rejoin_one_named_refused"),
+    Handling(
+        "every vehicle that cannot rejoin yet named at once",
+        "planner: the first vehicle that cannot rejoin yet named, the others found one request later",
+        (Edit("services/planner/replanning.py",
+              "                blocked[vid] = f\"its way to {b.node!r} crosses where {sweep.vid} may be\"\n                break",
+              "                blocked[vid] = f\"its way to {b.node!r} crosses where {sweep.vid} may be\"\n"
+              "                return blocked"),),
+        "tests/test_rejoin.py::test_every_vehicle_that_cannot_rejoin_yet_is_named_at_once"),
 )
 
 

@@ -94,6 +94,26 @@ def test_a_vehicle_does_not_rejoin_through_a_body_that_left() -> None:
     assert "cf3 cannot rejoin yet: its way to" in reply.error and "cf9" in reply.error, reply.error
 
 
+def test_every_vehicle_that_cannot_rejoin_yet_is_named_at_once() -> None:
+    """Two vehicles that rejoin, a body resting on the way of each: the planner names both (its
+    mission then brings the others back in one more request, not one per vehicle refused)."""
+    base = plan_of()
+    t = drive_time(base, "cf3")
+    others, _ = held_plan(base, "cf3", t)
+    at = t + 6.0
+    back = msgspec.structs.replace(others, paths={**others.paths, "cf3": shifted_path(base.paths["cf3"], t, at)},
+                                   tasks={**others.tasks, "cf3": base.tasks["cf3"]})
+    mover = next(v for v, path in back.paths.items() if v != "cf3" and path[0].t < at < path[-1].t)
+    on_its_way = back.position(mover, at)
+    ahead = base.position("cf3", t + 1.0)
+    sweeps = [Sweep("cf9", ahead, ahead, t, t, rest=True), Sweep("cf8", on_its_way, on_its_way, t, t, rest=True)]
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10,
+                              replan=Replan(base=back, at=at, rejoin=["cf3", mover], sweeps=sweeps)))
+    assert not reply.ok and reply.failed_vehicle == "cf3", reply
+    assert set(reply.refused) == {"cf3", mover}, reply.refused
+    assert "cf9" in reply.refused["cf3"] and "cf8" in reply.refused[mover]
+
+
 def test_two_held_vehicles_within_reach_of_each_other_rejoin_one_named_refused() -> None:
     """Two held vehicles that stand within reach of each other (stopped short of one another)
     cannot both come back: the planner finds them in contact and names one of them, so that the

@@ -397,7 +397,9 @@ class PlanRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """`planner`: which planner made the plan (a replan's: the ILP, or SIPP after it found none);
-    `failed_vehicle`: without a plan, the vehicle prioritized planning could not place, if one."""
+    `failed_vehicle`: without a plan, the vehicle prioritized planning could not place, if one;
+    `refused`: the vehicles of `Replan.rejoin` that cannot come back yet, each with why (every
+    one of them: `failed_vehicle` is the first)."""
 
     ok: bool
     error: str = ""
@@ -405,6 +407,7 @@ class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     plan: Plan | None = None
     team_plan: TeamPlan | None = None
     planner: str = ""
+    refused: dict[str, str] = {}
 
 
 class GraphRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

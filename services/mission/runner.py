@@ -219,6 +219,8 @@ class MissionRunner(MissionClient[MissionResult]):
         """Fault replans that a later one queued behind them made unnecessary."""
         self._blocked = ""
         """The vehicle the last replan could not place."""
+        self._refused: dict[str, str] = {}
+        """The held vehicles the last replan could not bring back yet, and why (`PlanReply.refused`)."""
         self._abort_pub: Publisher | None = None
         self.stranded: dict[str, str] = {}
         """Vehicles a replan gave a goal short of theirs (`Replan.strand`) -> which goal it was."""
@@ -338,10 +340,10 @@ class MissionRunner(MissionClient[MissionResult]):
             self._replanning = asyncio.get_running_loop().create_task(self._bring_back(due))
 
     async def _bring_back(self, vids: list[str]) -> None:
-        """Bring the held vehicles `vids` back into the plan (`rejoin.py`); one the planner names as
-        not able to yet is left out and the others are tried again, unless another fault's replan
-        is waiting (it goes first) or the planner named none (its time ran out, the plan failed
-        validation: the next try)."""
+        """Bring the held vehicles `vids` back into the plan (`rejoin.py`); those the planner names
+        as not able to yet (`PlanReply.refused`, or the one it could not place) are left out and
+        the others are tried again, unless another fault's replan is waiting (it goes first) or the
+        planner named none (its time ran out: the next try)."""
         faults = self._fault_replans
         while (vids := [v for v in vids if v in self._rejoin]) and self.plan is not None and self.t0 is not None:
             answer = await self._ask_replan(self.plan, self.t0, [], {}, rejoin=vids)
@@ -351,12 +353,14 @@ class MissionRunner(MissionClient[MissionResult]):
                 continue  # one left for good meanwhile (an emergency landing): the others again
             if isinstance(answer, str):
                 vid, self._blocked = self._blocked, ""
-                for v in vids if vid not in vids else [vid]:
+                refused, self._refused = self._refused or {vid: answer}, {}
+                out = [v for v in vids if v in refused]
+                for v in out or vids:
                     if self._rejoin[v].tries == 1:
-                        self.events.append(f"{v} not back yet: {answer}")
-                if vid not in vids:
+                        self.events.append(f"{v} not back yet: {refused.get(v, answer)}")
+                if not out:
                     return
-                vids.remove(vid)
+                vids = [v for v in vids if v not in out]
                 continue
             reply, at, took = answer
             if (error := self._apply_replan(reply, at, took, [], {}, back=vids)) is not None:
@@ -504,7 +508,7 @@ class MissionRunner(MissionClient[MissionResult]):
                 return "the mission ended"
             took = time.perf_counter() - started
             if not reply.ok or reply.plan is None:
-                self._blocked = reply.failed_vehicle
+                self._blocked, self._refused = reply.failed_vehicle, dict(reply.refused)
                 return f"replanning failed: {reply.error}"
             if time.time() - t0 <= at:
                 return reply, at, took

@@ -17,7 +17,7 @@ from common.domain.planfile import Plan, Task
 from common.errors import InputError
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.maps.loading import GraphProblem, load_graph, problem_from_request
-from services.planner.replanning import rejoin_blocked
+from services.planner.replanning import rejoins_blocked
 from services.planner.result import PlanResult, to_plan
 
 log = logging.getLogger(__name__)
@@ -93,8 +93,9 @@ def solve_replan(req: PlanRequest) -> PlanReply:
         return PlanReply(ok=False, error=f"replan: {', '.join(unknown)} not in the plan")
     if rp.rejoin and req.planner != "sipp":
         return PlanReply(ok=False, error="replan: vehicles rejoin with sipp (their paths are shifted off the ILP's time steps)")
-    if (blocked := rejoin_blocked(graph, rp)) is not None:
-        return PlanReply(ok=False, error=f"replan: {blocked[0]} cannot rejoin yet: {blocked[1]}", failed_vehicle=blocked[0])
+    if blocked := rejoins_blocked(graph, rp):
+        return PlanReply(ok=False, error="; ".join(f"replan: {vid} cannot rejoin yet: {why}" for vid, why in blocked.items()),
+                         failed_vehicle=next(iter(blocked)), refused=blocked)
     missing = sorted(g for g in rp.goals.values() if g not in graph.index)
     if missing:
         return PlanReply(ok=False, error=f"replan: no node {', '.join(map(repr, missing))} on map {base.map!r}")

@@ -107,13 +107,16 @@ def touched_by_segment(graph: FleetGraph, p0: tuple[float, float, float], p1: tu
     return nodes, near[touch(samples).any(axis=1)]
 
 
-def rejoin_blocked(graph: FleetGraph, replan: Replan) -> tuple[str, str] | None:
-    """A vehicle that rejoins (`Replan.rejoin`) whose way from where it stands to its switch node
-    (the last step of its prefix, over [at, its arrival there]) a body that left could touch then
-    (`touched_by_segment`: the whole edge, conservatively), and whose body; None when
+def rejoins_blocked(graph: FleetGraph, replan: Replan) -> dict[str, str]:
+    """The vehicles that rejoin (`Replan.rejoin`) whose way from where each stands to its switch
+    node (the last step of its prefix, over [at, its arrival there]) a body that left could touch
+    then (`touched_by_segment`: the whole edge, conservatively), each with whose body; empty when
     every rejoining vehicle's way is clear. (The prefix is flown unchanged: the planner cannot
-    route it around a body, and the validator knows only paths, not the bodies that left.)"""
+    route it around a body, and the validator knows only paths, not the bodies that left.) All of
+    them at once: a mission brings the others back in one more request, not one per vehicle
+    refused (a 32-vehicle soak's burst of holds asked 14 times in a row)."""
     at = replan.at
+    blocked: dict[str, str] = {}
     for vid in replan.rejoin:
         path = replan.base.paths[vid]
         k = next((i for i, e in enumerate(path) if e.t >= at), None)
@@ -126,8 +129,9 @@ def rejoin_blocked(graph: FleetGraph, replan: Replan) -> tuple[str, str] | None:
                 continue
             nodes, edges = touched_by_segment(graph, sweep.p0, sweep.p1, sweep.reach)
             if (u == v and v in nodes) or (u != v and graph.edge_index[(u, v)] in edges):
-                return vid, f"its way to {b.node!r} crosses where {sweep.vid} may be"
-    return None
+                blocked[vid] = f"its way to {b.node!r} crosses where {sweep.vid} may be"
+                break
+    return blocked
 
 
 def failed(vid: str, reason: str, t0: float) -> PlanResult:
