@@ -46,6 +46,7 @@ from services.mission.demo import local_fleet
 from services.mission.runner import MissionResult, MissionRunner, MissionSpec
 from services.planner.graph.fleet_graph import FleetGraph
 from services.planner.maps.loading import load_graph
+from services.planner.service import RECENT as RECENT_PLANS
 
 MAP = "city934"
 SERVICES = ("executor", "gateway", "sim", "mocap", "planner")
@@ -281,6 +282,11 @@ def report(log: SoakLog, seconds: float) -> str:
                      f"{f.get('radio_lost', 0):.0f} congested {f.get('radio_congested', 0):.0f}")
         elif st.service == "mocap":
             extra = f"poses {f.get('poses', 0):.0f}, late frames dropped {f.get('late_frames', 0):.0f}"
+        elif st.service == "planner":
+            extra = (f"plans ok {st.counters.get('plans_ok', 0)}, failed {st.counters.get('plans_failed', 0)}, "
+                     f"expired {st.counters.get('plans_expired', 0)}; waited p50/max "
+                     f"{f.get('waited_p50_ms', 0):.0f}/{f.get('waited_max_ms', 0):.0f} ms, planned p50/max "
+                     f"{f.get('planned_p50_ms', 0):.0f}/{f.get('planned_max_ms', 0):.0f} ms (latest {RECENT_PLANS})")
         elif st.service == "gateway":
             extra = (f"refused {sum(v for k, v in st.counters.items() if k.startswith('refused:'))}, "
                      f"radio_behind {st.counters.get('radio_behind', 0)}, pose->radio p50/p99 "

@@ -10,7 +10,7 @@ import time
 import pytest
 
 from common.bus.keys import Keys
-from common.bus.messages import PlanReply, PlanRequest, VehiclePlan
+from common.bus.messages import PlanReply, PlanRequest, ServiceStats, VehiclePlan
 from common.bus.pubsub import QueryError, query, subscribe
 from common.bus.session import ZenohConfig, open_session
 from common.domain.planfile import Task
@@ -94,19 +94,30 @@ def test_no_planner_fails_fast(zenoh_router: str) -> None:
 @pytest.mark.timeout(60)
 def test_a_request_whose_requester_stopped_waiting_is_not_planned(zenoh_router: str) -> None:
     """Plans are made one at a time: a request queued behind a long one until its `reply_within`
-    ran out is answered "expired" without planning (counted), while the one before it is planned."""
-    async def body(client, svc):
+    ran out is answered "expired" without planning (counted), while the one before it is planned;
+    the planner's stats on the bus say so, and how long the expired one waited."""
+    async def body(client, _svc):
+        stats: list[ServiceStats] = []
+        sub = subscribe(client, KEYS.all_stats("planner"), ServiceStats, lambda m, _k: stats.append(m))
         slow = PlanRequest(map="town", tasks=EIGHT, planner="ilp", time_limit=2.0)
         first = asyncio.create_task(query(client, KEYS.planner_plan, slow, PlanReply, timeout=30))
         await asyncio.sleep(0.5)
         quick = PlanRequest(map="town", tasks=TASKS, planner="sipp", time_limit=20, reply_within=0.5)
         second = await query(client, KEYS.planner_plan, quick, PlanReply, timeout=30)
-        return await first, second, svc.counters.get("plans_expired", 0), svc.counters.get("plans_ok", 0)
+        answered = time.time()
+        for _ in range(60):
+            if stats and stats[-1].t > answered:
+                break
+            await asyncio.sleep(0.1)
+        sub.close()
+        return await first, second, stats[-1]
 
-    first, second, expired, planned = asyncio.run(_with_planner(zenoh_router, body))
+    first, second, stats = asyncio.run(_with_planner(zenoh_router, body))
     assert first.ok and first.plan is not None
     assert not second.ok and "expired" in second.error and second.plan is None
-    assert (expired, planned) == (1, 1)
+    assert (stats.counters.get("plans_expired"), stats.counters.get("plans_ok")) == (1, 1)
+    assert stats.figures["waited_max_ms"] > 1000.0  # behind the ILP's 2 s, asked 0.5 s into it
+    assert stats.figures["planned_max_ms"] > 1900.0
 
 
 @pytest.mark.timeout(60)

@@ -11,6 +11,7 @@ import argparse
 import asyncio
 import logging
 import time
+from collections import deque
 
 import msgspec
 import zenoh
@@ -18,17 +19,23 @@ import zenoh
 from common.bus.args import keys_from_args, run_service, zconfig_from_args
 from common.bus.messages import GraphReply, GraphRequest, PlanReply, PlanRequest, VehiclePlan, VehicleTeamPlan
 from common.bus.service import KeyedPublishers, Service
+from common.bus.stats import percentile_figures, publish_stats
 from common.bus.vehicle_plans import robot_plans, vehicle_plans
 from common.errors import InputError
 from services.planner.registry import solve
 
 log = logging.getLogger(__name__)
 
+RECENT = 100
+"""Requests the planner's figures are taken over (the latest)."""
+
 
 class PlannerService(Service):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self._lock = asyncio.Lock()
+        self._waited: deque[float] = deque(maxlen=RECENT)
+        self._planned: deque[float] = deque(maxlen=RECENT)
         self._plans: KeyedPublishers[VehiclePlan] | None = None
         self._team_plans: KeyedPublishers[VehicleTeamPlan] | None = None
 
@@ -39,7 +46,15 @@ class PlannerService(Service):
                                            congestion_control=block)
         self.serve(self.keys.planner_plan, PlanRequest, PlanReply, self.handle)
         self.serve(self.keys.planner_graph, GraphRequest, GraphReply, self.graph)
+        self.spawn(publish_stats(self, self._figures), name="stats")
         await self.stopped()
+
+    def _figures(self) -> dict[str, float]:
+        """How long the recent requests waited for the planner and how long it planned them
+        (`stats/planner/<instance>`: the soak's table)."""
+        return {**percentile_figures("waited", self._waited), **percentile_figures("planned", self._planned),
+                "waited_max_ms": 1e3 * max(self._waited, default=0.0),
+                "planned_max_ms": 1e3 * max(self._planned, default=0.0)}
 
     async def graph(self, req: GraphRequest) -> GraphReply:
         """The graph of a map, as the plan file carries it (the recorder draws it)."""
@@ -55,6 +70,7 @@ class PlannerService(Service):
         arrived = time.monotonic()
         async with self._lock:
             waited = time.monotonic() - arrived
+            self._waited.append(waited)
             if req.reply_within > 0.0:
                 left = req.reply_within - waited
                 if left <= 0.0:
@@ -67,7 +83,9 @@ class PlannerService(Service):
                     req = msgspec.structs.replace(req, time_limit=left)
             log.info("plan request: map %s, %d vehicles, %s, mu %.2f, time limit %.2f s (waited %.2f s)",
                      req.map, len(req.tasks), req.planner, req.mu, req.time_limit, waited)
+            started = time.monotonic()
             reply = await asyncio.to_thread(solve, req)
+            self._planned.append(time.monotonic() - started)
         self.counters.inc("plans_ok" if reply.ok else "plans_failed")
         if reply.ok and req.mission and reply.plan is not None and self._plans is not None:
             self._plans.put_all(vehicle_plans(reply.plan, req.mission))
