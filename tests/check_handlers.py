@@ -386,6 +386,15 @@ HANDLINGS: tuple[Handling, ...] = (
               "                blocked[vid] = f\"its way to {b.node!r} crosses where {sweep.vid} may be\"\n"
               "                return blocked"),),
         "tests/test_rejoin.py::test_every_vehicle_that_cannot_rejoin_yet_is_named_at_once"),
+    Handling(
+        "a packet read late takes effect at its delivery time",
+        "simulator: a packet waits outside the queue until its own delivery runs (an advance past it misses it)",
+        (Edit("services/sim/crazyflie/endpoint.py",
+              "            heapq.heappush(self._pending, (due, next(self._order), data, addr))\n"
+              "            asyncio.get_running_loop().call_later(max(due - self.clock(), 0.0), self.advance, due)\n",
+              "            asyncio.get_running_loop().call_later(max(due - self.clock(), 0.0), lambda: (heapq.heappush("
+              "self._pending, (due, next(self._order), data, addr)), self.advance(due)))\n"),),
+        "tests/test_simcf.py::test_a_packet_read_late_takes_effect_at_its_delivery_time"),
 )
 
 

@@ -41,6 +41,36 @@ def test_what_cflib_waits_for_is_reliable_and_streams_are_not() -> None:
     assert not reliable(crtp.encode_wheels(0.1, 0.1)) and not reliable(bytes((0xFC, 0)))  # app channel, pings
 
 
+def test_a_packet_read_late_takes_effect_at_its_delivery_time() -> None:
+    """A simulator starved for a while advances its vehicles to the wall clock before it gets to
+    the packets that reached them meanwhile: each still takes effect at its delivery time, not when
+    the simulator got to it (here a stop's: the vehicle used to drive on for the whole stall)."""
+    async def main() -> tuple[float, float]:
+        clock = [1000.0]
+        cf = SimCrazyflie(SimFlyingCar("v1", t=clock[0]), SimRadio("r", LinkModel(loss=0.0)), clock=lambda: clock[0])
+        addr = ("127.0.0.1", 9)
+
+        def to(t: float) -> None:
+            clock[0] = t
+            cf.advance(t)
+
+        while not cf.firmware.running:  # boots
+            to(clock[0] + 0.01)
+        for _ in range(100):  # drives for a second, each command delivered in its turn (2 ms of radio)
+            cf.datagram_received(crtp.encode_wheels(0.1, 0.1), addr, clock[0])
+            await asyncio.sleep(0.003)
+            to(clock[0] + 0.01)
+        assert cf.car.wheel_left > 0.09
+        cf.datagram_received(crtp.encode_wheels(0.0, 0.0), addr, clock[0])  # the stop reaches the vehicle
+        x_stop = cf.car.x
+        to(clock[0] + 0.5)  # ... while the simulator's loop is starved: it next advances to the wall clock
+        await asyncio.sleep(0.003)  # then the delivery it had scheduled
+        return x_stop, cf.car.x
+
+    x_stop, x_end = asyncio.run(main())
+    assert x_end - x_stop < 0.01, f"drove on {100 * (x_end - x_stop):.1f} cm after its stop arrived"
+
+
 async def _vehicle(loss: float = 0.0) -> tuple[SimCrazyflie, int]:
     port = free_udp_ports(1)[0]
     cf = SimCrazyflie(SimFlyingCar("v1", t=time.time()), SimRadio("r", LinkModel(loss=loss)))
