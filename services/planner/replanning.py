@@ -114,7 +114,7 @@ def rejoins_blocked(graph: FleetGraph, replan: Replan) -> dict[str, str]:
     every rejoining vehicle's way is clear. (The prefix is flown unchanged: the planner cannot
     route it around a body, and the validator knows only paths, not the bodies that left.) All of
     them at once: a mission brings the others back in one more request, not one per vehicle
-    refused (a 32-vehicle soak's burst of holds asked 14 times in a row)."""
+    refused (13 of one 32-vehicle soak's 23 requests to its planner were such refusals)."""
     at = replan.at
     blocked: dict[str, str] = {}
     for vid in replan.rejoin:
