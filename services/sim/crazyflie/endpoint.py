@@ -18,8 +18,9 @@ firmware's periodic work at each 10 ms boundary; a setpoint takes effect at the 
 Packets wait in time order for their delivery time, and an advance past it delivers them on the
 way, each at its own time: a simulator whose loop was starved advances every vehicle to the wall
 clock as soon as it runs again, before the deliveries it scheduled get their turn, and a setpoint
-used to take effect only then, late by the stall (a proximity stop's, in a loaded 32-vehicle soak:
-the driver rolled on 0.35 s, 6 cm, into the vehicle it had stopped 4 cm short of).
+used to take effect only then, late by the stall (looked for after a loaded 32-vehicle soak in which
+a driver rolled on 0.35 s, 6 cm, after its proximity stop, into the vehicle it had stopped 4 cm
+short of: how much of that this was, the soak cannot tell).
 
 Every datagram waiting at the vehicle's socket is read as soon as the event loop looks, each with the
 time the kernel received it (Linux `SO_TIMESTAMPNS`), which the link model and the physics use. (The
