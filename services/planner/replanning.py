@@ -117,6 +117,7 @@ def rejoins_blocked(graph: FleetGraph, replan: Replan) -> dict[str, str]:
     refused (13 of one 32-vehicle soak's 23 requests to its planner were such refusals)."""
     at = replan.at
     blocked: dict[str, str] = {}
+    touched: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # per sweep, found once for every vehicle
     for vid in replan.rejoin:
         path = replan.base.paths[vid]
         k = next((i for i, e in enumerate(path) if e.t >= at), None)
@@ -124,10 +125,12 @@ def rejoins_blocked(graph: FleetGraph, replan: Replan) -> dict[str, str]:
             continue  # at rest at the end of its path: planned from there
         a, b = path[max(k - 1, 0)], path[k]
         u, v = graph.index[a.node], graph.index[b.node]
-        for sweep in replan.sweeps:
+        for w, sweep in enumerate(replan.sweeps):
             if sweep.vid == vid or sweep.t0 > b.t or (not sweep.rest and sweep.t1 < at):
                 continue
-            nodes, edges = touched_by_segment(graph, sweep.p0, sweep.p1, sweep.reach)
+            if w not in touched:
+                touched[w] = touched_by_segment(graph, sweep.p0, sweep.p1, sweep.reach)
+            nodes, edges = touched[w]
             if (u == v and v in nodes) or (u != v and graph.edge_index[(u, v)] in edges):
                 blocked[vid] = f"its way to {b.node!r} crosses where {sweep.vid} may be"
                 break
