@@ -8,7 +8,7 @@ Layout: ``fleet/<fleet>/...``
 - ``gateway/<instance>/cmd`` (an executor's command batch for one gateway's vehicles, `CmdBatch`)
 - ``planner/plan`` (queryable); ``planner/graph`` (queryable: a map's graph, for tools and the recorder)
 - ``estop`` (the operator's emergency stop)
-- ``mission/<id>/{start,abort,status}``; ``mission/<id>/add`` (queryable: a running mission's new goals)
+- ``mission/<id>/{start,abort,status,delay}``; ``mission/<id>/add`` (queryable: a running mission's new goals)
 - ``sim/truth/<vid>``; ``sim/mocap`` (the simulated motion-capture system's frames); ``sim/fault/<vid>``
   (fault injection, simulators only: docs/reliability.md)
 - ``alive/<service>/<instance>`` (liveliness tokens)
@@ -23,7 +23,7 @@ from typing import Literal, get_args
 
 VehicleTopic = Literal["pose", "state", "cmd", "telemetry", "plan", "event", "team_plan", "action", "action_status"]
 VEHICLE_TOPICS: tuple[VehicleTopic, ...] = get_args(VehicleTopic)
-MissionTopic = Literal["start", "abort", "status", "add"]
+MissionTopic = Literal["start", "abort", "status", "add", "delay"]
 
 DEFAULT_FLEET = "default"
 _CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")

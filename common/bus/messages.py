@@ -187,6 +187,9 @@ class VehicleState(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     held); `rejoinable`: held for another's sake, the mission may bring it back. An executor that
     takes the vehicle over keeps the hold (the mission planned the others around it)."""
     rejoinable: bool = False
+    delay: float = 0.0
+    """How far its mission's plan clock stands behind the wall clock (s; `PlanDelay`): the plan's
+    time is `t - t0 - delay`."""
 
 
 class Telemetry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -476,6 +479,19 @@ class MissionStart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     mission: str
     t0: float
     vehicles: list[str]
+
+
+class PlanDelay(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """`mission/<id>/delay`: how far the mission's plan clock stands behind the wall clock as
+    executor `source` keeps it (`delay`, s, at wall time `t`), and the pace (0-1) its vehicles let
+    it run at now (`common/flight/plan_clock.py`). Sent every control cycle while the pace is
+    below 1, once when it is back to 1, and every second while the delay is not 0."""
+
+    mission: str
+    source: str
+    delay: float
+    pace: float
+    t: float
 
 
 class TaskAdd(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -629,6 +629,7 @@ class AsyncFleet:
                 raise MissionFailed(mission.id, f"{vid} did not reach {node}: {result.reason}", result)
             t0, s = mission._t0, self._states.get(vid)
             if t0 is not None:
+                t0 += mission._delay  # (the plan's clock waited for vehicles behind their plans)
                 now = time.time()
                 if (now >= t0 + arrival_s and s is not None and s.mission == mission.id and s.mode == "flying"
                         and math.dist((s.x, s.y, s.z), pos) < HOVER_M):

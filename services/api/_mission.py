@@ -41,6 +41,7 @@ class Mission:
         self._notes: list[str] = []
         self._output: list[str] = []
         self._t0: float | None = None
+        self._delay = 0.0  # how far its plan's clock stands behind the wall clock (`VehicleState.delay`)
         self._started = time.time()
         self._result: MissionResult | None = None
         self._proc: asyncio.subprocess.Process | None = None
@@ -136,6 +137,7 @@ class Mission:
         if self._result is not None:  # over: kept only for `abort`'s wait until every vehicle rests
             return
         noted = self._outcome[state.vid]
+        self._delay = max(self._delay, state.delay)
         if self._t0 is not None:
             noted["max_err"] = max(noted["max_err"], state.tracking_error)
         fields = {"vid": state.vid, "mode": state.mode, "step": state.step, "steps": state.steps}

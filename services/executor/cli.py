@@ -14,5 +14,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-tracking-guard", dest="tracking_guard", action="store_false",
                    help="do not hold vehicles whose tracking leaves the plan's margin (rehearsals and tests only: "
                         "without the guard a slow control loop can bring bodies into contact)")
+    p.add_argument("--no-plan-clock", dest="plan_clock", action="store_false",
+                   help="run plans on the wall clock: the plan's clock does not wait for vehicles behind their "
+                        "plans (comparisons only: a late vehicle then meets the others on time)")
     add_zenoh_args(p, default_instance="executor")
     p.set_defaults(handler=lazy_handler("services.executor.service:cmd_executor"))

@@ -7,13 +7,17 @@ to the others as soon as its token disappears (under 1 s), and the gateways obey
 vehicle taken over mid-mission resumes from the last state its previous owner published.
 
 Inputs: `vehicle/*/plan`, `mocap/frame` (every vehicle's pose of one motion-capture frame),
-`vehicle/*/telemetry`, `vehicle/*/state` (for take-over), `mission/*/start`, `mission/*/abort`.
+`vehicle/*/telemetry`, `vehicle/*/state` (for take-over), `mission/*/start`, `mission/*/abort`,
+`mission/*/delay` (the other executors' plan clocks).
 
 The control cycle is triggered by a frame's arrival (DESIGN.md, "Hot path"): it fuses the frame's
 poses of the owned vehicles, holds each owned vehicle that heads into another body the frames show
 (the proximity stop, `proximity.py`), ticks every controller and sends the commands as one `CmdBatch` per
 gateway (`gateway/<instance>/cmd`; a vehicle's gateway is the one its telemetry comes from,
-`vehicle/<vid>/cmd` until that is known). Without frames (motion capture lost) a cycle runs every
+`vehicle/<vid>/cmd` until that is known). Each mission's plan runs on a clock that waits for the
+vehicles that lag their references (`common/flight/plan_clock.py`): before the ticks, every running
+mission's clock moves on at the pace its vehicles here allow, and one that waits is told to the
+other executors (`mission/<id>/delay`). Without frames (motion capture lost) a cycle runs every
 `FRAME_WAIT` periods anyway, so that stale poses are noticed and fault landings are flown. Outputs
 for owned vehicles besides the commands: `vehicle/<vid>/state` at the state rate,
 `vehicle/<vid>/event` on faults (team plans of ground-air teams, paper 002:
@@ -47,6 +51,7 @@ from common.bus.messages import (
     FramePose,
     MissionAbort,
     MissionStart,
+    PlanDelay,
     Pose,
     PoseFrame,
     Telemetry,
@@ -59,6 +64,7 @@ from common.bus.service import Service
 from common.bus.stats import percentile_figures, publish_stats
 from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
 from common.flight.modes import Mode
+from common.flight.plan_clock import ClockParams, PlanClock
 from services.executor.faults import STRAIGHT_DOWN, FaultParams
 from services.executor.proximity import Bodies, ProximityParams
 from services.executor.takeover import VehicleOwnership
@@ -76,6 +82,8 @@ TAKEOVER_GRACE_S = 0.1
 """A change of the live executors is applied this much later: a router shutting down drops its
 clients one by one, so a peer's token may vanish a few ms before this process loses the router
 too. Well inside the gateways' 0.2 s before a silent vehicle's command is stale."""
+DELAY_EVERY_S = 1.0
+"""s between two `PlanDelay`s of a mission whose clock stands behind while no vehicle here slows it."""
 ROUTER_CHECK_TICKS = 10
 """Control ticks between two looks at the router link (a look costs about a microsecond)."""
 BODIES_FRESH_S = 2.0
@@ -174,6 +182,9 @@ class ExecutorService(Service):
         self._router_lost_at: float | None = None
         self._router_back_at: float | None = None
         self._failed: set[tuple[str, str]] = set()  # (vid, mission) whose controller raised
+        self.clocks: dict[str, PlanClock] = {}
+        """Each mission's plan clock as this executor keeps it (`common/flight/plan_clock.py`)."""
+        self._delay_sent: dict[str, tuple[float, float]] = {}  # mission -> (when, pace) of the last `PlanDelay`
 
     # ---- wiring ---------------------------------------------------------------------------------
     async def main(self) -> None:
@@ -185,6 +196,8 @@ class ExecutorService(Service):
         self.subscribe(k.all_vehicles("event"), VehicleEvent, self._on_event, maxlen=1024)
         self.subscribe(k.all_missions("start"), MissionStart, self._on_start)
         self.subscribe(k.all_missions("abort"), MissionAbort, self._on_abort)
+        self.subscribe(k.all_missions("delay"), PlanDelay, self._on_delay, maxlen=1024)
+        self._delay = self.publishers(lambda mission: k.mission(mission, "delay"), PlanDelay)
         self._cmd = self.publishers(lambda vid: k.vehicle(vid, "cmd"), Cmd)
         self._batch = self.publishers(k.gateway_cmd, CmdBatch)
         self._state = self.publishers(lambda vid: k.vehicle(vid, "state"), VehicleState)
@@ -311,6 +324,16 @@ class ExecutorService(Service):
             if self.plans[vid].mission == abort.mission and (not abort.vehicles or vid in abort.vehicles):
                 ctl.abort(abort.reason)
 
+    def _on_delay(self, msg: PlanDelay, _key: str) -> None:
+        if msg.source != self.instance:
+            self._clock(msg.mission).hear(msg.source, msg.delay, msg.pace, msg.t)
+
+    def _clock(self, mission: str) -> PlanClock:
+        clock = self.clocks.get(mission)
+        if clock is None:
+            clock = self.clocks[mission] = PlanClock(self.control.clock)
+        return clock
+
     def _fuse(self, frames: list[PoseFrame]) -> None:
         """Take a cycle's `frames` (oldest first): every body's position for the proximity stop,
         every vehicle's newest pose remembered, and that pose of each owned vehicle fused, all at
@@ -399,6 +422,7 @@ class ExecutorService(Service):
             if n % ROUTER_CHECK_TICKS == 0:
                 self._check_router(now)
             arrived = (newest.arrived or newest.t) if newest is not None else 0.0
+            self._run_clocks(now)
             self._cycle(now, n, newest.t if newest is not None else 0.0, arrived)
             n += 1
             end = time.monotonic()
@@ -433,6 +457,27 @@ class ExecutorService(Service):
         v_self = np.array(velocities).reshape(len(movers), 2, 3)
         for closing in self.bodies.closing(movers, v_self, radius, height, now, react):
             self.controllers[closing.mover].stop_short(closing.why())
+
+    def _run_clocks(self, now: float) -> None:
+        """Move every running mission's plan clock on at the pace its vehicles here allowed at
+        their last tick (the slowest), tell the others when it waits, and give each controller its
+        mission's delay and pace (the slowest heard, too)."""
+        paces: dict[str, float] = {}
+        for vid, ctl in self.controllers.items():
+            if ctl.t0 is not None:
+                mission = self.plans[vid].mission
+                paces[mission] = min(paces.get(mission, 1.0), ctl.clock_pace)
+        for mission, pace in paces.items():
+            clock = self._clock(mission)
+            delay = clock.wait(now, pace)
+            sent, sent_pace = self._delay_sent.get(mission, (-float("inf"), 1.0))
+            if pace < 1.0 or sent_pace < 1.0 or (delay > 0.0 and now - sent >= DELAY_EVERY_S):
+                self._delay_sent[mission] = (now, pace)
+                self._delay.put(mission, PlanDelay(mission=mission, source=self.instance, delay=delay, pace=pace, t=now))
+        timing = {m: (self.clocks[m].behind(now), min(pace, self.clocks[m].heard_pace(now))) for m, pace in paces.items()}
+        for vid, ctl in self.controllers.items():
+            if ctl.t0 is not None:
+                ctl.delay, ctl.pace = timing[self.plans[vid].mission]
 
     def _cycle(self, now: float, n: int, pose_t: float, pose_arrived: float) -> None:
         """Tick every owned controller; commands out as one batch per gateway. Each vehicle's
@@ -503,7 +548,8 @@ class ExecutorService(Service):
 
 
 def cmd_executor(args: argparse.Namespace) -> int:
-    control = ControlParams(faults=FaultParams(guard=args.tracking_guard))
+    control = ControlParams(faults=FaultParams(guard=args.tracking_guard),
+                            clock=ClockParams(enabled=args.plan_clock))
     svc = ExecutorService(args.instance, zconfig_from_args(args), keys_from_args(args),
                           rate_hz=args.rate, state_hz=args.state_rate, control=control)
     return run_service(svc)

@@ -14,6 +14,8 @@ import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
+import msgspec
+
 from common.bus.messages import (
     Cmd,
     PlanStep,
@@ -31,6 +33,7 @@ from common.flight.estimator import Estimate, EstimatorParams, KalmanBank, PoseE
 from common.flight.landing import REST_SPEED, LandInPlace
 from common.flight.lqr import FlightLqr, LqrWeights
 from common.flight.modes import AIRBORNE, GROUNDED, Mode, ModeMachine
+from common.flight.plan_clock import ClockParams, pace_for
 from services.executor import onboard
 from services.executor.faults import (
     EmergencyDescent,
@@ -94,6 +97,7 @@ class ControlParams:
     lqr: LqrWeights = field(default_factory=LqrWeights)
     faults: FaultParams = field(default_factory=FaultParams)
     wheels: WheelBase = field(default_factory=WheelBase)
+    clock: ClockParams = field(default_factory=ClockParams)
 
 
 PRE_TURN_S = 2.0
@@ -149,6 +153,12 @@ class VehicleController:
         self._lowest_ground = lowest_ground(None)
         self.trajectory: Trajectory | None = None
         self.t0: float | None = None
+        self.delay = 0.0
+        """How far its mission's plan clock stands behind `now - t0` (s), and the pace it runs at
+        (0-1): its executor's (`common/flight/plan_clock.py`); the plan's time is `now - t0 - delay`."""
+        self.pace = 1.0
+        self.clock_pace = 1.0
+        """The pace this vehicle lets the plan's clock run at, as its last tick saw it (`_pace_clock`)."""
         self.seq = 0
         self.charge_used_ah = 0.0
         self.lqr = FlightLqr(self.model.mass, self.params.dt, self.params.lqr)
@@ -181,6 +191,8 @@ class VehicleController:
         self._hover_ref: RefSample | None = None  # where a held vehicle hovers
         self._yield: str | None = None  # another vehicle held where this one's plan goes: hold too
         self._stopped_at: tuple[float, float, float] | None = None  # where a fault on the ground stopped it
+        self._slow_since: float | None = None  # since when it keeps the plan's clock below full pace
+        self.clock_pace = 1.0
 
     # ---- inputs ---------------------------------------------------------------------------
 
@@ -200,6 +212,7 @@ class VehicleController:
         self.trajectory = Trajectory(plan.steps, self.params.trajectory,
                                      yaw0=None if est.stale else est.yaw)
         self.t0 = plan.t0 or None
+        self.delay, self.pace = 0.0, 1.0
         self._reset_mission()
         self.machine.request(Mode.PARKED, self.estimator.t or 0.0, "plan loaded")
         return True
@@ -226,7 +239,7 @@ class VehicleController:
                "it is held" if self.held else "the mission is aborted" if self._abort else
                f"it is {self.mode}" if self.mode in (Mode.LANDING, Mode.EMERGENCY_LANDING) else "")
         new = Trajectory(plan.steps, self.params.trajectory, yaw0=old.sample(old.start_time).yaw)
-        rel = now - self.t0
+        rel = self._rel(now)
         a, b = old.sample(rel), new.sample(rel)
         gap = math.dist((a.x, a.y, a.z), (b.x, b.y, b.z))
         if not why and gap > REPLAN_TOLERANCE:
@@ -249,7 +262,7 @@ class VehicleController:
         `Replan.rejoin`; should it head into a body all the same, the proximity stop holds it again.)"""
         assert self.t0 is not None
         new = Trajectory(plan.steps, self.params.trajectory, yaw0=old.sample(old.start_time).yaw)
-        est, rel = self.estimator.estimate(now), now - self.t0
+        est, rel = self.estimator.estimate(now), self._rel(now)
         here = (est.x, est.y, est.z)
         reach = self.params.faults.guard_factor * self.model.margin
         meet = _closest_pass(new, here, rel, reach)
@@ -297,7 +310,7 @@ class VehicleController:
         self.estimator.reset(pose if pose is not None and pose.t > state.t else
                              Pose(vid=self.vid, t=state.t, x=state.x, y=state.y, z=state.z, yaw=state.yaw,
                                   source="take-over"))
-        rel = None if self.t0 is None or self._active is None else now - self.t0
+        rel = None if self.t0 is None or self._active is None else self._rel(now)
         planned = None if rel is None else self._active.modes[self._active.segment(rel)]
         fault_landing = mode == Mode.LANDING and planned != Mode.LANDING
         self.machine.resume(Mode.FLYING if fault_landing else mode, now, f"taken over from {state.owner}")
@@ -356,14 +369,26 @@ class VehicleController:
             return None
         return self._active.steps[-1]
 
-    def reference(self, now: float) -> RefSample | None:
-        """The reference being followed at `now` (the plan's, or a fault landing's, or where the
-        tracking guard holds it); None before the mission starts."""
+    def _rel(self, now: float) -> float:
+        """The plan's time at `now` (s since the mission's start, on its plan clock)."""
+        assert self.t0 is not None
+        return now - self.t0 - self.delay
+
+    def reference(self, now: float, ahead: float = 0.0) -> RefSample | None:
+        """The reference being followed at `now`, or `ahead` s of the wall clock later (the plan's,
+        or a fault landing's, or where the tracking guard holds it), its velocity and acceleration
+        scaled to the plan clock's pace; None before the mission starts."""
         if self._active is None or self.t0 is None:
             return None
         if self._hover_ref is not None:
             return self._hover_ref
-        return self._active.sample(now - self.t0)
+        p = self.pace
+        ref = self._active.sample(self._rel(now) + ahead * p)
+        if p >= 1.0:
+            return ref
+        a = p * p
+        return msgspec.structs.replace(ref, vx=p * ref.vx, vy=p * ref.vy, vz=p * ref.vz, ax=a * ref.ax, ay=a * ref.ay,
+                                       az=a * ref.az, yaw_rate=p * ref.yaw_rate)
 
     # ---- the control tick -----------------------------------------------------------------
 
@@ -379,7 +404,8 @@ class VehicleController:
         before = self.machine.mode
         if self._active is not None and self.t0 is not None:
             active, ref = self._active, self.reference(now)
-            self._supervise(now, now - self.t0, est, ref)
+            self._supervise(now, self._rel(now), est, ref)
+            self._pace_clock(now, est, ref)
             if self._active is not active or self._hover_ref is not None:
                 ref = self.reference(now)
         setpoint = self._control(now, est, ref, before)
@@ -445,6 +471,51 @@ class VehicleController:
                 self._left_behind(now, est, ref)
             return
         self._follow_plan(now, rel, est)
+
+    def _pace_clock(self, now: float, est: Estimate, ref: RefSample | None) -> None:
+        """The pace this vehicle lets its plan's clock run at (`clock_pace`, `pace_for`): by how far
+        it is behind its reference while it moves on its plan (driving: along the way, `_behind`;
+        flying: its distance; in a take-off or landing its horizontal distance: late in its own
+        spot's column, as the guard judges it), or, stopped on the ground by a stale
+        pose or a lost link, by how far the reference is from where it stopped; full pace otherwise
+        (parked, held, in a fault landing). One that has kept the clock below full pace for
+        `ClockParams.max_wait_s` is held (the tracking guard's hold: reported, the mission plans
+        around it), rejoinable if stopped by a fault that may clear."""
+        c, mode = self.params.clock, self.machine.mode
+        error = None
+        if (c.enabled and ref is not None and self._may_yield() and self._hover_ref is None
+                and now >= self._guard_from):
+            if mode == Mode.HOLDING:
+                error = None if self._stopped_at is None else math.dist(self._stopped_at, (ref.x, ref.y, ref.z))
+            elif mode == Mode.DRIVING and not est.stale:
+                error = self._behind(est, ref)
+            elif mode in MOVING and not est.stale:
+                error = (math.hypot(est.x - ref.x, est.y - ref.y) if mode in (Mode.TAKING_OFF, Mode.LANDING)
+                         else math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z)))
+        pace = 1.0 if error is None else pace_for(error, self.model.margin, c)
+        self.clock_pace = pace
+        if pace >= 1.0:
+            self._slow_since = None
+            return
+        since = self._slow_since = self._slow_since if self._slow_since is not None else now
+        if now - since >= c.max_wait_s and ref is not None:
+            self.clock_pace, self._slow_since = 1.0, None
+            self._hold(now, est, ref, f"kept its plan's clock waiting {now - since:.1f} s, {error:.3f} m from its "
+                                      f"reference in {mode}", rejoinable=mode == Mode.HOLDING)
+
+    def _behind(self, est: Estimate, ref: RefSample) -> float:
+        """How far a driving vehicle is behind its reference along the plan's way there (at a wait,
+        the way it came in; m, 0 when ahead): sideways it is off its plan, not late, and waiting
+        does not bring it back (pure pursuit holds a resting reference within `hold_radius`: a
+        vehicle 2.7 cm beside a reference that stood still kept the clock waiting)."""
+        traj = self._active
+        assert traj is not None
+        for k in range(min(traj.segment(ref.t), len(traj.vel)) - 1, -1, -1):
+            vx, vy, _ = traj.vel[k]
+            speed = math.hypot(vx, vy)
+            if speed > 1e-9:
+                return max(((ref.x - est.x) * vx + (ref.y - est.y) * vy) / speed, 0.0)
+        return math.hypot(ref.x - est.x, ref.y - est.y)
 
     def _guard(self, now: float, est: Estimate, ref: RefSample | None) -> bool:
         """The tracking guard (`FaultParams`): hold the vehicle where it is if its estimated error
@@ -543,7 +614,7 @@ class VehicleController:
         reach_xy = 2.0 * m.radius + f.guard_factor * m.margin + unseen
         reach_z = m.height + f.guard_factor * m.margin + unseen
         est = self.estimator.estimate(now)
-        rel = now - self.t0
+        rel = self._rel(now)
         # where it is, then its plan from a little behind (it may lag its reference) to `yield_s` ahead
         places = [(-1.0, (est.x, est.y, est.z))] + [
             (k * YIELD_STEP_S, traj.plan_position(min(max(rel + k * YIELD_STEP_S, 0.0), traj.end_time)))
@@ -684,7 +755,7 @@ class VehicleController:
                 self.estimator.set_input((0.0, 0.0, 0.0), now)
                 return StopSetpoint()
             if onboard.onboard(self.faults.last_telemetry):  # its own controller flies it (onboard.py)
-                return onboard.follow(ref, self.reference(now + onboard.ACCEL_LEAD_S), self.estimator, now,
+                return onboard.follow(ref, self.reference(now, onboard.ACCEL_LEAD_S), self.estimator, now,
                                       not self.faults.link_lost(now))
             # commands over a lost link do not reach the vehicle: neither learn from them (the
             # integrators wound up and threw it up on reconnection) nor predict with them; on the
@@ -837,8 +908,8 @@ class VehicleController:
             vid=self.vid, t=now, owner=self.owner, mode=str(self.machine.mode),
             x=est.x, y=est.y, z=est.z, yaw=est.yaw, vx=est.vx, vy=est.vy, vz=est.vz,
             pose_ok=not est.stale, mission=self.plan.mission if self.plan else "",
-            step=traj.segment(now - self.t0) if traj is not None and self.t0 is not None else 0,
+            step=traj.segment(self._rel(now)) if traj is not None and self.t0 is not None else 0,
             steps=len(traj.steps) if traj is not None else 0,
             tracking_error=err, charge_used_ah=self.charge_used_ah, arrived=arrived,
             landing=landing.pos if (landing := self.landing_step) is not None else None,
-            held=self.held or "", rejoinable=self.rejoinable)
+            held=self.held or "", rejoinable=self.rejoinable, delay=self.delay)

@@ -166,6 +166,8 @@ class MissionResult:
     tasks_added: int = 0
     replans_skipped: int = 0
     """Fault replans left out because a later one, queued behind them, planned around their vehicles too."""
+    delay_s: float = 0.0
+    """How long the plan's clock waited for vehicles that lagged their references (`common/flight/plan_clock.py`)."""
 
     def summary(self) -> str:
         lines = [f"mission {self.mission}: {'OK' if self.ok else 'FAILED'} ({self.reason}) in {self.duration_s:.1f} s"]
@@ -177,6 +179,8 @@ class MissionResult:
                          f"{r.max_tracking_error:>9.3f} {r.rms_error('ground'):>10.3f} {r.rms_error('air'):>8.3f}  {r.mode}")
         gap = "none closer than 1 m" if self.min_gap == float("inf") else f"{self.min_gap * 100:.1f} cm ({self.min_pair[0]}-{self.min_pair[1]})"
         lines.append(f"smallest separation between bodies (ground truth, beyond contact): {gap}; contacts: {self.contacts}")
+        if self.delay_s > 0.0:
+            lines.append(f"the plan's clock waited {self.delay_s:.2f} s for vehicles behind their plans")
         if self.replans or self.tasks_added:
             ms = sorted(1e3 * t for t in self.replans)
             lines.append(f"tasks: {self.tasks_done} done ({self.tasks_added} added while flying) in "
@@ -245,6 +249,14 @@ class MissionRunner(MissionClient[MissionResult]):
         """Where the fleet's vehicles outside the mission stand (lifelong missions: not a free spot;
         a held vehicle does not rejoin through one: `rejoin.py`)."""
         self._frame_t = 0.0
+        self.delay = 0.0
+        """How far the plan's clock stands behind the wall clock (s): the largest its vehicles'
+        states tell (`VehicleState.delay`)."""
+
+    def plan_time(self) -> float:
+        """The plan's time now (s since the start on the plan's clock)."""
+        assert self.t0 is not None
+        return time.time() - self.t0 - self.delay
 
     async def prepare(self) -> str | None:
         """Each vehicle is what its gateway says (`Telemetry`): its capabilities (from the radios
@@ -346,7 +358,7 @@ class MissionRunner(MissionClient[MissionResult]):
         planner named none (its time ran out: the next try)."""
         faults = self._fault_replans
         while (vids := [v for v in vids if v in self._rejoin]) and self.plan is not None and self.t0 is not None:
-            answer = await self._ask_replan(self.plan, self.t0, [], {}, rejoin=vids)
+            answer = await self._ask_replan(self.plan, [], {}, rejoin=vids)
             if self._fault_replans != faults:
                 return
             if any(v not in self._rejoin for v in vids):
@@ -422,7 +434,7 @@ class MissionRunner(MissionClient[MissionResult]):
         state = self.states[vid]
         nodes = self.plan.graph.nodes
         ground = ground_height(self.plan)
-        return left_vehicle(vid, kind, (state.x, state.y, state.z), time.time() - self.t0, ground,
+        return left_vehicle(vid, kind, (state.x, state.y, state.z), self.plan_time(), ground,
                             nodes[node].pos if node in nodes else None)
 
     async def _replan(self, previous: asyncio.Task | None, ticket: int) -> None:
@@ -463,7 +475,7 @@ class MissionRunner(MissionClient[MissionResult]):
         self._abort_pub.put(MissionAbort(mission=self.mission, reason=reason, vehicles=[vid]))
         self.left[vid] = reason
         ground = ground_height(self.plan)
-        self.sweeps += left_vehicle(vid, "tracking_hold", (state.x, state.y, state.z), time.time() - self.t0,
+        self.sweeps += left_vehicle(vid, "tracking_hold", (state.x, state.y, state.z), self.plan_time(),
                                     ground, None)
         self.events.append(reason)
         return True
@@ -477,12 +489,12 @@ class MissionRunner(MissionClient[MissionResult]):
         if self.plan is None or self.t0 is None:
             return "the mission has not started"
         left = [v for v in self.left if v in self.plan.paths]  # those that left since the last replan
-        answer = await self._ask_replan(self.plan, self.t0, left, goals or {})
+        answer = await self._ask_replan(self.plan, left, goals or {})
         if isinstance(answer, str):
             return answer
         return self._apply_replan(*answer, left, goals or {})
 
-    async def _ask_replan(self, plan: Plan, t0: float, left: list[str], goals: dict[str, str],
+    async def _ask_replan(self, plan: Plan, left: list[str], goals: dict[str, str],
                           rejoin: Sequence[str] = ()) -> tuple[PlanReply, float, float] | str:
         """The planner's replan of `plan` (its reply, the switch time and how long it took), asked
         again from later when it does not come before its switch time; or why there is none. The
@@ -490,7 +502,7 @@ class MissionRunner(MissionClient[MissionResult]):
         late = ""
         for k in range(REPLAN_TRIES):  # a planner too slow this time is asked again, from later
             lead = REPLAN_LEAD_S * (k + 1)
-            at = time.time() - t0 + lead
+            at = self.plan_time() + lead
             base, sweeps = self._with_rejoining(plan, rejoin, at)
             req = PlanRequest(map=self.spec.map, tasks={}, planner="sipp" if rejoin else self.spec.replanner,
                               mu=self.spec.mu, time_limit=REPLAN_TIME_LIMIT_S, reply_within=lead,
@@ -510,7 +522,7 @@ class MissionRunner(MissionClient[MissionResult]):
             if not reply.ok or reply.plan is None:
                 self._blocked, self._refused = reply.failed_vehicle, dict(reply.refused)
                 return f"replanning failed: {reply.error}"
-            if time.time() - t0 <= at:
+            if self.plan_time() <= at:
                 return reply, at, took
             late = f"the replan came too late ({took:.2f} s)"
         return f"{late} ({REPLAN_TRIES} times)"
@@ -525,10 +537,10 @@ class MissionRunner(MissionClient[MissionResult]):
         paths, tasks = dict(plan.paths), dict(plan.tasks)
         for vid in rejoin:
             c, s = self._rejoin[vid], self.states[vid]
-            progress = progress_at(plan, c.path, (s.x, s.y, s.z), time.time() - self.t0 + 1.0)
+            progress = progress_at(plan, c.path, (s.x, s.y, s.z), self.plan_time() + 1.0)
             paths[vid], tasks[vid] = shifted_path(c.path, progress, at), c.task
         ground = ground_height(plan)
-        t = time.time() - self.t0
+        t = self.plan_time()
         standing = [w for vid, p in self.bystanders.items() for w in left_vehicle(vid, "tracking_hold", p, t, ground, None)]
         return (msgspec.structs.replace(plan, paths=paths, tasks=tasks),
                 [s for s in self.sweeps if s.vid not in rejoin] + standing)
@@ -641,7 +653,8 @@ class MissionRunner(MissionClient[MissionResult]):
         if plan is not None and any(self._in_air(plan, t.goal) for v, t in plan.tasks.items() if v not in self.left):
             return None  # a hover mission: open until told where to land
         assert self.t0 is not None
-        if now > self.t0 + max(r.planned_s for v, r in self.reports.items() if v not in self.left) + self.spec.slack_s:
+        latest = max(r.planned_s for v, r in self.reports.items() if v not in self.left)
+        if now > self.t0 + self.delay + latest + self.spec.slack_s:
             return "time limit: not every vehicle arrived"
         return None
 
@@ -656,7 +669,7 @@ class MissionRunner(MissionClient[MissionResult]):
         self.result = MissionResult(self.mission, ok, reason, self.reports, float("inf"), ("", ""), contacts,
                                     self.elapsed(), self.first_plan, self.events,
                                     self.plan if self.replans else None, list(self.replans),
-                                    self.tasks_done, self.tasks_added, self.replans_skipped)
+                                    self.tasks_done, self.tasks_added, self.replans_skipped, self.delay)
         if sep is not None:
             self.result.min_gap, self.result.min_pair = sep.min_gap, sep.min_pair
         return self.result
@@ -666,13 +679,14 @@ class MissionRunner(MissionClient[MissionResult]):
         r.mode, r.step, r.steps, r.owner = state.mode, state.step, state.steps, state.owner
         if state.mission != self.mission or self.t0 is None:
             return
+        self.delay = max(self.delay, state.delay)
         r.energy_j = state.charge_used_ah * 3600.0 * self.voltage  # eq. 4-5 backwards
         r.max_tracking_error = max(r.max_tracking_error, state.tracking_error)
         if state.mode in AIRBORNE_MODES or state.mode in ("driving",):
             where = "air" if state.mode in AIRBORNE_MODES else "ground"
             r.sq_error[where] += state.tracking_error**2
             r.samples[where] += 1
-        if state.arrived and not r.arrived and state.t >= self.t0 + r.planned_s - ARRIVAL_SLACK_S:
+        if state.arrived and not r.arrived and state.t - state.delay >= self.t0 + r.planned_s - ARRIVAL_SLACK_S:
             r.arrived, r.arrival_s = True, state.t - self.t0
             self.tasks_done += state.vid not in self.stranded
 

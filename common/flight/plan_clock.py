@@ -1,0 +1,92 @@
+"""The plan's clock (issue 15): a mission's plan runs on one clock that waits for the late.
+
+A plan (paper 000 §IV: paths in time, conflict-free at equal times) keeps the bodies apart only
+while every vehicle is where it says at the same time. Run on the wall clock, one vehicle that
+falls behind (a turn in place that takes longer, a stop on a stale pose, a starved loop) meets the
+others on time at the plan's margin: the contacts of the 32-vehicle soaks were such meetings, a
+late vehicle and an on-time one passing at the plan's 3 cm (docs/reliability.md). Here the plan's
+time is `now - t0 - delay`: each executor slows it while one of its vehicles lags its reference
+(`pace`, 1 up to `slow_from` x the margin, 0 from `stop_at` x: `pace_for`), and every executor and
+the mission keep the same delay: an executor adds its own waiting on top of the largest delay it
+has heard (`PlanClock.wait`) and tells the others (`PlanDelay`, `mission/<id>/delay`), who take the
+largest (`hear`; two executors waiting at once add their wait once). While a heard pace below 1 is
+fresh, the delay is carried forward at that pace (`behind`), so the others slow at once, not a
+message later. This is the coarsest form of executing a plan by the order in which vehicles pass
+each place (an action dependency graph, Hönig et al., RA-L 2019): every vehicle waits for every
+late one, not only for those whose places it shares; delays cost the whole fleet time, never a
+contact. A vehicle that keeps the clock waiting too long is held like one the tracking guard
+holds (`ClockParams.max_wait_s`), and the mission plans around it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class ClockParams:
+    """slow_from, stop_at: a vehicle's distance from its reference, in margins
+    (`VehicleModel.margin`), at which it starts to slow the plan's clock and at which it stops it
+    (the plan keeps a margin between bodies, each vehicle may use half of it); fresh_s: a heard pace
+    counts this long after it was sent (executors send theirs every cycle while it is below 1);
+    max_wait_s: a vehicle that has kept the clock below full pace this long is held (its own loop
+    cannot catch up: the mission plans around it); enabled False: the plan runs on the wall
+    clock."""
+
+    slow_from: float = 0.5
+    stop_at: float = 1.0
+    fresh_s: float = 0.1
+    max_wait_s: float = 5.0
+    enabled: bool = True
+
+
+def pace_for(error: float, margin: float, params: ClockParams) -> float:
+    """The pace (0-1) at which a vehicle `error` m from its reference lets the plan's clock run."""
+    if margin <= 0.0 or not params.enabled:
+        return 1.0
+    x = error / margin
+    if x <= params.slow_from:
+        return 1.0
+    if x >= params.stop_at:
+        return 0.0
+    return (params.stop_at - x) / (params.stop_at - params.slow_from)
+
+
+class PlanClock:
+    """One mission's plan clock as one executor (or the mission) keeps it: how far it stands behind
+    the wall clock (`delay`, s, never less), and the paces heard from the others."""
+
+    def __init__(self, params: ClockParams = ClockParams()) -> None:
+        self.params = params
+        self.delay = 0.0
+        """The largest delay heard or reached by waiting here (s)."""
+        self._heard: dict[str, tuple[float, float, float]] = {}  # source -> (delay, pace, sent)
+        self._last: float | None = None
+
+    def hear(self, source: str, delay: float, pace: float, sent: float) -> None:
+        """Another executor's clock: `delay` at wall time `sent`, running at `pace` since."""
+        known = self._heard.get(source)
+        if known is None or sent >= known[2]:
+            self._heard[source] = (delay, min(max(pace, 0.0), 1.0), sent)
+        self.delay = max(self.delay, delay)
+
+    def heard_pace(self, now: float) -> float:
+        """The slowest pace heard that is still fresh (1 without one)."""
+        fresh = self.params.fresh_s
+        return min((p for _d, p, t in self._heard.values() if now - t < fresh), default=1.0)
+
+    def behind(self, now: float) -> float:
+        """How far the plan's time stands behind `now - t0` (s): the delay, carried forward at each
+        fresh pace below 1 heard."""
+        fresh, out = self.params.fresh_s, self.delay
+        for d, p, t in self._heard.values():
+            if p < 1.0 and now - t < fresh:
+                out = max(out, d + (1.0 - p) * max(now - t, 0.0))
+        return out
+
+    def wait(self, now: float, pace: float) -> float:
+        """This executor's vehicles let the clock run at `pace` since the last call: the delay
+        grows by what they held it back (on top of the largest heard); the delay now."""
+        if self._last is not None and pace < 1.0:
+            self.delay += (1.0 - max(pace, 0.0)) * max(now - self._last, 0.0)
+        self._last = now
+        return self.delay
