@@ -83,7 +83,8 @@ TAKEOVER_GRACE_S = 0.1
 clients one by one, so a peer's token may vanish a few ms before this process loses the router
 too. Well inside the gateways' 0.2 s before a silent vehicle's command is stale."""
 DELAY_EVERY_S = 1.0
-"""s between two `PlanDelay`s of a mission whose clock stands behind while no vehicle here slows it."""
+"""s between two `PlanDelay`s of a running mission whose clock stands behind while no vehicle here
+slows it (for an executor that missed the messages of the wait: a take-over, a reconnection)."""
 ROUTER_CHECK_TICKS = 10
 """Control ticks between two looks at the router link (a look costs about a microsecond)."""
 BODIES_FRESH_S = 2.0
@@ -463,15 +464,18 @@ class ExecutorService(Service):
         their last tick (the slowest), tell the others when it waits, and give each controller its
         mission's delay and pace (the slowest heard, too)."""
         paces: dict[str, float] = {}
+        running: set[str] = set()  # missions with a vehicle here not done yet
         for vid, ctl in self.controllers.items():
             if ctl.t0 is not None:
                 mission = self.plans[vid].mission
                 paces[mission] = min(paces.get(mission, 1.0), ctl.clock_pace)
+                if ctl.mode != Mode.DONE:
+                    running.add(mission)
         for mission, pace in paces.items():
             clock = self._clock(mission)
             delay = clock.wait(now, pace)
             sent, sent_pace = self._delay_sent.get(mission, (-float("inf"), 1.0))
-            if pace < 1.0 or sent_pace < 1.0 or (delay > 0.0 and now - sent >= DELAY_EVERY_S):
+            if pace < 1.0 or sent_pace < 1.0 or (delay > 0.0 and mission in running and now - sent >= DELAY_EVERY_S):
                 self._delay_sent[mission] = (now, pace)
                 self._delay.put(mission, PlanDelay(mission=mission, source=self.instance, delay=delay, pace=pace, t=now))
         timing = {m: (self.clocks[m].behind(now), min(pace, self.clocks[m].heard_pace(now))) for m, pace in paces.items()}
