@@ -11,7 +11,9 @@ import math
 
 import pytest
 
+from common.bus.keys import Keys
 from common.bus.messages import Pose, SimFault
+from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
 from common.flight.plan_clock import ClockParams, PlanClock, pace_for
@@ -156,3 +158,18 @@ def test_the_fleet_waits_for_a_vehicle_stopped_on_a_stale_pose_and_every_vehicle
     assert not watch.contacts, watch.separation_line()
     assert len(set(owners.values())) == 2, owners  # the wait crossed from one executor to the other
     print(f"the plan's clock waited {result.delay_s:.2f} s; owners {owners}; {watch.separation_line()}")
+
+
+def test_a_missions_time_limit_is_on_the_plan_clock_whose_waits_count_up_to_the_plans_length() -> None:
+    spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", slack_s=5.0)
+    runner = MissionRunner(spec, ZenohConfig.client("tcp/127.0.0.1:7447"), Keys("clock"), progress=False)
+    runner.t0 = 1000.0
+    for r in runner.reports.values():
+        r.planned_s = 16.0
+    assert runner.end_reason(1000.0 + 22.0) is not None  # 16 s of plan and 5 s of slack gone
+    runner.delay = 3.0  # the plan's clock waited 3 s
+    assert runner.end_reason(1000.0 + 22.0) is None
+    assert runner.end_reason(1000.0 + 25.0) is not None
+    runner.delay = 60.0  # waits count up to the plan's length again, no more
+    assert runner.end_reason(1000.0 + 36.0) is None
+    assert runner.end_reason(1000.0 + 38.0) is not None
