@@ -474,9 +474,9 @@ class VehicleController:
 
     def _pace_clock(self, now: float, est: Estimate, ref: RefSample | None) -> None:
         """The pace this vehicle lets its plan's clock run at (`clock_pace`, `pace_for`): by how far
-        it is behind its reference while it moves on its plan (driving: along the way, `_behind`;
-        flying: its distance; in a take-off or landing its horizontal distance: late in its own
-        spot's column, as the guard judges it), or, stopped on the ground by a stale
+        it is behind its reference along its way while it drives or flies on its plan (`_behind`),
+        by its horizontal distance in a take-off or landing (late in its own spot's column, as the
+        guard judges it), or, stopped on the ground by a stale
         pose or a lost link, by how far the reference is from where it stopped; full pace otherwise
         (parked, held, in a fault landing). One that has kept the clock below full pace for
         `ClockParams.max_wait_s` is held (the tracking guard's hold: reported, the mission plans
@@ -487,11 +487,9 @@ class VehicleController:
                 and now >= self._guard_from):
             if mode == Mode.HOLDING:
                 error = None if self._stopped_at is None else math.dist(self._stopped_at, (ref.x, ref.y, ref.z))
-            elif mode == Mode.DRIVING and not est.stale:
-                error = self._behind(est, ref)
             elif mode in MOVING and not est.stale:
                 error = (math.hypot(est.x - ref.x, est.y - ref.y) if mode in (Mode.TAKING_OFF, Mode.LANDING)
-                         else math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z)))
+                         else self._behind(est, ref))
         pace = 1.0 if error is None else pace_for(error, self.model.margin, c)
         self.clock_pace = pace
         if pace >= 1.0:
@@ -504,18 +502,20 @@ class VehicleController:
                                       f"reference in {mode}", rejoinable=mode == Mode.HOLDING)
 
     def _behind(self, est: Estimate, ref: RefSample) -> float:
-        """How far a driving vehicle is behind its reference along the plan's way there (at a wait,
-        the way it came in; m, 0 when ahead): sideways it is off its plan, not late, and waiting
-        does not bring it back (pure pursuit holds a resting reference within `hold_radius`: a
-        vehicle 2.7 cm beside a reference that stood still kept the clock waiting)."""
+        """How far the vehicle is behind its reference along the plan's way there (at a wait, the
+        way it came in; m, 0 when ahead). Sideways or ahead it is off its plan, not late, and waiting
+        does not bring it back: pure pursuit holds a resting reference within `hold_radius` (a
+        driver 2.7 cm beside a reference that stood still kept the clock waiting 5 s), and a flyer
+        whose commands no longer reach it (a lost link, levelled by its firmware) would only fly on
+        past a reference that stopped for it."""
         traj = self._active
         assert traj is not None
         for k in range(min(traj.segment(ref.t), len(traj.vel)) - 1, -1, -1):
-            vx, vy, _ = traj.vel[k]
-            speed = math.hypot(vx, vy)
+            vx, vy, vz = traj.vel[k]
+            speed = math.sqrt(vx * vx + vy * vy + vz * vz)
             if speed > 1e-9:
-                return max(((ref.x - est.x) * vx + (ref.y - est.y) * vy) / speed, 0.0)
-        return math.hypot(ref.x - est.x, ref.y - est.y)
+                return max(((ref.x - est.x) * vx + (ref.y - est.y) * vy + (ref.z - est.z) * vz) / speed, 0.0)
+        return math.dist((ref.x, ref.y, ref.z), (est.x, est.y, est.z))
 
     def _guard(self, now: float, est: Estimate, ref: RefSample | None) -> bool:
         """The tracking guard (`FaultParams`): hold the vehicle where it is if its estimated error
