@@ -69,10 +69,23 @@ def test_a_heard_pace_stops_the_clock_at_once_until_it_is_no_longer_fresh() -> N
     clock.hear("a", 0.2, 0.0, 10.0)  # a stood still from 10.0 s on, as far as heard
     assert clock.behind(10.05) == pytest.approx(0.25)  # carried on at its pace before the next word
     assert clock.heard_pace(10.05) == 0.0
-    assert clock.behind(10.5) == pytest.approx(0.2)  # not heard again: its last delay, no more
     assert clock.heard_pace(10.5) == 1.0
     clock.hear("a", 0.1, 0.0, 9.0)  # an older message changes nothing
-    assert clock.behind(10.05) == pytest.approx(0.25)
+    assert clock.heard_pace(10.5) == 1.0 and clock.delay == 0.2
+    fresh = PlanClock(ClockParams(fresh_s=0.1))
+    fresh.hear("a", 0.2, 0.0, 10.0)
+    assert fresh.behind(10.5) == pytest.approx(0.2)  # not heard again: its last delay, no more
+
+
+def test_the_plan_time_given_never_goes_back_and_a_late_cycle_counts_as_waiting() -> None:
+    clock = PlanClock(ClockParams(max_step_s=0.05))
+    assert clock.behind(10.0) == 0.0
+    clock.hear("a", 0.3, 1.0, 10.01)  # a stalled executor's wait, heard at once
+    assert clock.behind(10.1) == pytest.approx(0.1)  # the plan's time stands still ...
+    assert clock.behind(10.3) == pytest.approx(0.3)  # ... until the wall clock caught up
+    clock.wait(11.0, 1.0)
+    clock.wait(11.2, 1.0)  # this executor's own cycle 0.2 s late: 0.05 s of it run, the rest waited
+    assert clock.delay == pytest.approx(0.45) and clock.waited == pytest.approx(0.15)
 
 
 def controller(t0: float = 1.0) -> VehicleController:

@@ -11,7 +11,11 @@ the mission keep the same delay: an executor adds its own waiting on top of the 
 has heard (`PlanClock.wait`) and tells the others (`PlanDelay`, `mission/<id>/delay`), who take the
 largest (`hear`; two executors waiting at once add their wait once). While a heard pace below 1 is
 fresh, the delay is carried forward at that pace (`behind`), so the others slow at once, not a
-message later. This is the coarsest form of executing a plan by the order in which vehicles pass
+message later. An executor whose loop runs late (a starved process) lets the clock run at most
+`max_step_s` a cycle: its vehicles went unwatched meanwhile, and the plan waits for them (in a
+32-vehicle soak a loop late by a fifth of a second let the plan move a stopped driver's reference
+on by 6 cm at once). The plan's time an executor gives its vehicles never goes back: a larger
+delay heard stands it still until the wall clock has caught up. This is the coarsest form of executing a plan by the order in which vehicles pass
 each place (an action dependency graph, Hönig et al., RA-L 2019): every vehicle waits for every
 late one, not only for those whose places it shares; delays cost the whole fleet time, never a
 contact. A vehicle that keeps the clock waiting too long is held like one the tracking guard
@@ -29,13 +33,15 @@ class ClockParams:
     (the plan keeps a margin between bodies, each vehicle may use half of it); fresh_s: a heard pace
     counts this long after it was sent (executors send theirs every cycle while it is below 1);
     max_wait_s: a vehicle that has kept the clock below full pace this long is held (its own loop
-    cannot catch up: the mission plans around it); enabled False: the plan runs on the wall
-    clock."""
+    cannot catch up: the mission plans around it); max_step_s: the most the clock runs in one cycle
+    of an executor (the rest of a late cycle counts as waiting); enabled False: the plan runs on the
+    wall clock."""
 
     slow_from: float = 0.5
     stop_at: float = 1.0
     fresh_s: float = 0.1
     max_wait_s: float = 5.0
+    max_step_s: float = 0.05
     enabled: bool = True
 
 
@@ -61,6 +67,9 @@ class PlanClock:
         """The largest delay heard or reached by waiting here (s)."""
         self._heard: dict[str, tuple[float, float, float]] = {}  # source -> (delay, pace, sent)
         self._last: float | None = None
+        self._given: tuple[float, float] | None = None  # (when, delay) last given by `behind`
+        self.waited = 0.0
+        """What the last `wait` added to the delay (s)."""
 
     def hear(self, source: str, delay: float, pace: float, sent: float) -> None:
         """Another executor's clock: `delay` at wall time `sent`, running at `pace` since."""
@@ -76,17 +85,25 @@ class PlanClock:
 
     def behind(self, now: float) -> float:
         """How far the plan's time stands behind `now - t0` (s): the delay, carried forward at each
-        fresh pace below 1 heard."""
+        fresh pace below 1 heard, but never so far that the plan's time goes back from the last
+        one given."""
         fresh, out = self.params.fresh_s, self.delay
         for d, p, t in self._heard.values():
             if p < 1.0 and now - t < fresh:
                 out = max(out, d + (1.0 - p) * max(now - t, 0.0))
+        if self._given is not None:
+            out = min(out, self._given[1] + max(now - self._given[0], 0.0))
+        self._given = (now, out)
         return out
 
     def wait(self, now: float, pace: float) -> float:
-        """This executor's vehicles let the clock run at `pace` since the last call: the delay
-        grows by what they held it back (on top of the largest heard); the delay now."""
-        if self._last is not None and pace < 1.0:
-            self.delay += (1.0 - max(pace, 0.0)) * max(now - self._last, 0.0)
+        """This executor's vehicles let the clock run at `pace` since the last call (at most
+        `max_step_s` of it): the delay grows by what they held it back (on top of the largest
+        heard); the delay now."""
+        self.waited = 0.0
+        if self._last is not None:
+            dt, step = max(now - self._last, 0.0), self.params.max_step_s
+            self.waited = (1.0 - min(max(pace, 0.0), 1.0)) * min(dt, step) + max(dt - step, 0.0)
+            self.delay += self.waited
         self._last = now
         return self.delay

@@ -475,7 +475,8 @@ class ExecutorService(Service):
             clock = self._clock(mission)
             delay = clock.wait(now, pace)
             sent, sent_pace = self._delay_sent.get(mission, (-float("inf"), 1.0))
-            if pace < 1.0 or sent_pace < 1.0 or (delay > 0.0 and mission in running and now - sent >= DELAY_EVERY_S):
+            if (pace < 1.0 or clock.waited > 0.0 or sent_pace < 1.0
+                    or (delay > 0.0 and mission in running and now - sent >= DELAY_EVERY_S)):
                 self._delay_sent[mission] = (now, pace)
                 self._delay.put(mission, PlanDelay(mission=mission, source=self.instance, delay=delay, pace=pace, t=now))
         timing = {m: (self.clocks[m].behind(now), min(pace, self.clocks[m].heard_pace(now))) for m, pace in paces.items()}
