@@ -13,12 +13,7 @@ moves away and standing where it is if it comes closer (its approach is its own 
 stop: each of two vehicles heading into each other stops for its own motion); if so, the vehicle
 stops short (`VehicleController.stop_short`: it holds like a vehicle the guard holds, is reported
 and the fleet's reflex and the mission's replan follow). A vehicle at rest, or moving away, does
-not stop: its stopping would not help, and the one closing in stops instead. Nor does a pair that
-passes as planned: both bodies where their plans have them at the plan's time (within a third of
-the margin, `as_planned`): the plan, on the clock that waits for the late
-(`common/flight/plan_clock.py`), keeps them apart, and the look-ahead, a straight line over a
-loaded executor's reaction (0.2 s in a 32-vehicle soak), stopped drivers on the plan's own 3 cm
-passes (cf29 "5.2 cm apart, closing at 0.18 m/s" from cf19 standing on its plan).
+not stop: its stopping would not help, and the one closing in stops instead.
 
 The Crazyflie firmware has a layer of the same purpose for peers it localises itself
 (`src/modules/interface/collision_avoidance.h`, buffered Voronoi cells: it keeps the vehicle in
@@ -29,7 +24,6 @@ timing stays the planner's to repair."""
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -145,14 +139,12 @@ class Bodies:
         return max(latency, age) + period
 
     def closing(self, movers: list[str], v_self: np.ndarray, radius: float, height: float,
-                now: float, react_s: float = 0.0,
-                as_planned: Callable[[str], bool] | None = None) -> list[Closing]:
+                now: float, react_s: float = 0.0) -> list[Closing]:
         """Which of `movers` (vehicles seen in the frames) head into another body before they could
         have stopped: `v_self` (len(movers) x K x 3) are the velocities each may move at (estimated,
         planned); bodies of `radius` x `height` touch when nearer than 2 radius across and height
-        up (DESIGN.md); `react_s`: how late the mover's commands take effect (s); `as_planned`:
-        whether a vehicle's body is where its plan has it now (a pair of two such passes). One
-        `Closing` per such pair, nearest first."""
+        up (DESIGN.md); `react_s`: how late the mover's commands take effect (s). One `Closing` per
+        such pair, nearest first."""
         p = self.params
         react = max(react_s, p.react_s)
         n = len(self.vids)
@@ -182,13 +174,6 @@ class Bodies:
         dist = np.linalg.norm(dij, axis=1)
         steps = np.linspace(0.0, 1.0, p.samples)
         hits: dict[tuple[str, str], Closing] = {}
-        planned: dict[str, bool] = {}
-
-        def on_plan(vid: str) -> bool:
-            if vid not in planned:
-                planned[vid] = as_planned is not None and as_planned(vid)
-            return planned[vid]
-
         for k in range(v_self.shape[1]):
             vs = v_self[i, k]  # pairs x 3
             w = vo - vs  # the other's motion relative to the mover
@@ -200,8 +185,6 @@ class Bodies:
             for m in np.nonzero(touch & (towards > p.closing_speed))[0].tolist():
                 gap = max(float(across[i[m], j[m]]) - 2.0 * radius, float(abs(dij[m, 2])) - height)
                 pair = (movers[i[m]], self.vids[j[m]])
-                if on_plan(pair[0]) and on_plan(pair[1]):
-                    continue  # they pass as planned
                 if pair not in hits or hits[pair].speed < towards[m]:
                     hits[pair] = Closing(*pair, gap, float(towards[m]), tuple(vs[m].tolist()), tuple(vo[m].tolist()),
                                          react)

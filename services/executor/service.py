@@ -38,7 +38,6 @@ import argparse
 import asyncio
 import itertools
 import logging
-import math
 import time
 from collections import deque
 
@@ -70,7 +69,6 @@ from services.executor.faults import STRAIGHT_DOWN, FaultParams
 from services.executor.proximity import Bodies, ProximityParams
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
-from services.executor.trajectory import Trajectory
 from services.executor.vehicle_controller import ControlParams, VehicleController
 
 log = logging.getLogger(__name__)
@@ -93,9 +91,6 @@ BODIES_FRESH_S = 2.0
 """s: a vehicle seen in a frame this recent is where a fault landing of another may not come down."""
 REACT_WINDOW = 200
 """Cycles (2 s at 100 Hz) over which the proximity stop's reaction is measured (`LoopStats.recent_latency`)."""
-AS_PLANNED = 1.0 / 3.0
-"""Fraction of the plan's margin within which a body counts as where its plan has it (each of two
-passing bodies: the plan keeps a margin between them)."""
 FRAME_WAIT = 1.5
 """Control periods a cycle waits for a motion-capture frame before it runs without one."""
 
@@ -190,8 +185,6 @@ class ExecutorService(Service):
         self._failed: set[tuple[str, str]] = set()  # (vid, mission) whose controller raised
         self.clocks: dict[str, PlanClock] = {}
         """Each mission's plan clock as this executor keeps it (`common/flight/plan_clock.py`)."""
-        self._plan_paths: dict[str, tuple[VehiclePlan, Trajectory]] = {}
-        """Each vehicle's plan as a path in time (`_as_planned`), made when first asked."""
         self._delay_sent: dict[str, tuple[float, float]] = {}  # mission -> (when, pace) of the last `PlanDelay`
 
     # ---- wiring ---------------------------------------------------------------------------------
@@ -463,33 +456,8 @@ class ExecutorService(Service):
             return
         react = self.bodies.reaction(now, self.stats.recent_latency(), self.period)
         v_self = np.array(velocities).reshape(len(movers), 2, 3)
-        for closing in self.bodies.closing(movers, v_self, radius, height, now, react,
-                                           lambda vid: self._as_planned(vid, now)):
+        for closing in self.bodies.closing(movers, v_self, radius, height, now, react):
             self.controllers[closing.mover].stop_short(closing.why())
-
-    def _as_planned(self, vid: str, now: float) -> bool:
-        """Whether `vid`'s body (in the newest frame) is where its plan has it now, on its
-        mission's plan clock, within `AS_PLANNED` of the plan's margin (the proximity stop lets such
-        a pair pass). A vehicle whose plan is over, or held while its plan moved on, is not."""
-        plan = self.plans.get(vid)
-        row = self.bodies.rows.get(vid)
-        t0 = (plan.t0 or self.starts.get(plan.mission)) if plan is not None else None
-        if plan is None or row is None or not t0:
-            return False
-        ctl = self.controllers.get(vid)
-        if ctl is not None and (ctl.held or ctl.mode == Mode.DONE):
-            return False
-        known = self._plan_paths.get(vid)
-        if known is None or known[0] is not plan:
-            known = self._plan_paths[vid] = (plan, Trajectory(plan.steps))
-        clock = self.clocks.get(plan.mission)
-        t = now - t0 - (clock.behind(now) if clock is not None else 0.0)
-        traj = known[1]
-        if t > traj.end_time:
-            return False
-        planned = traj.plan_position(t)
-        here = self.bodies.pos[row]
-        return math.dist(planned, (float(here[0]), float(here[1]), float(here[2]))) <= AS_PLANNED * plan.model.margin
 
     def _run_clocks(self, now: float) -> None:
         """Move every running mission's plan clock on at the pace its vehicles here allowed at
