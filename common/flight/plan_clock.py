@@ -35,7 +35,7 @@ class ClockParams:
     max_wait_s: a vehicle that has kept the clock below full pace this long is held (its own loop
     cannot catch up: the mission plans around it); max_step_s: the most the clock runs in one cycle
     of an executor (the rest of a late cycle counts as waiting); enabled False: the plan runs on the
-    wall clock."""
+    wall clock (nothing waits)."""
 
     slow_from: float = 0.5
     stop_at: float = 1.0
@@ -101,7 +101,7 @@ class PlanClock:
         `max_step_s` of it): the delay grows by what they held it back (on top of the largest
         heard); the delay now."""
         self.waited = 0.0
-        if self._last is not None:
+        if self._last is not None and self.params.enabled:
             dt, step = max(now - self._last, 0.0), self.params.max_step_s
             self.waited = (1.0 - min(max(pace, 0.0), 1.0)) * min(dt, step) + max(dt - step, 0.0)
             self.delay += self.waited
