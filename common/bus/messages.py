@@ -485,7 +485,8 @@ class PlanDelay(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """`mission/<id>/delay`: how far the mission's plan clock stands behind the wall clock as
     executor `source` keeps it (`delay`, s, at wall time `t`), and the pace (0-1) its vehicles let
     it run at now (`common/flight/plan_clock.py`). Sent every control cycle while the pace is
-    below 1, once when it is back to 1, and every second while the delay is not 0."""
+    below 1 or the executor's own waiting grew (a late cycle), once when it is back to 1, and every
+    second while a running mission's delay is not 0."""
 
     mission: str
     source: str
