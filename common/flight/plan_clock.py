@@ -12,9 +12,10 @@ has heard (`PlanClock.wait`) and tells the others (`PlanDelay`, `mission/<id>/de
 largest (`hear`; two executors waiting at once add their wait once). While a heard pace below 1 is
 fresh, the delay is carried forward at that pace (`behind`), so the others slow at once, not a
 message later. An executor whose loop runs late (a starved process) lets the clock run at most
-`max_step_s` a cycle: its vehicles went unwatched meanwhile, and the plan waits for them (in a
-32-vehicle soak a loop late by a fifth of a second let the plan move a stopped driver's reference
-on by 6 cm at once). The plan's time an executor gives its vehicles never goes back: a larger
+`max_step_s` a cycle: its vehicles went unwatched meanwhile, and the plan waits for them (in the
+first 32-vehicle soak with the clock, drivers stopped on stale poses were still held as left
+behind, their references 6 cm on: a starved loop's late cycle moving the clock on in one step is
+the likely way, not traced). The plan's time an executor gives its vehicles never goes back: a larger
 delay heard stands it still until the wall clock has caught up. This is the coarsest form of executing a plan by the order in which vehicles pass
 each place (an action dependency graph, Hönig et al., RA-L 2019): every vehicle waits for every
 late one, not only for those whose places it shares; delays cost the whole fleet time, never a
