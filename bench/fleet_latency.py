@@ -16,6 +16,10 @@ command batches (`gateway/<g>/cmd`). Measured after a warm-up:
   spent on those), and as vehicles one core runs at 100 Hz.
 
     python -m bench.fleet_latency [--vehicles 8,32,80,200] [--executors 1] [--seconds 10] [--fly]
+                                  [--no-plan-clock]
+
+`--no-plan-clock`: the executors run the plans on the wall clock (`fleet executor --no-plan-clock`),
+to weigh what the plan's clock costs.
 """
 
 from __future__ import annotations
@@ -74,10 +78,12 @@ def where(t: float, t0: float, y: float, fly: bool) -> tuple[float, float, float
     return rel * SPEED, y, 0.0
 
 
-async def measure(endpoint: str, n: int, executors: int, seconds: float, fly: bool) -> dict[str, float]:
+async def measure(endpoint: str, n: int, executors: int, seconds: float, fly: bool,
+                  plan_clock: bool = True) -> dict[str, float]:
     session = open_session(ZenohConfig.client(endpoint))
     env = {**os.environ, "FLEET_ZENOH_CONNECT": endpoint, "FLEET_NAME": KEYS.fleet}
-    procs = [subprocess.Popen([sys.executable, "-m", "services.cli", "executor"], env={**env, "FLEET_INSTANCE": f"ex{i}"},
+    argv = [sys.executable, "-m", "services.cli", "executor", *([] if plan_clock else ["--no-plan-clock"])]
+    procs = [subprocess.Popen(argv, env={**env, "FLEET_INSTANCE": f"ex{i}"},
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for i in range(executors)]
     try:
         alive = await watch_alive(session, KEYS, "executor")
@@ -141,11 +147,13 @@ def main() -> None:
     parser.add_argument("--executors", type=int, default=1)
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--fly", action="store_true", help="hover instead of driving")
+    parser.add_argument("--no-plan-clock", dest="plan_clock", action="store_false",
+                        help="the executors run plans on the wall clock")
     args = parser.parse_args()
     rows = []
     with InProcessRouter() as router:
         for n in (int(v) for v in args.vehicles.split(",")):
-            r = asyncio.run(measure(router.endpoint, n, args.executors, args.seconds, args.fly))
+            r = asyncio.run(measure(router.endpoint, n, args.executors, args.seconds, args.fly, args.plan_clock))
             rows.append(r)
             print(f"{n} vehicles: {r}", flush=True)
     print(format_table(["vehicles", "executors", "cmd Hz/vehicle", "latency p50 ms", "p99 ms", "max ms",

@@ -59,8 +59,22 @@ class Trajectory:
             a, b = self.nodes[k], self.nodes[k + 1]
             self.vel.append(((b[0] - a[0]) / dt, (b[1] - a[1]) / dt, (b[2] - a[2]) / dt))
         self.half = [self._blend_half_width(i) for i in range(n)]
+        self.ways = self._ways()
+        """For each value of `segment(t)`: the unit direction of the plan's latest move at or before
+        t (None before any): the way along which a vehicle is behind its plan."""
         self.modes = self._plan_modes()
         self._yaw = self._plan_yaw(yaw0)
+
+    def _ways(self) -> list[tuple[float, float, float] | None]:
+        out: list[tuple[float, float, float] | None] = [None]
+        way = None
+        for vx, vy, vz in self.vel:
+            speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+            if speed > _EPS:
+                way = (vx / speed, vy / speed, vz / speed)
+            out.append(way)
+        out.append(way)
+        return out
 
     @property
     def start_time(self) -> float:

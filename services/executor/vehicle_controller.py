@@ -483,8 +483,8 @@ class VehicleController:
         around it), rejoinable if stopped by a fault that may clear."""
         c, mode = self.params.clock, self.machine.mode
         error = None
-        if (c.enabled and ref is not None and self._may_yield() and self._hover_ref is None
-                and now >= self._guard_from):
+        if ((mode in MOVING or mode == Mode.HOLDING) and c.enabled and ref is not None and self._hover_ref is None
+                and now >= self._guard_from and self._may_yield()):
             if mode == Mode.HOLDING:
                 error = None if self._stopped_at is None else math.dist(self._stopped_at, (ref.x, ref.y, ref.z))
             elif mode in MOVING and not est.stale:
@@ -510,12 +510,10 @@ class VehicleController:
         past a reference that stopped for it."""
         traj = self._active
         assert traj is not None
-        for k in range(min(traj.segment(ref.t), len(traj.vel)) - 1, -1, -1):
-            vx, vy, vz = traj.vel[k]
-            speed = math.sqrt(vx * vx + vy * vy + vz * vz)
-            if speed > 1e-9:
-                return max(((ref.x - est.x) * vx + (ref.y - est.y) * vy + (ref.z - est.z) * vz) / speed, 0.0)
-        return math.dist((ref.x, ref.y, ref.z), (est.x, est.y, est.z))
+        way = traj.ways[traj.segment(ref.t)]
+        if way is None:
+            return math.dist((ref.x, ref.y, ref.z), (est.x, est.y, est.z))
+        return max((ref.x - est.x) * way[0] + (ref.y - est.y) * way[1] + (ref.z - est.z) * way[2], 0.0)
 
     def _guard(self, now: float, est: Estimate, ref: RefSample | None) -> bool:
         """The tracking guard (`FaultParams`): hold the vehicle where it is if its estimated error
