@@ -15,7 +15,7 @@ a recorder process keeps every vehicle's ground truth, state, events and telemet
 contact or a hold by time afterwards (`bench/trace.py`).
 
     python -m bench.soak [--minutes 5] [--vehicles 80] [--executors 2] [--per-radio 8] [--truth-hz 50] [--sim-priority 0]
-                         [--trace FILE] [--no-plan-clock]
+                         [--trace FILE] [--no-plan-clock] [--control offboard|onboard]
     FLEET_SOAK_MINUTES=20 make soak        # the same through pytest -m soak (tests/test_soak.py)
 """
 
@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bench.tables import bench_parser, format_table, new_figure, save_figure
-from common.bus.messages import ServiceStats, SimTruth
+from common.bus.messages import ControlMode, ServiceStats, SimTruth
 from common.bus.pubsub import subscribe
 from common.bus.session import open_session
 from common.deploy.local import LocalFleet
@@ -84,16 +84,16 @@ instead of 6.3-6.6, the simulator 32 % instead of 38, 2026-12-05)."""
 
 def soak_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int, per_radio: int,
                truth_hz: float, fleet: str = "soak", thrust_spread: float = 0.0, sim_priority: int = 0,
-               plan_clock: bool = True):
+               plan_clock: bool = True, control: ControlMode = "offboard"):
     """The demo's fleet (services.mission.demo), minus the recorder, tuned for a large fleet
     (`LOG_PERIOD_S`); `sim_priority`: nice levels the simulator raises its priority by (`fleet sim
     --priority`); `plan_clock` False: the executors run plans on the wall clock (`fleet executor
-    --no-plan-clock`)."""
+    --no-plan-clock`); `control`: every vehicle's control mode (docs/control.md)."""
     return local_fleet(map_name, tasks, run_dir, executors, per_radio, fleet=fleet, without={"telemetry"},
                        extra_args={"sim": ["--truth-hz", str(truth_hz), "--thrust-spread", str(thrust_spread),
                                            "--priority", str(sim_priority)],
                                    "executor": [] if plan_clock else ["--no-plan-clock"]},
-                       gateway=GatewayParams(log_period_s=LOG_PERIOD_S))
+                       gateway=GatewayParams(log_period_s=LOG_PERIOD_S), control=control)
 
 
 @contextmanager
@@ -343,7 +343,7 @@ def figure(log: SoakLog, out: str | Path) -> Path:
 def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: int = 8, truth_hz: float = 50.0,
              sample_s: float = 5.0, seed: int = 0, run_dir: Path = Path("out/soak/run"),
              out: str | Path = "out", thrust_spread: float = 0.0, sim_priority: int = 0,
-             trace: Path | None = None, plan_clock: bool = True) -> SoakLog:
+             trace: Path | None = None, plan_clock: bool = True, control: ControlMode = "offboard") -> SoakLog:
     """Start the fleet, soak it for `minutes`, print the report and save the figure."""
     graph = load_graph(MAP)
     rng = random.Random(seed)
@@ -351,7 +351,7 @@ def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: 
     starts = {f"cf{i + 1:02d}": s for i, s in enumerate(rng.sample(spots, vehicles))}
     tasks = draw_tasks(graph, starts, rng)
     with soak_fleet(MAP, tasks, run_dir, executors, per_radio, truth_hz, thrust_spread=thrust_spread,
-                    sim_priority=sim_priority, plan_clock=plan_clock) as fleet, recording(fleet, trace):
+                    sim_priority=sim_priority, plan_clock=plan_clock, control=control) as fleet, recording(fleet, trace):
         log = asyncio.run(soak(fleet, graph, tasks, 60.0 * minutes, sample_s, seed))
     print(report(log, 60.0 * minutes))
     print(f"saved {figure(log, out)}")
@@ -378,10 +378,12 @@ def main() -> None:
                         help="record every vehicle's truth, state, events and telemetry here (`python -m bench.trace show`)")
     parser.add_argument("--no-plan-clock", dest="plan_clock", action="store_false",
                         help="the executors run plans on the wall clock (`fleet executor --no-plan-clock`): for comparison")
+    parser.add_argument("--control", choices=["offboard", "onboard"], default="offboard",
+                        help="every vehicle's control mode (docs/control.md, \"Onboard control mode\")")
     args = parser.parse_args()
     log = run_soak(args.minutes, args.vehicles, args.executors, args.per_radio, args.truth_hz, args.sample_s,
                    args.seed, Path(args.run_dir), args.out, args.thrust_spread, args.sim_priority, args.trace,
-                   args.plan_clock)
+                   args.plan_clock, args.control)
     if args.summary:
         Path(args.summary).write_text(json.dumps(summary(log), indent=1))
 

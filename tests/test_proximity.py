@@ -147,6 +147,8 @@ def test_a_vehicle_stops_short_of_a_body_its_plan_did_not_know(tmp_path) -> None
         result, watch = fly_mission(fleet, spec, scenario)
 
     assert not watch.contacts, watch.separation_line()
+    # the mission's own judge (the simulator's `sim/truths` frames) saw it too, cf4 outside its tasks
+    assert 0.0 < result.min_gap < 0.05 and set(result.min_pair) == {"cf3", "cf4"}, (result.min_gap, result.min_pair)
     [held] = [e for _t, e in watch.events if e.vid == "cf3" and e.kind == "tracking_hold"]
     assert held.detail.startswith("stops short of cf4"), held.detail
     assert any(e.startswith("cf3 not back yet") and "crosses where cf4 may be" in e for e in result.events), \

@@ -12,6 +12,7 @@ import subprocess
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -19,7 +20,7 @@ import zenoh
 from common.bus.args import credentials
 from common.bus.keys import Keys
 from common.bus.liveliness import declare_alive, watch_alive
-from common.bus.messages import Cmd, PlanReply, PlanRequest, StopSetpoint, Telemetry
+from common.bus.messages import Cmd, PlanReply, PlanRequest, SimTruth, SimTruthFrame, StopSetpoint, Telemetry
 from common.bus.pubsub import Publisher, QueryError, find_queryable, query, serve, subscribe
 from common.bus.session import InProcessRouter, ZenohConfig, free_tcp_endpoint, open_session
 from common.deploy.acl import ROUTER_CONFIG, render
@@ -90,14 +91,16 @@ def test_sessions_without_valid_credentials_are_refused(router: InProcessRouter,
 
 
 def _publish_check(role: Sessions, key: str, make: Callable[[str], object], typ: type, reader: str,
-                   denied: str, allowed: str) -> list[str]:
-    """`denied` then `allowed` publish on `key` to a `reader` subscriber: the senders that arrived."""
+                   denied: str, allowed: str, sender: Callable[[Any], str] | None = None) -> list[str]:
+    """`denied` then `allowed` publish on `key` to a `reader` subscriber: the senders that arrived
+    (as `sender` reads them from a message; a command's owner, telemetry's gateway by default)."""
+    sender = sender or (lambda msg: msg.owner if typ is Cmd else msg.gateway)
     rx = role(reader)
     tx_denied, tx_allowed = role(denied), role(allowed)
 
     async def scenario() -> list[str]:
         got: list[str] = []
-        subscribe(rx, key, typ, lambda msg, _k: got.append(msg.owner if typ is Cmd else msg.gateway))
+        subscribe(rx, key, typ, lambda msg, _k: got.append(sender(msg)))
         bad, good = Publisher(tx_denied, key, typ), Publisher(tx_allowed, key, typ)
         await eventually(lambda: good.matched)
         for _ in range(5):
@@ -123,6 +126,17 @@ def test_only_gateways_publish_telemetry(role: Sessions) -> None:
     got = _publish_check(role, KEYS.vehicle("x", "telemetry"), telemetry, Telemetry, reader="executor",
                          denied="executor", allowed="gateway")
     assert got == ["gateway"] * 5
+
+
+@pytest.mark.timeout(20)
+def test_only_the_simulator_publishes_ground_truth_frames(role: Sessions) -> None:
+    """The frames a mission judges separation on (`sim/truths`) reach it from the simulator only."""
+    def frame(name: str) -> SimTruthFrame:
+        return SimTruthFrame(t=time.time(), truths=[SimTruth(vid=name, t=time.time(), x=0.0, y=0.0, z=0.0, yaw=0.0)])
+
+    got = _publish_check(role, KEYS.sim_truths, frame, SimTruthFrame, reader="mission", denied="executor",
+                         allowed="sim", sender=lambda msg: msg.truths[0].vid)
+    assert got == ["sim"] * 5
 
 
 @pytest.mark.timeout(20)

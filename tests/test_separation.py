@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from common.bus.messages import SimTruth
+from common.bus.messages import SimTruth, SimTruthFrame
 from common.domain.vehicle_model import VehicleModel
 from services.mission.separation import SeparationMonitor
 
@@ -36,6 +36,19 @@ def test_a_brush_shorter_than_a_tenth_of_a_second_is_a_contact() -> None:
     assert len(sep.contacts) == 5  # one per instant in contact (0.48 ... 0.52 s), not one per truth
     assert 0.03 <= max(c[0] for c in sep.contacts) - min(c[0] for c in sep.contacts) <= 0.06  # (0.044 s of overlap)
     assert sep.min_gap == pytest.approx(-0.002, abs=1e-9) and set(sep.min_pair) == {"cf1", "cf2"}
+
+
+def test_frames_of_every_body_are_judged_as_their_truths() -> None:
+    """A simulator's `sim/truths` frames (every body of one instant) give the judgement its
+    truths one by one give."""
+    by_truth, by_frame = SeparationMonitor(R, H), SeparationMonitor(R, H)
+    truths = crossing(0.0)
+    for truth in truths:
+        by_truth.update(truth)
+    for k in range(0, len(truths), 2):
+        by_frame.update_frame(SimTruthFrame(t=truths[k].t, truths=truths[k:k + 2]))
+    assert by_frame.contacts == by_truth.contacts and len(by_frame.contacts) == 5
+    assert (by_frame.min_gap, by_frame.min_pair) == (by_truth.min_gap, by_truth.min_pair)
 
 
 def test_bodies_apart_in_height_or_far_apart_do_not_touch() -> None:

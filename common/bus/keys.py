@@ -105,6 +105,11 @@ class Keys:
         return f"{self.root}/sim/truth/*"
 
     @property
+    def sim_truths(self) -> str:
+        """Every simulated vehicle's truth of one instant (`SimTruthFrame`)."""
+        return f"{self.root}/sim/truths"
+
+    @property
     def sim_mocap(self) -> str:
         """Frames of the simulated motion-capture system."""
         return f"{self.root}/sim/mocap"

@@ -294,6 +294,16 @@ class SimTruth(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     charge_used_ah: float = 0.0
 
 
+class SimTruthFrame(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Every vehicle's ground truth of one simulator instant (`sim/truths`), as one message: a
+    mission judges the bodies' separation on these (32 vehicles' truths as 32 messages each
+    instant were most of its process's work and of the router's traffic). Each truth is on
+    `sim/truth/<vid>` too, for tools."""
+
+    t: float
+    truths: list[SimTruth]
+
+
 SimFaultKind = Literal["mocap_dropout", "radio_blackout", "battery", "power_off", "power_on", "gust"]
 
 

@@ -75,7 +75,7 @@ ROLES: dict[str, Role] = {
     "gateway": Role(publish=("vehicle/*/telemetry", "vehicle/*/event"),
                     subscribe=("vehicle/*/cmd", "gateway/*/cmd", "mocap/frame", "estop"),
                     watch=("alive/executor/*",)),
-    "sim": Role(publish=("sim/truth/*", "sim/mocap", "vehicle/*/event"), subscribe=("sim/fault/*",)),
+    "sim": Role(publish=("sim/truth/*", "sim/truths", "sim/mocap", "vehicle/*/event"), subscribe=("sim/fault/*",)),
     "mocap": Role(publish=("mocap/frame", "vehicle/*/pose", "vehicle/*/event"), subscribe=("sim/mocap",)),
     "telemetry": Role(subscribe=("vehicle/*/plan", "vehicle/*/state", "vehicle/*/telemetry", "sim/truth/*"),
                       query=("planner/graph",)),

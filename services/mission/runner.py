@@ -39,7 +39,7 @@ from common.bus.messages import (
     PlanRequest,
     PoseFrame,
     Replan,
-    SimTruth,
+    SimTruthFrame,
     Sweep,
     TaskAdd,
     TaskAddReply,
@@ -328,7 +328,7 @@ class MissionRunner(MissionClient[MissionResult]):
         for vid, path in plan.paths.items():
             self.reports[vid].planned_s = path[-1].t
         self.sep = sep = SeparationMonitor(*plan.model.body())  # physical bodies, not the planning envelope
-        self.subscribe(self.keys.all_sim_truth, SimTruth, lambda t, _k: sep.update(t))
+        self.subscribe(self.keys.sim_truths, SimTruthFrame, lambda f, _k: sep.update_frame(f))
         self._plans = self.publishers(lambda vid: self.keys.vehicle(vid, "plan"), VehiclePlan,
                                       congestion_control=zenoh.CongestionControl.BLOCK)
         self._abort_pub = self.publisher(self.keys.mission(self.mission, "abort"), MissionAbort)

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from common.bus.messages import SimTruth
+from common.bus.messages import SimTruth, SimTruthFrame
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +44,12 @@ class SeparationMonitor:
             self._judge()
             self._instant = truth.t
         self.latest[truth.vid] = truth
+
+    def update_frame(self, frame: SimTruthFrame) -> None:
+        """Every truth of a simulator's instant (`sim/truths`; several simulators' frames mix as
+        their truths would)."""
+        for truth in frame.truths:
+            self.update(truth)
 
     def _judge(self) -> None:
         """Every pair of the latest truths."""

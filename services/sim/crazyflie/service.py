@@ -2,7 +2,8 @@
 
 Every ``udp://`` vehicle of the selected radios becomes a `SimCrazyflie` at its configured start,
 behind its radio's link model (`SimRadio`, shared by the radio's vehicles). Ground truth goes out on
-`sim/truth/<vid>` at `truth_hz`, and each tick is also a capture of the simulated motion-capture
+`sim/truth/<vid>` at `truth_hz`, and every vehicle's of one tick together on `sim/truths`
+(`SimTruthFrame`, what a mission judges separation on); each tick is also a capture of the simulated motion-capture
 system (`SimMocap`, the radios file's `mocap` model): one frame of every body on `sim/mocap`.
 Firmware watchdog trips go out as `VehicleEvent`s on `vehicle/<vid>/event`. The gateway talks to
 these exactly as to real vehicles (paper 000 §VI-C).
@@ -23,7 +24,7 @@ from collections.abc import Collection
 from dataclasses import replace
 
 from common.bus.keys import Keys
-from common.bus.messages import MocapFrame, SimFault, SimTruth, VehicleEvent
+from common.bus.messages import MocapFrame, SimFault, SimTruth, SimTruthFrame, VehicleEvent
 from common.bus.service import Service
 from common.bus.session import ZenohConfig
 from common.bus.stats import publish_stats
@@ -65,6 +66,7 @@ class SimService(Service):
 
     async def main(self) -> None:
         self._truth = self.publishers(self.keys.sim_truth, SimTruth)
+        self._truths = self.publisher(self.keys.sim_truths, SimTruthFrame)
         self._events = self.publishers(lambda vid: self.keys.vehicle(vid, "event"), VehicleEvent)
         frames = self.publisher(self.keys.sim_mocap, MocapFrame)
         self.mocap = SimMocap(self.mocap_model, frames.put)
@@ -107,6 +109,7 @@ class SimService(Service):
             self.mocap.capture(now, truths)  # (it leaves latency_s after `now`, whatever the truths cost)
             for truth in truths:
                 self._truth.put(truth.vid, truth)
+            self._truths.put(SimTruthFrame(t=now, truths=truths))
             due += self.period
             delay = due - loop.time()
             if delay < -self.period:  # fell behind (loaded machine): skip, do not burst
