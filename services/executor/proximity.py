@@ -37,11 +37,11 @@ NEVER = -1e9
 
 @dataclass(frozen=True, slots=True)
 class ProximityParams:
-    """near_gap: m between two bodies that counts as touching (a third of the shipped maps' 3 cm
-    margin: plans keep a whole margin, tracking in a 32-vehicle soak came to 1.5 cm); a closing is
-    looked for as far ahead as the mover needs to stop: its executor's reaction (`closing`'s
-    `react_s`, `Bodies.reaction`: the recent pose-to-command p99, or the newest frame's age while
-    the frames stall, and a period; at least `react_s` here) and a stop from
+    """near_gap: m between two bodies that counts as touching (a third of town's 3 cm margin:
+    plans keep a whole margin, tracking in a 32-vehicle soak came to 1.5 cm); a closing is looked
+    for as far ahead as the mover needs to stop: its executor's reaction (`closing`'s `react_s`,
+    `Bodies.reaction`: the recent pose-to-command p99, or the newest frame's age while the frames
+    stall, and a period; at least `react_s` here) and a stop from
     the pair's relative speed at `brake` m/s^2 (the flight controller's tilt limit; wheels stop
     faster); closing_speed: m/s towards the other body at which a
     vehicle counts as heading into it; velocity_s: the window over which a body's velocity is
