@@ -12,7 +12,7 @@ import pytest
 import zenoh
 
 from common.bus.keys import Keys
-from common.bus.messages import Pose, Telemetry, VehicleEvent, VehicleState
+from common.bus.messages import Pose, Telemetry, VehicleEvent, VehicleState, VehicleStates
 from common.bus.pubsub import Publisher, subscribe
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
@@ -45,17 +45,19 @@ def test_another_executors_fault_landing_is_heard_and_its_node_passed_over(
     async def scenario() -> list[str]:
         svc = ExecutorService("e1", ZenohConfig.client(zenoh_router), KEYS)
         run = asyncio.create_task(svc.run())
-        pub = Publisher(zsession(), KEYS.vehicle("cf2", "state"), VehicleState)
+        session = zsession()
+        theirs = Publisher(session, KEYS.executor_states("e2"), VehicleStates)
+        ours = Publisher(session, KEYS.executor_states("e1"), VehicleStates)
         chosen = []
         try:
             for landing in (None, PADS["l2"], None):
-                pub.put(state("cf2", "e2", landing))
+                theirs.put(VehicleStates(owner="e2", t=0.0, states=[state("cf2", "e2", landing)]))
                 for _ in range(100):  # until the executor has heard it
                     await asyncio.sleep(0.02)
                     if ("cf2" in svc._landings) == (landing is not None):
                         break
                 chosen.append(target(svc))
-            pub.put(state("cf1", "e1", PADS["l2"]))  # its own vehicle's state: not another's landing
+            ours.put(VehicleStates(owner="e1", t=0.0, states=[state("cf1", "e1", PADS["l2"])]))  # its own: not another's
             await asyncio.sleep(0.3)
             chosen.append(target(svc))
         finally:

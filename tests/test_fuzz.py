@@ -196,7 +196,7 @@ def test_plan_decoder_raises_only_plan_file_errors(plan_doc: Any, data: st.DataO
 
 KEYS = Keys("fuzz")
 FLOODED = {KEYS.vehicle("v1", "plan"): VehiclePlan, KEYS.mocap_frame: messages.PoseFrame,
-           KEYS.vehicle("v1", "telemetry"): messages.Telemetry, KEYS.vehicle("v1", "state"): VehicleState,
+           KEYS.vehicle("v1", "telemetry"): messages.Telemetry, KEYS.executor_states("e2"): messages.VehicleStates,
            KEYS.mission("m1", "start"): messages.MissionStart, KEYS.mission("m1", "abort"): messages.MissionAbort}
 """Every key the executor listens to, and the type it expects there."""
 

@@ -76,6 +76,15 @@ class Keys:
         check_chunk(instance, "gateway instance")
         return f"{self.root}/gateway/{instance}/cmd"
 
+    def executor_states(self, instance: str) -> str:
+        """The states executor `instance` published in one control cycle (`VehicleStates`)."""
+        check_chunk(instance, "executor instance")
+        return f"{self.root}/executor/{instance}/states"
+
+    @property
+    def all_executor_states(self) -> str:
+        return f"{self.root}/executor/*/states"
+
     @property
     def planner_plan(self) -> str:
         return f"{self.root}/planner/plan"

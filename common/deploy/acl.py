@@ -65,10 +65,10 @@ class Role:
 
 ROLES: dict[str, Role] = {
     "executor": Role(
-        publish=("vehicle/*/cmd", "gateway/*/cmd", "vehicle/*/state", "vehicle/*/event", "vehicle/*/action",
-                 "mission/*/delay"),
+        publish=("vehicle/*/cmd", "gateway/*/cmd", "vehicle/*/state", "executor/*/states", "vehicle/*/event",
+                 "vehicle/*/action", "mission/*/delay"),
         subscribe=("vehicle/*/plan", "vehicle/*/team_plan", "mocap/frame", "vehicle/*/pose", "vehicle/*/telemetry",
-                   "vehicle/*/state", "vehicle/*/event", "vehicle/*/action_status", "mission/*/start",
+                   "executor/*/states", "vehicle/*/event", "vehicle/*/action_status", "mission/*/start",
                    "mission/*/abort", "mission/*/delay"),
         watch=("alive/executor/*",)),
     "planner": Role(publish=("vehicle/*/plan", "vehicle/*/team_plan"), serve=("planner/plan", "planner/graph")),

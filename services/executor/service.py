@@ -58,6 +58,7 @@ from common.bus.messages import (
     VehicleEvent,
     VehiclePlan,
     VehicleState,
+    VehicleStates,
 )
 from common.bus.pubsub import Subscription
 from common.bus.service import Service
@@ -152,7 +153,7 @@ class ExecutorService(Service):
                  **kwargs) -> None:
         super().__init__("executor", instance, *args, **kwargs)
         self.control = control or ControlParams()
-        self.team = TeamExecutor(self)
+        self.team = TeamExecutor(self, self.publish_states)
         self.period = 1.0 / rate_hz
         self.state_every = max(1, round(rate_hz / state_hz))
         self.plans: dict[str, VehiclePlan] = {}
@@ -193,7 +194,7 @@ class ExecutorService(Service):
         self.subscribe(k.all_vehicles("plan"), VehiclePlan, self._on_plan)
         frames = self.subscribe(k.mocap_frame, PoseFrame, maxlen=64)  # pulled by the control loop
         self.subscribe(k.all_vehicles("telemetry"), Telemetry, self._on_telemetry, maxlen=1024)
-        self.subscribe(k.all_vehicles("state"), VehicleState, self._on_state, maxlen=4096)
+        self.subscribe(k.all_executor_states, VehicleStates, self._on_states, maxlen=1024)
         self.subscribe(k.all_vehicles("event"), VehicleEvent, self._on_event, maxlen=1024)
         self.subscribe(k.all_missions("start"), MissionStart, self._on_start)
         self.subscribe(k.all_missions("abort"), MissionAbort, self._on_abort)
@@ -202,6 +203,7 @@ class ExecutorService(Service):
         self._cmd = self.publishers(lambda vid: k.vehicle(vid, "cmd"), Cmd)
         self._batch = self.publishers(k.gateway_cmd, CmdBatch)
         self._state = self.publishers(lambda vid: k.vehicle(vid, "state"), VehicleState)
+        self._states = self.publisher(k.executor_states(self.instance), VehicleStates)
         self._event = self.publishers(lambda vid: k.vehicle(vid, "event"), VehicleEvent)
         self.team.open()
         loop = asyncio.get_running_loop()
@@ -376,7 +378,11 @@ class ExecutorService(Service):
         if ctl is not None:
             ctl.on_telemetry(tel, time.time())
 
-    def _on_state(self, state: VehicleState, _key: str) -> None:
+    def _on_states(self, batch: VehicleStates, _key: str) -> None:
+        for state in batch.states:
+            self._on_state(state)
+
+    def _on_state(self, state: VehicleState) -> None:
         self.team.on_state(state)
         self.ownership.on_state(state)
         if state.owner != self.instance:  # another executor's fault landing, announced
@@ -386,6 +392,14 @@ class ExecutorService(Service):
                     ctl.landing_wanted_by(state.vid, state.landing)
             else:
                 self._landings.pop(state.vid, None)
+
+    def publish_states(self, states: list[VehicleState], now: float) -> None:
+        """Each state on its vehicle's key (tools) and all of them as one `VehicleStates` (the
+        fleet's services)."""
+        for state in states:
+            self._state.put(state.vid, state)
+        if states:
+            self._states.put(VehicleStates(owner=self.instance, t=now, states=states))
 
     def _on_event(self, event: VehicleEvent, _key: str) -> None:
         """The fleet's reflex to a vehicle held by the tracking guard or coming down in an emergency
@@ -490,6 +504,7 @@ class ExecutorService(Service):
         (all in one cycle, 80 vehicles' states made that cycle about 1 ms longer than the others:
         8-17 us a put)."""
         batches: dict[str, list[Cmd]] = {}
+        states: list[VehicleState] = []
         for k, (vid, ctl) in enumerate(list(self.controllers.items())):
             try:
                 cmd = ctl.tick(now)
@@ -502,8 +517,9 @@ class ExecutorService(Service):
             else:
                 batches.setdefault(gateway, []).append(cmd)
             if (n + k) % self.state_every == 0:
-                self._state.put(vid, ctl.state())
+                states.append(ctl.state())
             self._report_mode(vid, ctl, now)
+        self.publish_states(states, now)
         sent = time.time()
         for gateway, cmds in batches.items():
             self._batch.put(gateway, CmdBatch(owner=self.instance, t=sent, cmds=cmds, pose_t=pose_t,

@@ -24,6 +24,7 @@ import asyncio
 import logging
 import math
 import time
+from collections.abc import Callable
 
 from common.bus.messages import (
     ActionStatus,
@@ -187,8 +188,9 @@ class TeamExecutor:
     it owns, and publishes their actions, states and failures. The service calls `open()` from its
     main and forwards ownership changes, states, mission starts and aborts."""
 
-    def __init__(self, service: Service) -> None:
+    def __init__(self, service: Service, publish_states: Callable[[list[VehicleState], float], None]) -> None:
         self.svc = service
+        self._publish_states = publish_states
         self.plans: dict[str, VehicleTeamPlan] = {}
         self.robots: dict[str, TeamRobot] = {}
         self.ownership = VehicleOwnership(service.instance, lambda vid: vid in self.robots, self._take,
@@ -203,7 +205,6 @@ class TeamExecutor:
     def open(self) -> None:
         k = self.svc.keys
         self._actions = self.svc.publishers(lambda vid: k.vehicle(vid, "action"), TeamAction)
-        self._states = self.svc.publishers(lambda vid: k.vehicle(vid, "state"), VehicleState)
         self._events = self.svc.publishers(lambda vid: k.vehicle(vid, "event"), VehicleEvent)
         self.svc.subscribe(k.all_vehicles("team_plan"), VehicleTeamPlan, self._on_plan)
         self.svc.subscribe(k.all_vehicles("action_status"), ActionStatus, self._on_status)
@@ -294,7 +295,7 @@ class TeamExecutor:
         last = self._stated.get(vid)
         if last is None or last[1:] != (robot.mode, robot.done) or now - last[0] >= HEARTBEAT_S:
             self._stated[vid] = (now, robot.mode, robot.done)
-            self._states.put(vid, robot.state(now))
+            self._publish_states([robot.state(now)], now)
             self._progressed(robot.assignment.mission, vid, robot.done)
 
     async def _timer(self) -> None:

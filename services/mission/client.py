@@ -33,7 +33,15 @@ from typing import Generic, TypeVar
 
 import msgspec
 
-from common.bus.messages import MissionAbort, MissionStart, PlanReply, PlanRequest, VehicleEvent, VehicleState
+from common.bus.messages import (
+    MissionAbort,
+    MissionStart,
+    PlanReply,
+    PlanRequest,
+    VehicleEvent,
+    VehicleState,
+    VehicleStates,
+)
 from common.bus.pubsub import SERVICE_START_S, QueryError, QueryTimeout, query
 from common.bus.service import Service
 from services.mission.stale_commands import StaleCommands
@@ -190,7 +198,7 @@ class MissionClient(Service, Generic[R]):
         if error:
             return self.conclude(False, error)
         k = self.keys
-        self.subscribe(k.all_vehicles("state"), VehicleState, self._on_state)
+        self.subscribe(k.all_executor_states, VehicleStates, self._on_states)
         self.subscribe(k.all_vehicles("event"), VehicleEvent, self._on_event)
         start_pub = self.publisher(k.mission(self.mission, "start"), MissionStart)
         abort_pub = self.publisher(k.mission(self.mission, "abort"), MissionAbort)
@@ -251,7 +259,11 @@ class MissionClient(Service, Generic[R]):
             await asyncio.sleep(TICK_S)
         return done()
 
-    def _on_state(self, state: VehicleState, _key: str) -> None:
+    def _on_states(self, batch: VehicleStates, _key: str) -> None:
+        for state in batch.states:
+            self._on_state(state)
+
+    def _on_state(self, state: VehicleState) -> None:
         if state.vid not in self.vehicles:
             return
         self.states[state.vid] = state
