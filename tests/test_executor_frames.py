@@ -10,7 +10,7 @@ from collections import Counter
 import pytest
 
 from common.bus.keys import Keys
-from common.bus.messages import FramePose, PoseFrame
+from common.bus.messages import FramePose, PoseFrame, VehicleStates
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
 from services.executor.service import ExecutorService
@@ -53,6 +53,16 @@ class Sent:
         self.puts.append(key)
 
 
+class SentBatches:
+    """Stands in for one publisher (`Publisher.put`): the messages put."""
+
+    def __init__(self) -> None:
+        self.msgs: list[VehicleStates] = []
+
+    def put(self, msg: VehicleStates) -> None:
+        self.msgs.append(msg)
+
+
 def test_each_vehicles_state_goes_out_once_in_five_cycles_and_every_cycle_sends_a_fifth() -> None:
     svc = service()
     vids = [f"cf{i:02d}" for i in range(12)]
@@ -61,10 +71,12 @@ def test_each_vehicles_state_goes_out_once_in_five_cycles_and_every_cycle_sends_
     svc._cmd, svc._batch, svc._event = Sent(), Sent(), Sent()
     per_cycle, per_vehicle = [], Counter()
     for n in range(20):
-        svc._state = states = Sent()
+        svc._state, svc._states = states, batches = Sent(), SentBatches()
         svc._cycle(100.0 + 0.01 * n, n, 0.0, 0.0)
         per_cycle.append(len(states.puts))
         per_vehicle.update(states.puts)
+        [batch] = batches.msgs  # the cycle's states together, as the fleet's services read them
+        assert batch.owner == "e1" and [st.vid for st in batch.states] == states.puts
     assert svc.state_every == 5
     assert all(c in (2, 3) for c in per_cycle), per_cycle  # 12 vehicles over 5 cycles: never all at once
     assert per_vehicle == {vid: 4 for vid in vids}  # 20 cycles: each vehicle's state 4 times (20 Hz)
