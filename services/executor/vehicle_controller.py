@@ -157,8 +157,6 @@ class VehicleController:
         """How far its mission's plan clock stands behind `now - t0` (s), and the pace it runs at
         (0-1): its executor's (`common/flight/plan_clock.py`); the plan's time is `now - t0 - delay`."""
         self.pace = 1.0
-        self.clock_pace = 1.0
-        """The pace this vehicle lets the plan's clock run at, as its last tick saw it (`_pace_clock`)."""
         self.seq = 0
         self.charge_used_ah = 0.0
         self.lqr = FlightLqr(self.model.mass, self.params.dt, self.params.lqr)
@@ -193,6 +191,7 @@ class VehicleController:
         self._stopped_at: tuple[float, float, float] | None = None  # where a fault on the ground stopped it
         self._slow_since: float | None = None  # since when it keeps the plan's clock below full pace
         self.clock_pace = 1.0
+        """The pace this vehicle lets the plan's clock run at, as its last tick saw it (`_pace_clock`)."""
 
     # ---- inputs ---------------------------------------------------------------------------
 
