@@ -68,8 +68,8 @@ HANDLINGS: tuple[Handling, ...] = (
         "emergency landing on a stale pose in the air",
         "executor: a stale pose in the air no longer requests EMERGENCY_LANDING",
         (Edit("services/executor/vehicle_controller.py",
-              "            if est.stale:\n                if m.request(Mode.EMERGENCY_LANDING, now, \"pose stale in the air\"):",
-              "            if False:\n                if m.request(Mode.EMERGENCY_LANDING, now, \"pose stale in the air\"):"),),
+              "            if est.stale:\n                vertical = ",
+              "            if False:\n                vertical = "),),
         "tests/test_faults_mocap.py::test_a_short_dropout_is_flown_through_a_long_one_lands_the_vehicle_and_the_others_fly_on"),
     Handling(
         "the simulated firmware's commander watchdog",
@@ -105,6 +105,13 @@ HANDLINGS: tuple[Handling, ...] = (
         "mission: no vehicle comes back (`REJOINS` 0)",
         (Edit("services/mission/rejoin.py", "REJOINS = 3\n", "REJOINS = 0\n"),),
         "tests/test_faults_radio.py::test_a_link_lost_mid_flight_lands_the_vehicle_and_one_lost_while_driving_comes_back"),
+    Handling(
+        "a vehicle come down blind in its take-off brought back",
+        "executor: every emergency descent ends done (none held where it came down)",
+        (Edit("services/executor/vehicle_controller.py",
+              "        if (column is None or est.stale or self._abort",
+              "        if (True or column is None or est.stale or self._abort"),),
+        "tests/test_faults_mocap.py::test_a_dropout_in_a_take_off_lands_the_vehicle_on_its_spot_and_the_mission_brings_it_back"),
     Handling(
         "the executor's low-battery landing",
         "executor: `low` always False in its supervision (the event still comes at the planned landing)",

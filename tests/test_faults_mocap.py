@@ -1,8 +1,9 @@
 """Motion-capture dropouts mid-flight (issues 8 and 16), injected at the simulated motion capture:
 0.3 s is bridged by the executor's prediction (the vehicle flies its plan on and arrives), 2 s makes
 it land (a blind, level emergency descent) and the mission replans the others around it: every one
-of them arrives. Judged in ground truth, no contact. A bridge that falls behind drops late frames
-rather than queue them."""
+of them arrives; 1 s in a take-off lands it in the take-off's column and the mission brings it
+back. Judged in ground truth, no contact. A bridge that falls behind drops late frames rather than
+queue them."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from tests.support.fleet_faults import (
     NO_RECORDER,
     TOWN_TASKS,
     Watch,
+    airborne,
     assert_the_others_arrived,
     cruising,
     fly,
@@ -71,6 +73,38 @@ def test_a_short_dropout_is_flown_through_a_long_one_lands_the_vehicle_and_the_o
     print(f"cf2 through {SHORT} s: worst tracking error {max(s.tracking_error for s in cf2):.3f} m; "
           f"cf1 emergency landing {landed_at - long:.2f} s into {LONG} s, touchdown {watch.hardest_touchdown('cf1'):.2f} m/s; "
           f"replanned in {', '.join(f'{1e3 * t:.0f} ms' for t in result.replans)}; {watch.separation_line()}")
+
+
+@pytest.mark.flight
+@pytest.mark.timeout(180)
+def test_a_dropout_in_a_take_off_lands_the_vehicle_on_its_spot_and_the_mission_brings_it_back(tmp_path) -> None:
+    """cf1 loses its body for 1 s half-way up its take-off (a motion-capture stall): it comes down
+    blind in its take-off's column, is held there once seen again, and the mission brings it back
+    into the plan: it takes off again and arrives, as do the others; no contact in ground truth."""
+    spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20)
+    marks: dict[str, float] = {}
+
+    async def scenario(watch: Watch, runner: MissionRunner) -> None:
+        await until(lambda: watch.mode("cf1") == "taking_off" and airborne(watch, "cf1", 0.15)(), 60,
+                    "cf1 half-way up its take-off")
+        marks["lost"] = watch.inject(SimFault(vid="cf1", kind="mocap_dropout", duration_s=1.0))
+
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="takeoffdrop", without=NO_RECORDER) as fleet:
+        result, watch = fly(fleet, spec, scenario)
+
+    lost = marks["lost"]
+    landed_at, held_at = watch.first("cf1", "emergency_landing", lost), watch.first("cf1", "tracking_hold", lost)
+    assert landed_at is not None and held_at is not None and landed_at < held_at, watch.kinds("cf1", lost)
+    assert any(e.startswith("cf1 rejoined") for e in result.events), result.events
+    assert result.ok, result.summary()
+    assert result.plan is not None
+    for vid in result.vehicles:
+        goal = result.plan.graph.nodes[result.plan.paths[vid][-1].node].pos
+        assert watch.distance_to(vid, goal) < 0.05 and result.vehicles[vid].arrived, (vid, watch.truth[vid][-1], goal)
+        assert watch.landed_safely(vid) == "", watch.landed_safely(vid)
+    assert result.contacts == 0 and not watch.contacts, (watch.separation_line(), watch.contacts[:5])
+    print(f"cf1 came down {landed_at - lost:.2f} s into the dropout, held {held_at - lost:.2f} s after it; "
+          f"{watch.separation_line()}")
 
 
 def test_late_frames_are_dropped_not_queued(zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:

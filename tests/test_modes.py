@@ -25,9 +25,11 @@ def test_ground_and_air_meet_only_through_takeoff_and_landings() -> None:
                 assert src in (Mode.LANDING, Mode.EMERGENCY_LANDING), f"{src} -> {dst}"
 
 
-def test_done_is_left_only_for_a_new_plan_and_emergencies_end_in_done() -> None:
+def test_done_is_left_only_for_a_new_plan_and_emergencies_end_on_the_ground() -> None:
+    """An emergency descent ends done, or held where it came down (in its take-off or landing's
+    column: the mission may bring it back)."""
     assert TRANSITIONS[Mode.DONE] == {Mode.PARKED}
-    assert TRANSITIONS[Mode.EMERGENCY_LANDING] == {Mode.DONE}
+    assert TRANSITIONS[Mode.EMERGENCY_LANDING] == {Mode.DONE, Mode.HOLDING}
     for mode in AIRBORNE - {Mode.EMERGENCY_LANDING}:
         assert Mode.EMERGENCY_LANDING in TRANSITIONS[mode]
 

@@ -24,7 +24,7 @@ from services.mission.sweeps import held
 from services.planner.registry import solve
 from services.planner.validate import validate_plan
 from services.sim.crazyflie.physics import SimFlyingCar
-from tests.support.closed_loop import plan_for, run
+from tests.support.closed_loop import Mocap, MocapNoise, plan_for, run
 from tests.test_replan import TASKS, plan_of
 from tests.test_tracking_guard import MODEL, STEPS, T0
 
@@ -181,6 +181,40 @@ def test_a_vehicle_stopped_short_waits_for_its_new_reference_then_goes_on_to_its
     run(ctrl, sim, T0 + switch - progress + STEPS[-1].t + 3.0)
     assert ctrl.mode == Mode.DONE and ctrl.held is None, (ctrl.mode, ctrl.held)
     assert math.dist((sim.x, sim.y, sim.z), STEPS[-1].pos) < 0.05  # flew the rest and parked at its goal
+
+
+@pytest.mark.parametrize(("where", "edge"), [("take-off", "takeoff"), ("landing", "land"), ("flight", "fly")])
+def test_a_vehicle_that_came_down_blind_in_its_take_off_or_landing_is_held_there_and_taken_back(
+        where: str, edge: str) -> None:
+    """Poses lost for 1 s mid take-off or mid landing (a motion-capture stall): the emergency
+    descent comes down in the column of its plan's take-off or landing, and there, seen again, the
+    vehicle is held (rejoinable), not done; a plan that brings it back (its path shifted: the
+    take-off, or the drive after the landing, from where it stands) takes it on to its goal. Lost
+    in cruise it comes down below its flight, off its plan: done, as before."""
+    k = next(k for k, s in enumerate(STEPS) if s.edge == edge)
+    a, b = STEPS[k - 1], STEPS[k]
+    lost = T0 + 0.5 * (a.t + b.t)
+    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    ctrl = VehicleController("cf1", MODEL, owner="test")
+    ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
+    mocap = Mocap(MocapNoise(dropouts=((lost, lost + 1.0),)))
+    records = run(ctrl, sim, lost + 5.0, mocap)
+    assert Mode.EMERGENCY_LANDING in {r.mode for r in records}
+    assert sim.z < 0.02 and not sim.truth().motors, (sim.z, ctrl.mode)
+    if edge == "fly":
+        assert ctrl.mode == Mode.DONE and ctrl.held is None
+        return
+    column = STEPS[k - 1 if edge == "takeoff" else k].pos
+    assert math.hypot(sim.x - column[0], sim.y - column[1]) < 2 * MODEL.margin
+    assert ctrl.mode == Mode.HOLDING and ctrl.rejoinable and "landed blind" in (ctrl.held or ""), ctrl.held
+    progress = a.t if edge == "takeoff" else b.t  # where `progress_at` puts it: the column's foot
+    switch = sim.t - T0 + 1.5
+    assert ctrl.replan(back(switch - progress), sim.t)
+    records = run(ctrl, sim, T0 + switch - progress + STEPS[-1].t + 3.0, mocap)
+    if edge == "takeoff":
+        assert Mode.TAKING_OFF in {r.mode for r in records}
+    assert ctrl.mode == Mode.DONE and ctrl.held is None, (ctrl.mode, ctrl.held)
+    assert math.dist((sim.x, sim.y, sim.z), STEPS[-1].pos) < 0.05
 
 
 def test_a_plan_whose_reference_does_not_come_by_is_refused_and_the_hold_reported_again() -> None:

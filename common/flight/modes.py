@@ -30,13 +30,15 @@ class Mode(StrEnum):
     """Following a land edge, or a fault's descent to the nearest safe point, until touchdown."""
     HOLDING = "holding"
     """On the ground, stopped by a fault (stale pose, lost link) that may clear, or by the tracking
-    guard (for good, unless held not for its own tracking and brought back into the plan)."""
+    guard (for good, unless held not for its own tracking and brought back into the plan), or where
+    an emergency descent in a take-off or landing of its plan came down (it may be brought back)."""
     HOVERING = "hovering"
     """Airborne, held where it was by the tracking guard (off its plan) until the mission aborts,
     or, held not for its own tracking, until the mission's plan brings it back (then flying on, or in
     its take-off)."""
     EMERGENCY_LANDING = "emergency_landing"
-    """Airborne without a trustworthy pose: a blind, level descent, then motors off."""
+    """Airborne without a trustworthy pose: a blind, level descent, then motors off (done, or
+    holding if it came down, seen, in the column of the take-off or landing it was in)."""
     DONE = "done"
     """On the ground, motors and wheels off for good: at the goal, or after an abort or low battery."""
 
@@ -54,7 +56,7 @@ TRANSITIONS: dict[Mode, frozenset[Mode]] = {
                              Mode.EMERGENCY_LANDING}),
     Mode.HOVERING: frozenset({Mode.FLYING, Mode.TAKING_OFF, Mode.LANDING, Mode.EMERGENCY_LANDING}),
     Mode.HOLDING: frozenset({Mode.PARKED, Mode.DRIVING, Mode.TAKING_OFF, Mode.DONE}),
-    Mode.EMERGENCY_LANDING: frozenset({Mode.DONE}),
+    Mode.EMERGENCY_LANDING: frozenset({Mode.DONE, Mode.HOLDING}),
     Mode.DONE: frozenset({Mode.PARKED}),
 }
 """Allowed transitions. Ground <-> air only through TAKING_OFF and (EMERGENCY_)LANDING; DONE is

@@ -106,11 +106,13 @@ class FaultParams:
 class EmergencyDescent:
     """One emergency landing (`VehicleController._emergency`): when it began (or went blind again);
     blind, when its motors may stop (set at the predicted touchdown); with poses, the landing in
-    place (`common.flight.landing.LandInPlace`)."""
+    place (`common.flight.landing.LandInPlace`); `column`: where (x, y) the take-off or landing of
+    its plan it lost its poses in stands on the ground (None: it was not in one)."""
 
     start: float
     landing: LandInPlace
     cut: float | None = None
+    column: tuple[float, float] | None = None
 
 
 def _since(since: float | None, holds: bool, now: float) -> float | None:

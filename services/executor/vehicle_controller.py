@@ -422,8 +422,9 @@ class VehicleController:
         link = self.faults.link_lost(now)
         if m.airborne:
             if est.stale:
+                vertical = m.mode == Mode.TAKING_OFF or (m.mode == Mode.LANDING and not self._fault_landing)
                 if m.request(Mode.EMERGENCY_LANDING, now, "pose stale in the air"):
-                    self._descent = self._emergency_descent(now)
+                    self._descent = self._emergency_descent(now, (ref.x, ref.y) if vertical and ref else None)
                 return
             reason = "low battery" if low else "link lost" if link else self._abort
             if reason and not self._fault_landing:
@@ -850,7 +851,7 @@ class VehicleController:
             descent.cut = None
             sp = descent.landing.step(now, est, ground=self._ground_z)
             if sp is None:
-                self.machine.request(Mode.DONE, now, "emergency descent complete")
+                self._descent_complete(now, est)
                 return StopSetpoint()
             return sp
         if descent.landing.anchor is not None:  # blind again: predict afresh from here
@@ -859,7 +860,7 @@ class VehicleController:
         if descent.cut is None and est.z <= self._ground_z:  # predicted touchdown
             descent.cut = now + faults.descent_slack * (now - descent.start) + faults.descent_margin_s
         if descent.cut is not None and now >= descent.cut and (est.stale or abs(est.vz) < REST_SPEED):
-            self.machine.request(Mode.DONE, now, "emergency descent complete")
+            self._descent_complete(now, est)
             return StopSetpoint()
         accel = faults.descent_accel_cmd(est.vz)
         if on_board:
@@ -875,10 +876,31 @@ class VehicleController:
         thrust = self.model.mass * (G + bias + accel + d * est.vz) / (math.cos(roll) * math.cos(pitch))
         return to_flight_setpoint(roll, pitch, 0.0, thrust_command(thrust))
 
-    def _emergency_descent(self, now: float) -> EmergencyDescent:
+    def _emergency_descent(self, now: float, column: tuple[float, float] | None = None) -> EmergencyDescent:
         p = self.params
         return EmergencyDescent(now, LandInPlace(self.lqr, self.estimator, p.faults.descent_speed, p.touchdown_height,
-                                                 p.faults.rest_s, p.liftoff_height, Mode.EMERGENCY_LANDING))
+                                                 p.faults.rest_s, p.liftoff_height, Mode.EMERGENCY_LANDING),
+                                column=column)
+
+    def _descent_complete(self, now: float, est: Estimate) -> None:
+        """Motors off after an emergency descent. One that lost its poses in a take-off or landing
+        of its plan and is back on the ground, seen, in that column (within the guard's reach of
+        it) is held there like a vehicle a fault that cleared stopped on the ground (`rejoinable`):
+        the mission may bring it back (`services/mission/rejoin.py`: its path shifted so that the
+        take-off or the drive after the landing starts from here; a 32-vehicle soak's stall of
+        0.3-0.4 s in the motion capture took every vehicle then taking off out of its mission).
+        Any other is done."""
+        column = None if self._descent is None else self._descent.column
+        reach = self.params.faults.guard_factor * self.model.margin
+        if (column is None or est.stale or self._abort or self._active is None or self.t0 is None
+                or self.faults.link_lost(now) or self.faults.low_battery(self.charge_used_ah, now)
+                or math.hypot(est.x - column[0], est.y - column[1]) > reach):
+            self.machine.request(Mode.DONE, now, "emergency descent complete")
+            return
+        self.held, self.rejoinable = "landed blind in its take-off or landing (pose stale in the air)", True
+        self.holds += 1
+        self.machine.request(Mode.HOLDING, now, "emergency descent complete, seen where it took off or lands")
+        log.warning("%s: held where it came down: %s", self.vid, self.held)
 
     # ---- accounting and state -------------------------------------------------------------
 
