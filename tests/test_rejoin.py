@@ -183,14 +183,16 @@ def test_a_vehicle_stopped_short_waits_for_its_new_reference_then_goes_on_to_its
     assert math.dist((sim.x, sim.y, sim.z), STEPS[-1].pos) < 0.05  # flew the rest and parked at its goal
 
 
-@pytest.mark.parametrize(("where", "edge"), [("take-off", "takeoff"), ("landing", "land"), ("flight", "fly")])
+@pytest.mark.parametrize(("where", "edge"), [("take-off", "takeoff"), ("take-off twice", "takeoff"),
+                                             ("landing", "land"), ("flight", "fly")])
 def test_a_vehicle_that_came_down_blind_in_its_take_off_or_landing_is_held_there_and_taken_back(
         where: str, edge: str) -> None:
     """Poses lost for 1 s mid take-off or mid landing (a motion-capture stall): the emergency
     descent comes down in the column of its plan's take-off or landing, and there, seen again, the
     vehicle is held (rejoinable), not done; a plan that brings it back (its path shifted: the
-    take-off, or the drive after the landing, from where it stands) takes it on to its goal. Lost
-    in cruise it comes down below its flight, off its plan: done, as before."""
+    take-off, or the drive after the landing, from where it stands) takes it on to its goal; lost
+    again in the take-off that brought it back, it stays down (`BLIND_RETURNS`). Lost in cruise it
+    comes down below its flight, off its plan: done, as before."""
     k = next(k for k, s in enumerate(STEPS) if s.edge == edge)
     a, b = STEPS[k - 1], STEPS[k]
     lost = T0 + 0.5 * (a.t + b.t)
@@ -210,7 +212,14 @@ def test_a_vehicle_that_came_down_blind_in_its_take_off_or_landing_is_held_there
     progress = a.t if edge == "takeoff" else b.t  # where `progress_at` puts it: the column's foot
     switch = sim.t - T0 + 1.5
     assert ctrl.replan(back(switch - progress), sim.t)
+    if where == "take-off twice":
+        again = lost + switch - progress
+        mocap = Mocap(MocapNoise(dropouts=((again, again + 1.0),)))
     records = run(ctrl, sim, T0 + switch - progress + STEPS[-1].t + 3.0, mocap)
+    if where == "take-off twice":
+        assert [r.mode for r in records].count(Mode.EMERGENCY_LANDING) > 0
+        assert ctrl.mode == Mode.DONE and sim.z < 0.02, (ctrl.mode, ctrl.held)
+        return
     if edge == "takeoff":
         assert Mode.TAKING_OFF in {r.mode for r in records}
     assert ctrl.mode == Mode.DONE and ctrl.held is None, (ctrl.mode, ctrl.held)

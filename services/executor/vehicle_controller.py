@@ -111,6 +111,11 @@ the switch node; `TrajectoryParams.max_deviation` is 5 mm)."""
 LANDING_RETRY_S = 0.5
 """s between the choices of a fault landing that found every node it may land on taken (it hovers
 where it is meanwhile: `VehicleController._choose_landing`)."""
+BLIND_RETURNS = 1
+"""How often in one mission a vehicle that came down blind in its take-off or landing may be held
+for the mission to bring it back (`VehicleController._descent_complete`): one that loses its poses
+there again stays down (in a soak on a starved machine, cf08 came down blind twice, and its third
+blind descent, 0.5 m off its column, touched a vehicle parked beside it)."""
 
 
 def _closest_pass(traj: Trajectory, here: tuple[float, float, float], start: float, reach: float) -> float | None:
@@ -174,6 +179,7 @@ class VehicleController:
         self._landing_end = 0.0
         self._hold_since: float | None = None
         self._descent: EmergencyDescent | None = None
+        self._blind_returns = 0  # held where it came down blind, this mission (`_descent_complete`)
         self._abort: str | None = None
         self._last_tick: float | None = None
         self._guard_since: float | None = None  # since when the tracking error is past the margin
@@ -889,16 +895,18 @@ class VehicleController:
         the mission may bring it back (`services/mission/rejoin.py`: its path shifted so that the
         take-off or the drive after the landing starts from here; a 32-vehicle soak's stall of
         0.3-0.4 s in the motion capture took every vehicle then taking off out of its mission).
-        Any other is done."""
+        Any other is done, and so is one held so `BLIND_RETURNS` times already this mission."""
         column = None if self._descent is None else self._descent.column
         reach = self.params.faults.guard_factor * self.model.margin
         if (column is None or est.stale or self._abort or self._active is None or self.t0 is None
+                or self._blind_returns >= BLIND_RETURNS
                 or self.faults.link_lost(now) or self.faults.low_battery(self.charge_used_ah, now)
                 or math.hypot(est.x - column[0], est.y - column[1]) > reach):
             self.machine.request(Mode.DONE, now, "emergency descent complete")
             return
         self.held, self.rejoinable = "landed blind in its take-off or landing (pose stale in the air)", True
         self.holds += 1
+        self._blind_returns += 1
         self.machine.request(Mode.HOLDING, now, "emergency descent complete, seen where it took off or lands")
         log.warning("%s: held where it came down: %s", self.vid, self.held)
 
