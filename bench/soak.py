@@ -278,7 +278,8 @@ def report(log: SoakLog, seconds: float) -> str:
                      f"{f.get('pose_to_cmd_p50_ms', 0):.0f}/{f.get('pose_to_cmd_p99_ms', 0):.0f}/"
                      f"{f.get('pose_to_cmd_max_ms', 0):.0f} ms, from the bridge p50/p99 "
                      f"{f.get('frame_to_cmd_p50_ms', 0):.1f}/{f.get('frame_to_cmd_p99_ms', 0):.1f} ms, poses "
-                     f"rejected {f.get('poses_rejected', 0):.0f} (estimator restarts {f.get('estimator_restarts', 0):.0f})")
+                     f"rejected {f.get('poses_rejected', 0):.0f} (estimator restarts {f.get('estimator_restarts', 0):.0f}), "
+                     f"slowed by its latency {f.get('slowed_cycles', 0):.0f} cycles")
         elif st.service == "sim":
             extra = (f"truth behind {st.counters.get('truth_behind', 0)}x, watchdog level/cut "
                      f"{f.get('watchdog_levels', 0):.0f}/{f.get('watchdog_cuts', 0):.0f}, radio lost "

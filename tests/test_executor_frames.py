@@ -1,7 +1,8 @@
 """The executor's control cycle: how it takes the motion capture's frames (`ExecutorService._fuse`:
 a cycle that found several frames waiting, it ran late, fuses each owned vehicle's newest pose
-once, and remembers every body where its newest frame saw it), and how it spreads the vehicles'
-states over its cycles (`ExecutorService._cycle`)."""
+once, and remembers every body where its newest frame saw it), how it spreads the vehicles'
+states over its cycles (`ExecutorService._cycle`), and how its latency slows its missions' plan
+clocks (`ExecutorService._run_clocks`)."""
 
 from __future__ import annotations
 
@@ -10,11 +11,13 @@ from collections import Counter
 import pytest
 
 from common.bus.keys import Keys
-from common.bus.messages import FramePose, PoseFrame, VehicleStates
+from common.bus.messages import FramePose, PlanDelay, PoseFrame, VehicleStates
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
-from services.executor.service import ExecutorService
+from common.flight.plan_clock import ClockParams
+from services.executor.service import REACT_WINDOW, ExecutorService
 from services.executor.vehicle_controller import VehicleController
+from tests.support.closed_loop import plan_for, reference_steps
 
 pytestmark = pytest.mark.compute
 
@@ -80,3 +83,38 @@ def test_each_vehicles_state_goes_out_once_in_five_cycles_and_every_cycle_sends_
     assert svc.state_every == 5
     assert all(c in (2, 3) for c in per_cycle), per_cycle  # 12 vehicles over 5 cycles: never all at once
     assert per_vehicle == {vid: 4 for vid in vids}  # 20 cycles: each vehicle's state 4 times (20 Hz)
+
+
+class SentDelays:
+    """Stands in for the plan-delay publishers (`KeyedPublishers.put`): each mission's messages."""
+
+    def __init__(self) -> None:
+        self.msgs: list[PlanDelay] = []
+
+    def put(self, _mission: str, msg: PlanDelay) -> None:
+        self.msgs.append(msg)
+
+
+@pytest.mark.parametrize("latency", [0.05, 0.25])
+def test_an_executor_whose_commands_come_late_runs_its_missions_clock_slower(latency: float) -> None:
+    """Commands 0.25 s after the poses they use (p99 of the recent cycles): the executor runs the
+    clock of its running mission at 0.1 / 0.25 of its pace, says so to the others (`PlanDelay`)
+    and gives its vehicles that pace; at 0.05 s the plan runs at full pace and nothing is sent."""
+    svc = service()
+    model = VehicleModel(margin=0.03)
+    plan = plan_for("cf1", reference_steps(model), model, t0=100.0)
+    ctl = svc.controllers["cf1"] = VehicleController("cf1", model, owner="e1", bank=svc.bank)
+    assert ctl.load(plan)
+    ctl.start(100.0)
+    svc.plans["cf1"] = plan
+    svc._delay = sent = SentDelays()
+    for _ in range(REACT_WINDOW):
+        svc.stats.add_latency(latency, latency)
+    for n in range(101):  # one second of cycles
+        svc._run_clocks(100.0 + 0.01 * n)
+    if latency < ClockParams().latency_s:
+        assert not sent.msgs and svc.stats.slowed == 0 and ctl.pace == 1.0 and ctl.delay == 0.0
+        return
+    assert svc.stats.loop_pace == pytest.approx(0.4) and svc.stats.slowed == 101
+    assert sent.msgs and all(m.pace == pytest.approx(0.4) and m.source == "e1" for m in sent.msgs)
+    assert ctl.pace == pytest.approx(0.4) and ctl.delay == pytest.approx(0.6, abs=0.01)  # 1 s at 0.4

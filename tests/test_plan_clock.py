@@ -16,7 +16,7 @@ from common.bus.messages import Pose, SimFault
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
-from common.flight.plan_clock import ClockParams, PlanClock, pace_for
+from common.flight.plan_clock import ClockParams, PlanClock, latency_pace, pace_for
 from services.executor.vehicle_controller import VehicleController
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
@@ -34,6 +34,14 @@ def test_the_pace_falls_from_half_a_margin_to_a_whole_one() -> None:
     assert pace_for(0.031, 0.03, p) == 0.0
     assert pace_for(0.5, 0.0, p) == 1.0  # a plan without a margin: nothing to keep
     assert pace_for(0.5, 0.03, ClockParams(enabled=False)) == 1.0
+
+
+def test_a_loop_whose_commands_come_late_slows_the_clock_in_proportion() -> None:
+    p = ClockParams()
+    assert latency_pace(0.05, p) == latency_pace(0.1, p) == 1.0
+    assert latency_pace(0.2, p) == pytest.approx(0.5)  # half the pace: as far within the latency as at 0.1 s
+    assert latency_pace(2.0, p) == p.latency_floor
+    assert latency_pace(0.2, ClockParams(enabled=False)) == 1.0
 
 
 def exchange(a: PlanClock, b: PlanClock, pace_a: float, pace_b: float, seconds: float, t: float) -> float:

@@ -20,7 +20,15 @@ delay heard stands it still until the wall clock has caught up. This is the coar
 each place (an action dependency graph, Hönig et al., RA-L 2019): every vehicle waits for every
 late one, not only for those whose places it shares; delays cost the whole fleet time, never a
 contact. A vehicle that keeps the clock waiting too long is held like one the tracking guard
-holds (`ClockParams.max_wait_s`), and the mission plans around it."""
+holds (`ClockParams.max_wait_s`), and the mission plans around it.
+
+An executor whose commands come late slows the clock too (`latency_pace`): at a pose-to-command
+latency (its recent p99) above `latency_s` the plan runs at `latency_s / latency` of its pace, so a
+vehicle covers no more of its plan within its loop's latency than it does at `latency_s`, and a
+stop (the proximity stop, a hold) takes effect as near as it would on a healthy loop. A machine too
+loaded for its fleet thereby moves the fleet more slowly instead of closing distances it cannot
+watch (32-vehicle soaks of 2026-12-06 on a slow hour: p99 130-220 ms, two vehicles stopped short of
+each other 243-400 ms late and touched)."""
 
 from __future__ import annotations
 
@@ -35,14 +43,19 @@ class ClockParams:
     counts this long after it was sent (executors send theirs every cycle while it is below 1);
     max_wait_s: a vehicle that has kept the clock below full pace this long is held (its own loop
     cannot catch up: the mission plans around it); max_step_s: the most the clock runs in one cycle
-    of an executor (the rest of a late cycle counts as waiting); enabled False: the plan runs on the
-    wall clock (nothing waits)."""
+    of an executor (the rest of a late cycle counts as waiting); latency_s, latency_floor: an
+    executor whose pose-to-command latency is above `latency_s` (s) runs its missions' clocks at
+    `latency_s / latency`, never slower than `latency_floor` (`latency_pace`; the soak's p99 on a
+    loaded but healthy machine is 30-80 ms); enabled False: the plan runs on the wall clock
+    (nothing waits)."""
 
     slow_from: float = 0.5
     stop_at: float = 1.0
     fresh_s: float = 0.1
     max_wait_s: float = 5.0
     max_step_s: float = 0.05
+    latency_s: float = 0.1
+    latency_floor: float = 0.2
     enabled: bool = True
 
 
@@ -56,6 +69,15 @@ def pace_for(error: float, margin: float, params: ClockParams) -> float:
     if x >= params.stop_at:
         return 0.0
     return (params.stop_at - x) / (params.stop_at - params.slow_from)
+
+
+def latency_pace(latency: float, params: ClockParams) -> float:
+    """The pace (`latency_floor`-1) at which an executor whose commands come `latency` s after the
+    poses they use lets its missions' clocks run: the distance a vehicle covers within the latency
+    stays what it is at `latency_s`."""
+    if not params.enabled or latency <= params.latency_s:
+        return 1.0
+    return max(params.latency_s / latency, params.latency_floor)
 
 
 class PlanClock:

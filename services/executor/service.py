@@ -65,7 +65,7 @@ from common.bus.service import Service
 from common.bus.stats import percentile_figures, publish_stats
 from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
 from common.flight.modes import Mode
-from common.flight.plan_clock import ClockParams, PlanClock
+from common.flight.plan_clock import ClockParams, PlanClock, latency_pace
 from services.executor.faults import STRAIGHT_DOWN, FaultParams
 from services.executor.proximity import Bodies, ProximityParams
 from services.executor.takeover import VehicleOwnership
@@ -112,6 +112,10 @@ class LoopStats:
         self.ticks = 0
         self.missed = 0
         self.worst_latency = 0.0
+        self.slowed = 0
+        """Cycles in which the loop's latency slowed a running mission's clock (`latency_pace`)."""
+        self.loop_pace = 1.0
+        """The pace the loop's latency allowed at the last cycle."""
         self._react = 0.0
         self._react_at = 0
 
@@ -144,7 +148,7 @@ class LoopStats:
     def figures(self) -> dict[str, float]:
         """Counts, percentiles and the worst latency, for `stats/executor/<instance>`."""
         return {"ticks": self.ticks, "missed": self.missed, "pose_to_cmd_max_ms": 1e3 * self.worst_latency,
-                **self.percentiles()}
+                "slowed_cycles": self.slowed, "loop_pace": self.loop_pace, **self.percentiles()}
 
 
 class ExecutorService(Service):
@@ -475,8 +479,9 @@ class ExecutorService(Service):
 
     def _run_clocks(self, now: float) -> None:
         """Move every running mission's plan clock on at the pace its vehicles here allowed at
-        their last tick (the slowest), tell the others when it waits, and give each controller its
-        mission's delay and pace (the slowest heard, too)."""
+        their last tick (the slowest) and this loop's latency allows (`latency_pace`), tell the
+        others when it waits, and give each controller its mission's delay and pace (the slowest
+        heard, too)."""
         paces: dict[str, float] = {}
         running: set[str] = set()  # missions with a vehicle here not done yet
         for vid, ctl in self.controllers.items():
@@ -485,6 +490,10 @@ class ExecutorService(Service):
                 paces[mission] = min(paces.get(mission, 1.0), ctl.clock_pace)
                 if ctl.mode != Mode.DONE:
                     running.add(mission)
+        loop = self.stats.loop_pace = latency_pace(self.stats.recent_latency(), self.control.clock)
+        if loop < 1.0 and running:
+            self.stats.slowed += 1
+            paces.update({m: min(paces[m], loop) for m in running})
         for mission, pace in paces.items():
             clock = self._clock(mission)
             delay = clock.wait(now, pace)
