@@ -407,6 +407,11 @@ HANDLINGS: tuple[Handling, ...] = (
         "plan clock: every vehicle lets it run at full pace, however far behind its reference",
         (Edit("common/flight/plan_clock.py", "    if margin <= 0.0 or not params.enabled:\n", "    if True:\n"),),
         "tests/test_plan_clock.py::test_the_fleet_waits_for_a_vehicle_stopped_on_a_stale_pose_and_every_vehicle_arrives"),
+    Handling(
+        "an executor whose commands come late slows the plan's clock",
+        "executor: its latency never slows its missions' clocks",
+        (Edit("services/executor/service.py", "        if loop < 1.0 and running:\n", "        if False:\n"),),
+        "tests/test_executor_frames.py::test_an_executor_whose_commands_come_late_runs_its_missions_clock_slower"),
 )
 
 
