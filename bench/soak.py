@@ -34,7 +34,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bench.tables import bench_parser, format_table, new_figure, save_figure
+from bench.tables import bench_parser, cpu_probe, format_table, new_figure, save_figure
 from common.bus.messages import ControlMode, ServiceStats, SimTruth
 from common.bus.pubsub import subscribe
 from common.bus.session import open_session
@@ -151,6 +151,8 @@ class SoakLog:
     vehicles: int = 0
     rest_after: float = 0.0
     """s from the last mission's end until every vehicle was at rest (`REST_WAIT_S` at most)."""
+    probe_ms: tuple[float, float] = (0.0, 0.0)
+    """The machine's speed before the fleet started (`bench.tables.cpu_probe`: wall, CPU ms)."""
 
     def sim_figures(self) -> dict[str, float | str]:
         """The simulators' latest figures, summed (hardest touchdown: the largest; `hardest`: the
@@ -255,7 +257,7 @@ def report(log: SoakLog, seconds: float) -> str:
     lines = [f"soak: {elapsed / 60:.1f} min (asked {seconds / 60:.1f}), missions {ok}/{len(log.missions)} OK, "
              f"{arrived}/{flights} vehicle trips arrived ({log.flights} with flights), contacts {sum(m.contacts for m in log.missions)}, "
              f"closest bodies {100 * gap:.1f} cm; machine load average {min(log.load, default=0):.1f}-"
-             f"{max(log.load, default=0):.1f} on {os.cpu_count()} cores"]
+             f"{max(log.load, default=0):.1f} on {os.cpu_count()} cores, its speed probe {log.probe_ms[0]:.0f} ms ({log.probe_ms[1]:.0f} ms CPU)"]
     sim, aloft = log.sim_figures(), log.not_at_rest()
     lines.append(f"at the end (ground truth, {log.rest_after:.0f} s after the last mission): "
                  f"{len(log.final) - len(aloft)}/{log.vehicles} vehicles at rest "
@@ -323,7 +325,7 @@ def summary(log: SoakLog) -> dict:
                for name in ("pose_to_radio_p50", "pose_to_radio_p99", "frame_to_radio_p50", "frame_to_radio_p99")},
             "growth_mb_per_min": {name: mb_per_min(points) for name, points in log.series.items()},
             "vehicles": log.vehicles, "heard_at_end": sorted(log.final), "not_at_rest": log.not_at_rest(),
-            "rest_after_s": log.rest_after,
+            "rest_after_s": log.rest_after, "probe_ms": list(log.probe_ms),
             "touchdown_max_mps": sim["touchdown_max_mps"], "watchdog_cuts": sim["watchdog_cuts"],
             "drops": {name: st.drops for name, st in log.stats.items()}}
 
@@ -351,9 +353,11 @@ def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: 
     spots = sorted(graph.endpoints())
     starts = {f"cf{i + 1:02d}": s for i, s in enumerate(rng.sample(spots, vehicles))}
     tasks = draw_tasks(graph, starts, rng)
+    probe = cpu_probe()
     with soak_fleet(MAP, tasks, run_dir, executors, per_radio, truth_hz, thrust_spread=thrust_spread,
                     sim_priority=sim_priority, plan_clock=plan_clock, control=control) as fleet, recording(fleet, trace):
         log = asyncio.run(soak(fleet, graph, tasks, 60.0 * minutes, sample_s, seed))
+    log.probe_ms = probe
     print(report(log, 60.0 * minutes))
     print(f"saved {figure(log, out)}")
     return log

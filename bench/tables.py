@@ -1,4 +1,5 @@
-"""Shared helpers of the benchmark scripts: arguments, plain-text tables, PNG figures.
+"""Shared helpers of the benchmark scripts: arguments, plain-text tables, PNG figures, the machine's
+speed.
 
 Run the benchmarks from the repository root as modules: `python -m bench.NAME`.
 """
@@ -6,6 +7,7 @@ Run the benchmarks from the repository root as modules: `python -m bench.NAME`.
 from __future__ import annotations
 
 import argparse
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -45,3 +47,17 @@ def save_figure(fig: Figure, out_dir: str | Path, name: str) -> Path:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+PROBE_N = 2_000_000
+
+
+def cpu_probe() -> tuple[float, float]:
+    """A fixed pure-Python loop: (wall time, this thread's CPU time) in ms. The machine's speed as
+    the fleet's Python sees it, so that figures taken on different hours can be told apart: the
+    CPU time is the core's speed, the wall time adds what other machines' work on the host took
+    from it (the 2-core machine of 2026-12-06 gave 238-246 ms of CPU in one afternoon, whether a
+    32-vehicle soak's fleet kept up or not)."""
+    wall, cpu = time.perf_counter(), time.thread_time()
+    sum(i * i for i in range(PROBE_N))
+    return 1e3 * (time.perf_counter() - wall), 1e3 * (time.thread_time() - cpu)
