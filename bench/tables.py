@@ -56,7 +56,7 @@ def cpu_probe() -> tuple[float, float]:
     """A fixed pure-Python loop: (wall time, this thread's CPU time) in ms. The machine's speed as
     the fleet's Python sees it, so that figures taken on different hours can be told apart: the
     CPU time is the core's speed, the wall time adds what other machines' work on the host took
-    from it (the 2-core machine of 2026-12-06 gave 238-246 ms of CPU in one afternoon, whether a
+    from it (the 2-core machine of 2026-12-06 gave 232-246 ms of both in one night, whether a
     32-vehicle soak's fleet kept up or not)."""
     wall, cpu = time.perf_counter(), time.thread_time()
     sum(i * i for i in range(PROBE_N))

@@ -114,8 +114,9 @@ where it is meanwhile: `VehicleController._choose_landing`)."""
 BLIND_RETURNS = 1
 """How often in one mission a vehicle that came down blind in its take-off or landing may be held
 for the mission to bring it back (`VehicleController._descent_complete`): one that loses its poses
-there again stays down (in a soak on a starved machine, cf08 came down blind twice, and its third
-blind descent, 0.5 m off its column, touched a vehicle parked beside it)."""
+there again stays down (in a soak on a starved machine cf08 came down blind in its take-off twice
+and was brought back each time; its third flight ended in a blind descent 0.5 m from where it
+began, onto a parked vehicle)."""
 
 
 def _closest_pass(traj: Trajectory, here: tuple[float, float, float], start: float, reach: float) -> float | None:
