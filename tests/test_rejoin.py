@@ -209,6 +209,7 @@ def test_a_vehicle_that_came_down_blind_in_its_take_off_or_landing_is_held_there
     column = STEPS[k - 1 if edge == "takeoff" else k].pos
     assert math.hypot(sim.x - column[0], sim.y - column[1]) < 2 * MODEL.margin
     assert ctrl.mode == Mode.HOLDING and ctrl.rejoinable and "landed blind" in (ctrl.held or ""), ctrl.held
+    assert ctrl.state().tracking_error == 0.0  # held: its plan's reference runs on without it
     progress = a.t if edge == "takeoff" else b.t  # where `progress_at` puts it: the column's foot
     switch = sim.t - T0 + 1.5
     assert ctrl.replan(back(switch - progress), sim.t)

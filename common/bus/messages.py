@@ -177,6 +177,8 @@ class VehicleState(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     step: int = 0
     steps: int = 0
     tracking_error: float = 0.0
+    """m from the reference it follows (its plan's, or where a hold hovers it); 0 while it follows
+    none: its pose stale, in an emergency descent, held on the ground."""
     charge_used_ah: float = 0.0
     arrived: bool = False
     landing: tuple[float, float, float] | None = None

@@ -927,7 +927,10 @@ class VehicleController:
         if self._seen is None:
             raise RuntimeError(f"{self.vid}: no state before the first tick")
         now, est, ref = self._seen
-        err = 0.0 if ref is None or est.stale else math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z))
+        mode = self.machine.mode  # held on the ground or coming down blind, it follows no reference:
+        err = 0.0  # its plan's runs on without it
+        if ref is not None and not est.stale and mode != Mode.EMERGENCY_LANDING and not (mode == Mode.HOLDING and self.held):
+            err = math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z))
         traj = self.trajectory
         arrived = False
         if traj is not None and self.machine.mode == Mode.DONE and not est.stale:
