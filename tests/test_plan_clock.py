@@ -38,9 +38,9 @@ def test_the_pace_falls_from_half_a_margin_to_a_whole_one() -> None:
 
 def test_a_loop_whose_commands_come_late_slows_the_clock_in_proportion() -> None:
     p = ClockParams()
-    assert latency_pace(0.05, p) == latency_pace(0.1, p) == 1.0
-    assert latency_pace(0.2, p) == pytest.approx(0.5)  # half the pace: as far within the latency as at 0.1 s
-    assert latency_pace(2.0, p) == p.latency_floor
+    assert latency_pace(0.05, p) == latency_pace(0.15, p) == 1.0
+    assert latency_pace(0.2, p) == pytest.approx(0.75)  # as far within the latency as at 0.15 s
+    assert latency_pace(2.0, p) == p.latency_floor == 0.5  # a whole mission at it still fits its time limit
     assert latency_pace(0.2, ClockParams(enabled=False)) == 1.0
 
 

@@ -46,16 +46,17 @@ class ClockParams:
     of an executor (the rest of a late cycle counts as waiting); latency_s, latency_floor: an
     executor whose pose-to-command latency is above `latency_s` (s) runs its missions' clocks at
     `latency_s / latency`, never slower than `latency_floor` (`latency_pace`; the soak's p99 on a
-    loaded but healthy machine is 30-80 ms); enabled False: the plan runs on the wall clock
-    (nothing waits)."""
+    loaded but healthy machine is 30-80 ms; a mission lets its clock wait up to its plan's length,
+    `MissionRunner.end_reason`, so at half pace a whole mission still fits); enabled False: the
+    plan runs on the wall clock (nothing waits)."""
 
     slow_from: float = 0.5
     stop_at: float = 1.0
     fresh_s: float = 0.1
     max_wait_s: float = 5.0
     max_step_s: float = 0.05
-    latency_s: float = 0.1
-    latency_floor: float = 0.2
+    latency_s: float = 0.15
+    latency_floor: float = 0.5
     enabled: bool = True
 
 
