@@ -7,11 +7,12 @@ clocks (`ExecutorService._run_clocks`)."""
 from __future__ import annotations
 
 from collections import Counter
+from typing import Any
 
 import pytest
 
 from common.bus.keys import Keys
-from common.bus.messages import FramePose, PlanDelay, PoseFrame, VehicleStates
+from common.bus.messages import FramePose, PoseFrame
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
 from common.flight.plan_clock import ClockParams
@@ -56,14 +57,15 @@ class Sent:
         self.puts.append(key)
 
 
-class SentBatches:
-    """Stands in for one publisher (`Publisher.put`): the messages put."""
+class SentMessages:
+    """Stands in for one publisher (`Publisher.put`) or a set keyed by mission or vehicle
+    (`KeyedPublishers.put`): the messages put."""
 
     def __init__(self) -> None:
-        self.msgs: list[VehicleStates] = []
+        self.msgs: list[Any] = []
 
-    def put(self, msg: VehicleStates) -> None:
-        self.msgs.append(msg)
+    def put(self, *key_and_msg: object) -> None:
+        self.msgs.append(key_and_msg[-1])
 
 
 def test_each_vehicles_state_goes_out_once_in_five_cycles_and_every_cycle_sends_a_fifth() -> None:
@@ -74,7 +76,7 @@ def test_each_vehicles_state_goes_out_once_in_five_cycles_and_every_cycle_sends_
     svc._cmd, svc._batch, svc._event = Sent(), Sent(), Sent()
     per_cycle, per_vehicle = [], Counter()
     for n in range(20):
-        svc._state, svc._states = states, batches = Sent(), SentBatches()
+        svc._state, svc._states = states, batches = Sent(), SentMessages()
         svc._cycle(100.0 + 0.01 * n, n, 0.0, 0.0)
         per_cycle.append(len(states.puts))
         per_vehicle.update(states.puts)
@@ -83,16 +85,6 @@ def test_each_vehicles_state_goes_out_once_in_five_cycles_and_every_cycle_sends_
     assert svc.state_every == 5
     assert all(c in (2, 3) for c in per_cycle), per_cycle  # 12 vehicles over 5 cycles: never all at once
     assert per_vehicle == {vid: 4 for vid in vids}  # 20 cycles: each vehicle's state 4 times (20 Hz)
-
-
-class SentDelays:
-    """Stands in for the plan-delay publishers (`KeyedPublishers.put`): each mission's messages."""
-
-    def __init__(self) -> None:
-        self.msgs: list[PlanDelay] = []
-
-    def put(self, _mission: str, msg: PlanDelay) -> None:
-        self.msgs.append(msg)
 
 
 @pytest.mark.parametrize("latency", [0.05, 0.25])
@@ -107,7 +99,7 @@ def test_an_executor_whose_commands_come_late_runs_its_missions_clock_slower(lat
     assert ctl.load(plan)
     ctl.start(100.0)
     svc.plans["cf1"] = plan
-    svc._delay = sent = SentDelays()
+    svc._delay = sent = SentMessages()
     for _ in range(REACT_WINDOW):
         svc.stats.add_latency(latency, latency)
     for n in range(101):  # one second of cycles
