@@ -14,7 +14,7 @@ Printed as tables at the end; `soak.png` plots memory and latency over time. Wit
 a recorder process keeps every vehicle's ground truth, state, events and telemetry for tracing a
 contact or a hold by time afterwards (`bench/trace.py`).
 
-    python -m bench.soak [--minutes 5] [--vehicles 80] [--executors 2] [--per-radio 8] [--truth-hz 50] [--sim-priority 0]
+    python -m bench.soak [--minutes 5] [--vehicles 80] [--executors 2] [--per-radio 8] [--truth-hz 50] [--sim-priority 5]
                          [--trace FILE] [--no-plan-clock] [--control offboard|onboard]
     FLEET_SOAK_MINUTES=20 make soak        # the same through pytest -m soak (tests/test_soak.py)
 """
@@ -49,6 +49,16 @@ from services.planner.maps.loading import load_graph
 from services.planner.service import RECENT as RECENT_PLANS
 
 MAP = "city934"
+SIM_PRIORITY = 5
+"""Nice levels the soak's simulator raises its CPU priority by (`fleet sim --priority`, where the
+system allows it): it stands for the physical world, which does not wait for a loaded machine.
+Starved, it stalled for 0.3-0.5 s at a time, and the fleet failed on what a lab would not see:
+every body lost by the motion capture at once, stops that reached the wheels that late, blind
+descents that drifted onto parked vehicles. 32-vehicle one-minute soaks on 2026-12-06, one after
+another (one run of each with the planner's priority lowered too): raised, 4 missions of 6 OK and
+no contact; not raised, 3 of 7 OK, two with contacts (-3.3 and -8.9 cm), the simulator behind
+real time 1-92 times a run against 20-360 (docs/reliability.md, "Last results"). `fleet sim` itself leaves its priority by default: a
+raised one cost `tests/test_fleet_up.py`'s flight reruns in CI (docs/radio.md)."""
 SERVICES = ("executor", "gateway", "sim", "mocap", "planner")
 END_TRUTH_S = 1.0
 """How long the soak listens to the simulator's ground truth at its end (every vehicle's, at `truth_hz`)."""
@@ -83,8 +93,8 @@ instead of 6.3-6.6, the simulator 32 % instead of 38, 2026-12-05)."""
 
 
 def soak_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int, per_radio: int,
-               truth_hz: float, fleet: str = "soak", thrust_spread: float = 0.0, sim_priority: int = 0,
-               plan_clock: bool = True, control: ControlMode = "offboard"):
+               truth_hz: float, fleet: str = "soak", thrust_spread: float = 0.0,
+               sim_priority: int = SIM_PRIORITY, plan_clock: bool = True, control: ControlMode = "offboard"):
     """The demo's fleet (services.mission.demo), minus the recorder, tuned for a large fleet
     (`LOG_PERIOD_S`); `sim_priority`: nice levels the simulator raises its priority by (`fleet sim
     --priority`); `plan_clock` False: the executors run plans on the wall clock (`fleet executor
@@ -345,7 +355,7 @@ def figure(log: SoakLog, out: str | Path) -> Path:
 
 def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: int = 8, truth_hz: float = 50.0,
              sample_s: float = 5.0, seed: int = 0, run_dir: Path = Path("out/soak/run"),
-             out: str | Path = "out", thrust_spread: float = 0.0, sim_priority: int = 0,
+             out: str | Path = "out", thrust_spread: float = 0.0, sim_priority: int = SIM_PRIORITY,
              trace: Path | None = None, plan_clock: bool = True, control: ControlMode = "offboard") -> SoakLog:
     """Start the fleet, soak it for `minutes`, print the report and save the figure."""
     graph = load_graph(MAP)
@@ -374,7 +384,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--thrust-spread", type=float, default=0.0, metavar="FRACTION",
                         help="the simulated units' thrust differs from the model by up to this fraction (`fleet sim`)")
-    parser.add_argument("--sim-priority", type=int, default=0, metavar="N",
+    parser.add_argument("--sim-priority", type=int, default=SIM_PRIORITY, metavar="N",
                         help="the simulator raises its CPU priority by N nice levels (`fleet sim --priority`): "
                              "the world it stands for does not wait for a loaded machine")
     parser.add_argument("--run-dir", default="out/soak/run", help="logs and state of the fleet's processes")
