@@ -55,7 +55,7 @@ system allows it): it stands for the physical world, which does not wait for a l
 Starved, it stalled for 0.3-0.5 s at a time, and the fleet failed on what a lab would not see:
 every body lost by the motion capture at once, stops that reached the wheels that late, blind
 descents that drifted onto parked vehicles. 32-vehicle one-minute soaks on 2026-12-06, one after
-another (one run of each with the planner's priority lowered too): raised, 4 missions of 6 OK and
+another (one run of each with the planner's priority lowered too): raised, 6 missions of 9 OK and
 no contact; not raised, 3 of 7 OK, two with contacts (-3.3 and -8.9 cm), the simulator behind
 real time 1-92 times a run against 20-360 (docs/reliability.md, "Last results"). `fleet sim` itself leaves its priority by default: a
 raised one cost `tests/test_fleet_up.py`'s flight reruns in CI (docs/radio.md)."""
@@ -163,6 +163,9 @@ class SoakLog:
     """s from the last mission's end until every vehicle was at rest (`REST_WAIT_S` at most)."""
     probe_ms: tuple[float, float] = (0.0, 0.0)
     """The machine's speed before the fleet started (`bench.tables.cpu_probe`: wall, CPU ms)."""
+    own: list[tuple[float, float, float]] = field(default_factory=list)
+    """This process (the router, the mission and the soak's own listening) as `series` has the
+    fleet's: (t, RSS MB, CPU s). Not a service: its memory holds what the soak collects."""
 
     def sim_figures(self) -> dict[str, float | str]:
         """The simulators' latest figures, summed (hardest touchdown: the largest; `hardest`: the
@@ -195,6 +198,9 @@ async def sample_processes(log: SoakLog, pids: dict[str, int], every_s: float) -
             sample = proc_sample(pid)
             if sample is not None:
                 log.series[name].append((now, *sample))
+        own = proc_sample(os.getpid())
+        if own is not None:
+            log.own.append((now, *own))
         await asyncio.sleep(every_s)
 
 
@@ -310,11 +316,14 @@ def report(log: SoakLog, seconds: float) -> str:
                      f"bridge {f.get('frame_to_radio_p50_ms', 0):.1f}/{f.get('frame_to_radio_p99_ms', 0):.1f} ms")
         rows.append([name, st.drops, st.drops - first.drops, extra])
     lines += ["", format_table(["service", "dropped", "of which in soak", "figures"], rows), ""]
-    mem = []
-    for name, points in sorted(log.series.items()):
+    mem, total = [], 0.0
+    own = [("soak (router, mission)", log.own)] if len(log.own) > 1 else []
+    for name, points in [*sorted(log.series.items()), *own]:
         cpu = (points[-1][2] - points[0][2]) / max(points[-1][0] - points[0][0], 1e-9)
+        total += cpu
         mem.append([name, f"{points[0][1]:.0f}", f"{max(p[1] for p in points):.0f}", f"{points[-1][1]:.0f}",
                     f"{mb_per_min(points):+.2f}", f"{100 * cpu:.0f}"])
+    mem.append(["all", "", "", "", "", f"{100 * total:.0f}"])
     lines.append(format_table(["process", "RSS start MB", "max MB", "end MB", "growth MB/min", "CPU %"], mem))
     return "\n".join(lines)
 
