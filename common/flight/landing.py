@@ -86,12 +86,14 @@ class LandInPlace:
         """The poses are gone: the next `step` begins the landing afresh from where they show it."""
         self.anchor = None
 
-    def step(self, now: float, est: Estimate, ground: float = 0.0, not_before: float = -float("inf")
-             ) -> FlightSetpoint | None:
+    def step(self, now: float, est: Estimate, ground: float = 0.0, not_before: float = -float("inf"),
+             over: tuple[float, float] | None = None) -> FlightSetpoint | None:
         """The setpoint at `now` for the fresh estimate `est`, None once it rests. The descent
-        begins at `not_before` at the earliest (until then it holds its height)."""
+        begins at `not_before` at the earliest (until then it holds its height); it comes down
+        over (x, y) `over` if given, else where it is when the landing begins."""
         if self.anchor is None:
-            self.anchor = (max(now, not_before), est.x, est.y, est.z, est.yaw)
+            x, y = over if over is not None else (est.x, est.y)
+            self.anchor = (max(now, not_before), x, y, est.z, est.yaw)
             self.lqr.reset()
         t0, x0, y0, z0, yaw0 = self.anchor
         z_ref, vz_ref = descent_ref(self.speed, self.touchdown_height, t0, z0, now, ground=ground)

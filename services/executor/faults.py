@@ -107,12 +107,15 @@ class EmergencyDescent:
     """One emergency landing (`VehicleController._emergency`): when it began (or went blind again);
     blind, when its motors may stop (set at the predicted touchdown); with poses, the landing in
     place (`common.flight.landing.LandInPlace`); `column`: where (x, y) the take-off or landing of
-    its plan it lost its poses in stands on the ground (None: it was not in one)."""
+    its plan it lost its poses in stands on the ground, its foot (None: it was not in one), and
+    `beneath` where (x, y) its reference was then; with poses back within the guard's reach of
+    `beneath` it lands over the foot (`VehicleController._back_over`)."""
 
     start: float
     landing: LandInPlace
     cut: float | None = None
     column: tuple[float, float] | None = None
+    beneath: tuple[float, float] | None = None
 
 
 def _since(since: float | None, holds: bool, now: float) -> float | None:

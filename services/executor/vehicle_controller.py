@@ -430,8 +430,10 @@ class VehicleController:
         if m.airborne:
             if est.stale:
                 vertical = m.mode == Mode.TAKING_OFF or (m.mode == Mode.LANDING and not self._fault_landing)
+                was = m.mode
                 if m.request(Mode.EMERGENCY_LANDING, now, "pose stale in the air"):
-                    self._descent = self._emergency_descent(now, (ref.x, ref.y) if vertical and ref else None)
+                    self._descent = self._emergency_descent(now, self._column_foot(ref, was) if vertical else None,
+                                                            (ref.x, ref.y) if vertical and ref is not None else None)
                 return
             reason = "low battery" if low else "link lost" if link else self._abort
             if reason and not self._fault_landing:
@@ -856,7 +858,7 @@ class VehicleController:
         on_board = onboard.onboard(self.faults.last_telemetry)
         if not est.stale and not on_board:  # (a blind prediction of the touchdown is void: it is here)
             descent.cut = None
-            sp = descent.landing.step(now, est, ground=self._ground_z)
+            sp = descent.landing.step(now, est, ground=self._ground_z, over=self._back_over(est))
             if sp is None:
                 self._descent_complete(now, est)
                 return StopSetpoint()
@@ -883,11 +885,44 @@ class VehicleController:
         thrust = self.model.mass * (G + bias + accel + d * est.vz) / (math.cos(roll) * math.cos(pitch))
         return to_flight_setpoint(roll, pitch, 0.0, thrust_command(thrust))
 
-    def _emergency_descent(self, now: float, column: tuple[float, float] | None = None) -> EmergencyDescent:
+    def _column_foot(self, ref: RefSample | None, mode: Mode) -> tuple[float, float] | None:
+        """Where (x, y) on the ground the take-off or landing (`mode`) it is in stands: of its
+        plan's last take-off (landing) that has begun by `ref`'s time, the first (last) node. (A
+        take-off edge may lean: town's go 5 cm sideways as they climb 0.4 m, and a take-back passes
+        the foot, not the point beneath where the poses went; a late take-off's reference may be
+        past it already.) The reference's x, y if the plan has none."""
+        traj = self._active
+        if ref is None or traj is None:
+            return None
+        j = min(traj.segment(ref.t), len(traj.nodes) - 1)
+        while j > 0 and traj.modes[j] != mode:
+            j -= 1
+        if j == 0:
+            return (ref.x, ref.y)
+        x, y, _ = traj.nodes[j - 1] if mode == Mode.TAKING_OFF else traj.nodes[j]
+        return (x, y)
+
+    def _emergency_descent(self, now: float, column: tuple[float, float] | None = None,
+                           beneath: tuple[float, float] | None = None) -> EmergencyDescent:
         p = self.params
         return EmergencyDescent(now, LandInPlace(self.lqr, self.estimator, p.faults.descent_speed, p.touchdown_height,
                                                  p.faults.rest_s, p.liftoff_height, Mode.EMERGENCY_LANDING),
-                                column=column)
+                                column=column, beneath=beneath)
+
+    def _back_over(self, est: Estimate) -> tuple[float, float] | None:
+        """Where an emergency descent with its poses back lands: over the foot of the take-off or
+        landing it lost them in, when it is within the guard's reach of where its reference was
+        then (its blind descent drifts, and a take-off may lean: it comes down where a take-back
+        passes, `_descent_complete`; in a fleet flight one that landed where its poses came back
+        had every take-back refused, its shifted path's reference passing farther than the
+        guard's reach from it), else where it is."""
+        descent = self._descent
+        if descent is None or descent.column is None or descent.beneath is None:
+            return None
+        x, y = descent.beneath
+        if math.hypot(est.x - x, est.y - y) > self.params.faults.guard_factor * self.model.margin:
+            return None
+        return descent.column
 
     def _descent_complete(self, now: float, est: Estimate) -> None:
         """Motors off after an emergency descent. One that lost its poses in a take-off or landing
