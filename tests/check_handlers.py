@@ -113,6 +113,11 @@ HANDLINGS: tuple[Handling, ...] = (
               "        if (True or column is None or est.stale or self._abort"),),
         "tests/test_faults_mocap.py::test_a_dropout_in_a_take_off_lands_the_vehicle_on_its_spot_and_the_mission_brings_it_back"),
     Handling(
+        "a blind descent with its poses back landing over its column's foot",
+        "executor: it lands where it is when its poses are back (no `over`)",
+        (Edit("services/executor/vehicle_controller.py", "over=self._back_over(est))", "over=None)"),),
+        "tests/test_rejoin.py::test_a_vehicle_that_came_down_blind_in_its_take_off_or_landing_is_held_there_and_taken_back"),
+    Handling(
         "the executor's low-battery landing",
         "executor: `low` always False in its supervision (the event still comes at the planned landing)",
         (Edit("services/executor/vehicle_controller.py",
