@@ -57,8 +57,9 @@ every body lost by the motion capture at once, stops that reached the wheels tha
 descents that drifted onto parked vehicles. 32-vehicle one-minute soaks on 2026-12-06, one after
 another (one run of each with the planner's priority lowered too): raised, 6 missions of 9 OK and
 no contact; not raised, 3 of 7 OK, two with contacts (-3.3 and -8.9 cm), the simulator behind
-real time 1-92 times a run against 20-360 (docs/reliability.md, "Last results"). `fleet sim` itself leaves its priority by default: a
-raised one cost `tests/test_fleet_up.py`'s flight reruns in CI (docs/radio.md). What it moves is
+real time 1-92 times a run against 20-360 (docs/reliability.md, "Last results"). `fleet sim`
+itself leaves its priority by default: a raised one cost `tests/test_fleet_up.py`'s flight reruns
+in CI (docs/radio.md). What it moves is
 where the machine's shortage shows: two raised runs had the executors and gateways starved instead,
 take-offs landed on stale commands and touched down at 1.2-1.8 m/s."""
 SERVICES = ("executor", "gateway", "sim", "mocap", "planner")
