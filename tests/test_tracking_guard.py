@@ -131,7 +131,8 @@ def test_a_slow_loop_is_held_before_it_leaves_three_times_the_margin(unguarded: 
     flight = fly(**SLOW)
     assert flight.held_at is not None, "the guard never held the vehicle"
     assert "margin" in (flight.ctrl.held or "")
-    assert not flight.ctrl.rejoinable  # held for its own tracking: the mission does not bring it back
+    # rejoinable only if held late on its plan's way, not off it (`test_a_vehicle_held_late_on_its_way_...`)
+    assert flight.ctrl.rejoinable == ("late on it" in (flight.ctrl.held or "")), flight.ctrl.held
     assert flight.ctrl.mode in (Mode.HOLDING, Mode.HOVERING)
     assert flight.error_before_hold < 3.0 * MODEL.margin, flight.error_before_hold  # held past 2x (FaultParams)
     # hovering on the same slow loop stays within reach (at 9 Hz on 100 ms old poses, a loop at the
@@ -161,6 +162,35 @@ def test_a_vehicle_held_in_the_air_hovers_and_lands_safely_on_abort() -> None:
     ctrl.abort("operator")
     ctrl.tick(off.t + 0.5)
     assert ctrl.mode == Mode.LANDING or ctrl.reference(off.t + 0.6).mode != Mode.HOVERING
+
+
+@pytest.mark.parametrize(("where", "rejoinable"), [("behind", True), ("beside", False)])
+def test_a_vehicle_held_late_on_its_way_may_come_back_one_held_off_it_may_not(where: str, rejoinable: bool) -> None:
+    """A vehicle the guard holds for its own tracking (a starved loop, a stalled take-off) is
+    rejoinable when it stands on its plan's way, behind its reference (the mission brings it back
+    there once it stands still: `services/mission/rejoin.py`); one pushed beside its way (wind) is
+    not, and its report says which (`VehicleController._on_its_way`)."""
+    takeoff_end = next(s.t for s in STEPS if s.edge == "takeoff")
+    ctrl = VehicleController("cf1", MODEL, owner="test")
+    ctrl.load(plan_for("cf1", STEPS, MODEL, t0=T0))
+    ctrl.machine.request(Mode.TAKING_OFF, 0.0, "test")
+    ctrl.machine.request(Mode.FLYING, 0.0, "test")
+    t = T0 + takeoff_end + 2.0
+    traj = ctrl.trajectory
+    assert traj is not None
+    now, before = traj.plan_position(t - T0), traj.plan_position(t - T0 - 0.6)
+    way = [now[i] - before[i] for i in range(3)]
+    assert math.hypot(*way) > 4.0 * MODEL.margin  # behind by more than the guard's burst
+    side = (-way[1] / math.hypot(*way), way[0] / math.hypot(*way))  # horizontal, across its way
+    at = before if where == "behind" else (now[0] + 4.0 * MODEL.margin * side[0],
+                                           now[1] + 4.0 * MODEL.margin * side[1], now[2])
+    for i in range(10):
+        pose = Pose(vid="cf1", t=t + i * DT, x=at[0], y=at[1], z=at[2], yaw=0.0, seq=i + 1)
+        ctrl.on_pose(pose)
+        ctrl.tick(pose.t)
+    assert ctrl.held and ctrl.mode == Mode.HOVERING, ctrl.mode
+    assert ctrl.rejoinable == rejoinable, ctrl.held
+    assert ("late on it" if rejoinable else "off it") in ctrl.held, ctrl.held
 
 
 @pytest.mark.parametrize(("thrust_scale", "held"), [(0.7, True), (1.0, False)])
@@ -364,7 +394,15 @@ def test_a_starved_executor_holds_its_vehicles_and_nothing_touches(tmp_path) -> 
     # windows later (0.79 s into the starvation instead of 0.38) and furthest off
     assert worst < 7.0 * plan.model.margin, f"cf1 {worst:.3f} m from its plan"
     assert held is not None, f"the guard did not hold cf1: {watch.kinds('cf1')}"
-    assert not result.ok and "tracking" in result.reason, result.reason
+    # held late on its way, a vehicle comes back once its loop is fed again and stands still; held
+    # off its way, it stays out and the mission fails (`VehicleController._on_its_way`)
+    holds = {e.vid: e for t, e in watch.events if e.kind == "tracking_hold" and t >= marks["starved"]}
+    print({vid: e.detail for vid, e in holds.items()}, result.events)
+    for vid, event in holds.items():
+        back = any(e.startswith(f"{vid} rejoined") for e in result.events)
+        assert back == event.rejoinable == ("late on it" in event.detail), (vid, event, result.events)
+        assert result.vehicles[vid].arrived == back, result.summary()
+    assert result.ok == all(e.rejoinable for e in holds.values()), result.reason
     for vid in TOWN_TASKS:
         assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
     print(f"cf1 held {held - marks['starved']:.2f} s into the starvation of {owners['cf1']}; "

@@ -186,7 +186,8 @@ class VehicleState(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     executor's fault landing keeps off it (`safe_landing_steps`)."""
     held: str = ""
     """Why the tracking guard or the proximity stop holds the vehicle where it is ("": it is not
-    held); `rejoinable`: held for another's sake, the mission may bring it back. An executor that
+    held); `rejoinable`: held for another's sake, by a fault that may clear, or late on its plan's
+    way (not off it), the mission may bring it back. An executor that
     takes the vehicle over keeps the hold (the mission planned the others around it)."""
     rejoinable: bool = False
     delay: float = 0.0
@@ -261,8 +262,9 @@ class VehicleEvent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     rejoinable: bool = False
     """A `tracking_hold` for another's sake (the proximity stop, the reflex to a held vehicle) or of
     a vehicle stopped on the ground by a fault that may clear (a stale pose, a lost link) while its
-    plan moved on, not for its own tracking: the mission may bring it back into the plan once it
-    stands still, seen, and its way is clear (`Replan.rejoin`)."""
+    plan moved on, or held by the tracking guard late on its plan's way (not off it): the mission
+    may bring it back into the plan once it stands still, seen, and its way is clear
+    (`Replan.rejoin`)."""
     acted: bool = False
     """Its executor's report of what it does about a fault of its vehicle (it holds, lands, stops or
     hovers with nowhere clear to land), not another service's word on its health (a gateway's

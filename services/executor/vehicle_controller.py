@@ -105,6 +105,9 @@ PRE_TURN_S = 2.0
 REJOIN_LOOK_S, REJOIN_STEP_S = 10.0, 0.02
 """s ahead a plan that brings a held vehicle back is searched for the moment its reference comes
 to the vehicle (the mission's switch time is 1-3 s ahead), and the search's step."""
+ON_ITS_WAY_BACK_S = 10.0
+"""s of its plan behind its reference (and 1 s ahead) where a vehicle the guard holds for its own
+tracking may stand and still be on its way, late (`VehicleController._on_its_way`)."""
 REPLAN_TOLERANCE = 0.01
 """m: how far a new plan's reference may be from the old one's at the switch (the corner blend at
 the switch node; `TrajectoryParams.max_deviation` is 5 mm)."""
@@ -188,8 +191,9 @@ class VehicleController:
         self.held: str | None = None
         """Why the tracking guard holds the vehicle (None: it does not)."""
         self.rejoinable = False
-        """Held for another's sake (`stop_short`, `yield_to`) or left behind by a fault that may
-        clear (`_left_behind`), not for its own tracking: the mission may bring it back."""
+        """Held for another's sake (`stop_short`, `yield_to`), left behind by a fault that may
+        clear (`_left_behind`), or held late on its plan's way (`_on_its_way`), not off it: the
+        mission may bring it back."""
         self._rejoin: tuple[VehiclePlan, Trajectory, float] | None = None
         """The plan that brings a held vehicle back, its trajectory, and when (mission time) its
         reference comes to where the vehicle stands: it follows it from then on."""
@@ -507,8 +511,9 @@ class VehicleController:
         since = self._slow_since = self._slow_since if self._slow_since is not None else now
         if now - since >= c.max_wait_s and ref is not None:
             self.clock_pace, self._slow_since = 1.0, None
+            late, way = (True, "") if mode == Mode.HOLDING else self._on_its_way(est, ref)
             self._hold(now, est, ref, f"kept its plan's clock waiting {now - since:.1f} s, {error:.3f} m from its "
-                                      f"reference in {mode}", rejoinable=mode == Mode.HOLDING)
+                                      f"reference in {mode}{way}", rejoinable=late)
 
     def _behind(self, est: Estimate, ref: RefSample) -> float:
         """How far the vehicle is behind its reference along the plan's way there (at a wait, the
@@ -536,8 +541,9 @@ class VehicleController:
             height, planned = est.z - self._ground_z, ref.z - self._ground_z
             if height < self.model.height < planned - f.guard_burst * margin and now >= self._guard_from:
                 # ... unless its plan has it well clear of the ground layer, which others may now cross
+                late, way = self._on_its_way(est, ref)
                 self._hold(now, est, ref, f"{height:.3f} m up in its take-off, its plan {planned:.3f} m: "
-                                          "still among the vehicles on the ground")
+                                          f"still among the vehicles on the ground{way}", late)
                 return True
         else:
             error = math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z))
@@ -551,9 +557,27 @@ class VehicleController:
         since = self._guard_since = self._guard_since if self._guard_since is not None else now
         if error <= f.guard_burst * margin and now - since < f.guard_s:
             return False
+        late, way = self._on_its_way(est, ref)
         self._hold(now, est, ref, f"tracking error {error:.3f} m past the plan's margin {margin:.3f} m "
-                                  f"for {now - since:.2f} s in {self.machine.mode}")
+                                  f"for {now - since:.2f} s in {self.machine.mode}{way}", late)
         return True
+
+    def _on_its_way(self, est: Estimate, ref: RefSample) -> tuple[bool, str]:
+        """Whether the vehicle stands within the guard's limit of its plan's way (`ON_ITS_WAY_BACK_S`
+        behind its reference to 1 s ahead): late on its way, not off it; and what to add to its
+        hold's report. A vehicle the guard holds so (a starved loop, a stalled take-off) is
+        rejoinable: once it stands still, its loop fed again, the mission brings it back on its way
+        (`services/mission/rejoin.py`, `_take_back`, which meets it within the same limit); one
+        pushed off its way stays out. (In 32-vehicle soaks on a loaded machine the flyers the guard
+        held late stayed out, and the missions failed with every other vehicle arrived.)"""
+        traj = self._active
+        if traj is None:
+            return False, ""
+        here, reach = (est.x, est.y, est.z), self.params.faults.guard_factor * self.model.margin
+        start, end = max(ref.t - ON_ITS_WAY_BACK_S, 0.0), min(ref.t + 1.0, traj.end_time)
+        off = min(math.dist(here, traj.plan_position(start + k * YIELD_STEP_S))
+                  for k in range(int((end - start) / YIELD_STEP_S) + 1))
+        return off <= reach, f"; {off:.3f} m from its plan's way: {'late on it' if off <= reach else 'off it'}"
 
     def _stopped_position(self, est: Estimate) -> tuple[float, float, float]:
         """Where a fault on the ground stops the vehicle: its estimate (dead-reckoned since the last
@@ -583,8 +607,8 @@ class VehicleController:
 
     def _hold(self, now: float, est: Estimate, ref: RefSample, why: str, rejoinable: bool = False) -> None:
         """Hold the vehicle where it is for the rest of the mission, hovering or stopped on the
-        ground, unless (`rejoinable`: held for another's sake, or left behind by a fault that may
-        clear) the mission brings it back."""
+        ground, unless (`rejoinable`: held for another's sake, left behind by a fault that may
+        clear, or held late on its plan's way: `_on_its_way`) the mission brings it back."""
         self.held, self.rejoinable = why, rejoinable
         self.holds += 1
         if self.machine.airborne:
