@@ -28,7 +28,8 @@ def test_a_vehicle_held_by_wind_and_one_stopped_alone_leave_the_others_flying_on
     is held hovering by the tracking guard (issue 15) and the others are replanned around its
     column; then cf3, driving, is stopped alone (`MissionAbort.vehicles`: what the mission sends
     when a replan cannot place a driving vehicle) and stays where it stopped. cf2 flies on to its
-    goal, cf1 lands when the mission ends, no contact."""
+    goal, no contact. The gust pushed cf1 along its way, not off it: held on it, it is brought
+    back once it stands still and arrives too (`VehicleController._on_its_way`)."""
     spec = MissionSpec(map="town", tasks=TOWN_TASKS, planner="sipp", time_limit=20, slack_s=3.0)
     marks: dict[str, float] = {}
 
@@ -50,6 +51,10 @@ def test_a_vehicle_held_by_wind_and_one_stopped_alone_leave_the_others_flying_on
     assert watch.distance_to("cf3", goals["cf3"]) > 0.1 and not result.vehicles["cf3"].arrived  # short of its goal
     assert result.vehicles["cf2"].arrived and watch.distance_to("cf2", goals["cf2"]) < 0.05
     assert watch.at_rest_on_ground("cf1") and watch.hardest_touchdown("cf1") < 0.7
+    held = [e for _, e in watch.events if e.vid == "cf1" and e.kind == "tracking_hold"]
+    assert held and held[0].rejoinable and "late on it" in held[0].detail, held
+    assert any(e.startswith("cf1 rejoined") for e in result.events), result.events
+    assert result.vehicles["cf1"].arrived and watch.distance_to("cf1", goals["cf1"]) < 0.05, result.summary()
     assert result.contacts == 0 and not watch.contacts, watch.separation_line()
     # latency from the capture and from the frame's arrival at the bridge: every sample of the first
     # is one of the second plus the simulated capture system's own latency (6 ms, docs/mocap.md)
