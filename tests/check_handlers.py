@@ -113,6 +113,12 @@ HANDLINGS: tuple[Handling, ...] = (
               "        if (True or column is None or est.stale or self._abort"),),
         "tests/test_faults_mocap.py::test_a_dropout_in_a_take_off_lands_the_vehicle_on_its_spot_and_the_mission_brings_it_back"),
     Handling(
+        "a vehicle the guard held late on its way brought back",
+        "executor: every vehicle the guard holds for its own tracking counts as off its way",
+        (Edit("services/executor/vehicle_controller.py", "        return off <= reach, f\"; {off:.3f}",
+              "        return False, f\"; {off:.3f}"),),
+        "tests/test_fault_replan.py::test_a_vehicle_held_by_wind_and_one_stopped_alone_leave_the_others_flying_on"),
+    Handling(
         "a blind descent with its poses back landing over its column's foot",
         "executor: it lands where it is when its poses are back (no `over`)",
         (Edit("services/executor/vehicle_controller.py", "over=self._back_over(est))", "over=None)"),),
