@@ -11,12 +11,15 @@ import time
 from pathlib import Path
 
 import msgspec
+import numpy as np
 import pytest
 
 from common.bus.messages import PlanRequest, Replan, Sweep
 from common.domain.planfile import Plan, Task
 from services.mission.sweeps import DESCENT_S_PER_M, REST_S, descent
+from services.planner.maps.loading import load_graph
 from services.planner.registry import solve
+from services.planner.replanning import touched_by_segment
 from services.planner.validate import validate_plan
 
 TASKS = {
@@ -279,3 +282,19 @@ def test_a_replan_whose_vehicles_cross_a_prefix_is_planned_again_in_another_orde
         assert validate_plan(reply.plan).ok
         plan = reply.plan
     assert not once.ok and "contact" in once.error and later == "cf25", once.error
+
+
+@pytest.mark.compute
+def test_a_columns_nodes_and_edges_are_those_its_samples_touch() -> None:
+    """`touched_by_segment` tests a column (a held vehicle's, a descent's: most sweeps) in closed
+    form: the same nodes and edges as its sampled test of any other segment finds for a column
+    leaning by a picometre."""
+    graph = load_graph("city934")
+    pos = np.asarray(graph.pos)
+    for p in pos[np.random.default_rng(1).choice(len(pos), 20)]:
+        top, foot, leaning = (p[0], p[1], p[2] + 0.3), (p[0], p[1], 0.0), (p[0] + 1e-12, p[1], 0.0)
+        for extra in (0.0, 0.1):
+            nodes, edges = touched_by_segment(graph, top, foot, extra)
+            sampled_nodes, sampled_edges = touched_by_segment(graph, top, leaning, extra)
+            assert len(nodes) and len(edges)
+            assert nodes.tolist() == sampled_nodes.tolist() and edges.tolist() == sampled_edges.tolist()

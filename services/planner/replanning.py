@@ -74,8 +74,12 @@ def prefix_charge(graph: FleetGraph, entries: list[PathEntry]) -> float:
     return total
 
 
+Touched = tuple[np.ndarray, np.ndarray]
+"""The indices of the nodes and of the edges a body on a segment could touch (`touched_by_segment`)."""
+
+
 def touched_by_segment(graph: FleetGraph, p0: tuple[float, float, float], p1: tuple[float, float, float],
-                       extra: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                       extra: float = 0.0) -> Touched:
     """Indices of the nodes and edges whose bodies (cylinders of the graph's envelope) could touch a
     body anywhere on the segment p0 -> p1, or within `extra` m of it."""
     r, h = graph.model.radius, graph.model.height
@@ -83,11 +87,18 @@ def touched_by_segment(graph: FleetGraph, p0: tuple[float, float, float], p1: tu
     a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
     k = max(2, int(np.ceil(np.linalg.norm(b - a) / step)) + 1)
     seg = a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)  # (K, 3)
-    reach = 2 * r + step + extra
+    reach, reach_z = 2 * r + step + extra, h + step + extra
+    if a[0] == b[0] and a[1] == b[1]:  # a column (a held vehicle, a descent: most sweeps): every sample
+        # at one horizontal distance, so the test below in closed form (15 -> 2.3 ms a sweep on city934)
+        low, high = min(a[2], b[2]) - reach_z, max(a[2], b[2]) + reach_z
 
-    def touch(points: np.ndarray) -> np.ndarray:  # (..., 3) -> (...,) whether any sample touches
-        d = points[..., None, :] - seg
-        return ((np.hypot(d[..., 0], d[..., 1]) < reach) & (np.abs(d[..., 2]) < h + step + extra)).any(axis=-1)
+        def touch(points: np.ndarray) -> np.ndarray:  # (..., 3) -> (...,) whether it touches the column
+            z = points[..., 2]
+            return (np.hypot(points[..., 0] - a[0], points[..., 1] - a[1]) < reach) & (z > low) & (z < high)
+    else:
+        def touch(points: np.ndarray) -> np.ndarray:  # (..., 3) -> (...,) whether any sample touches
+            d = points[..., None, :] - seg
+            return ((np.hypot(d[..., 0], d[..., 1]) < reach) & (np.abs(d[..., 2]) < reach_z)).any(axis=-1)
 
     pos = np.asarray(graph.pos, dtype=float)
     # only the nodes and edges near the segment's bounding box are looked at closely (every edge
@@ -117,7 +128,7 @@ def rejoins_blocked(graph: FleetGraph, replan: Replan) -> dict[str, str]:
     refused (13 of one 32-vehicle soak's 23 requests to its planner were such refusals)."""
     at = replan.at
     blocked: dict[str, str] = {}
-    touched: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # per sweep, found once for every vehicle
+    touched: dict[int, Touched] = {}  # per sweep, found once for every vehicle
     for vid in replan.rejoin:
         path = replan.base.paths[vid]
         k = next((i for i, e in enumerate(path) if e.t >= at), None)
