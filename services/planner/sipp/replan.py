@@ -48,7 +48,7 @@ import numpy as np
 from common.bus.messages import Replan, Sweep
 from common.domain.planfile import PathEntry
 from services.planner.graph.fleet_graph import FleetGraph
-from services.planner.replanning import Leg, Touched, failed, split, touched_by_segment
+from services.planner.replanning import Leg, failed, split, touched_by_segment
 from services.planner.result import PlanResult, battery_shortfall
 from services.planner.sipp.heuristic import CostToGo
 from services.planner.sipp.planner import path_entries
@@ -83,11 +83,10 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
     short_goals: dict[str, list[int]] = {}
     """The goals short of its own still to try for each stranded vehicle, nearest first."""
     held: set[str] = set()
-    # where each body that left may be, found once for every priority order tried
-    touched = [(sweep, touched_by_segment(graph, sweep.p0, sweep.p1, sweep.reach)) for sweep in replan.sweeps]
+    claimed = _claimed(graph, replan.sweeps, fixed, legs)
     while True:
         tried += 1
-        outcome = _plan_order(graph, touched, fixed, order, mu, deadline)
+        outcome = _plan_order(graph, claimed.copy(), order, mu, deadline)
         if isinstance(outcome, dict):
             paths = {**fixed}
             for leg in order:
@@ -150,16 +149,24 @@ def _stranding_goals(graph: FleetGraph, leg: Leg, mu: float, taken: set[int]) ->
     return [n for n in ground if ctg.h[n][here] < INF and ctg.q[n][here] <= leg.usable]
 
 
-def _plan_order(graph: FleetGraph, sweeps: list[tuple[Sweep, Touched]], fixed: dict[str, list[PathEntry]],
-                order: list[Leg], mu: float, deadline: float) -> dict[str, TimedPath] | tuple[str, str]:
+def _claimed(graph: FleetGraph, sweeps: list[Sweep], fixed: dict[str, list[PathEntry]], legs: list[Leg]) -> Reservations:
+    """What every priority order starts from (built once a replan: a replan that fails tries up to
+    10 orders): the vehicles that stay as they are, for ever; each prefix but its last step (a
+    body does not block itself, `_plan_order`); the bodies that left."""
     res = Reservations(graph)
     for path in fixed.values():
         _reserve_entries(res, graph, path, forever=True)
-    for leg in order:  # each prefix but its last step: a body does not block itself (see below)
+    for leg in legs:
         if len(leg.prefix) > 1:
             _reserve_entries(res, graph, leg.prefix[:-1], forever=False)
-    for sweep, touched in sweeps:
-        block_sweep(res, graph, sweep, touched)
+    for sweep in sweeps:
+        block_sweep(res, graph, sweep)
+    return res
+
+
+def _plan_order(graph: FleetGraph, res: Reservations, order: list[Leg], mu: float,
+                deadline: float) -> dict[str, TimedPath] | tuple[str, str]:
+    """One pass of prioritized planning in `order` on `res` (`_claimed`, a copy: it is changed)."""
     out: dict[str, TimedPath] = {}
     for leg in order:
         ctg = CostToGo.of(graph, mu, leg.task.capabilities)
@@ -201,11 +208,10 @@ def _reserve_entries(res: Reservations, graph: FleetGraph, entries: list[PathEnt
         res.rest(graph.index[entries[-1].node], entries[-1].t, INF)
 
 
-def block_sweep(res: Reservations, graph: FleetGraph, sweep: Sweep, touched: Touched) -> None:
+def block_sweep(res: Reservations, graph: FleetGraph, sweep: Sweep) -> None:
     """Close, over the sweep's window (and for ever after it when it rests), every node a body at
-    which could touch the swept body, and the departures on every edge whose traversal could
-    (`touched`: `touched_by_segment` of the sweep)."""
-    nodes, edges = touched
+    which could touch the swept body, and the departures on every edge whose traversal could."""
+    nodes, edges = touched_by_segment(graph, sweep.p0, sweep.p1, sweep.reach)
     end = INF if sweep.rest else sweep.t1
     d = graph.duration
     for n in nodes.tolist():

@@ -123,6 +123,15 @@ class Reservations:
         self.node_closed = [0] * graph.n_nodes
         self.edge_closed = [0] * graph.n_edges
 
+    def copy(self) -> Reservations:
+        """An independent copy (each priority order a replan tries starts from the same claims)."""
+        other = Reservations.__new__(Reservations)
+        other.footprints = self.footprints
+        other.node_start, other.node_end = [s[:] for s in self.node_start], [e[:] for e in self.node_end]
+        other.edge_start, other.edge_end = [s[:] for s in self.edge_start], [e[:] for e in self.edge_end]
+        other.node_closed, other.edge_closed = self.node_closed[:], self.edge_closed[:]
+        return other
+
     def park(self, node: int, delta: int) -> None:
         """Add (+1) or lift (-1) the all-time closure by a body parked at `node`."""
         fp = self.footprints
