@@ -119,6 +119,13 @@ HANDLINGS: tuple[Handling, ...] = (
               "        return False, f\"; {off:.3f}"),),
         "tests/test_fault_replan.py::test_a_vehicle_held_by_wind_and_one_stopped_alone_leave_the_others_flying_on"),
     Handling(
+        "a vehicle done where a fault put it down refusing its mission's replans",
+        "executor: a vehicle done takes any plan of its running mission (`load`)",
+        (Edit("services/executor/vehicle_controller.py",
+              "        if self.mode == Mode.DONE and old is not None and self.t0 is not None and (off := self._off_plan(",
+              "        if False and (off := self._off_plan("),),
+        "tests/test_rejoin.py::test_a_vehicle_that_came_down_blind_in_its_take_off_or_landing_is_held_there_and_taken_back"),
+    Handling(
         "a blind descent with its poses back landing over its column's foot",
         "executor: it lands where it is when its poses are back (no `over`)",
         (Edit("services/executor/vehicle_controller.py", "over=self._back_over(est))", "over=None)"),),

@@ -219,6 +219,11 @@ def test_a_vehicle_that_came_down_blind_in_its_take_off_or_landing_is_held_there
     assert sim.z < 0.02 and not sim.truth().motors, (sim.z, ctrl.mode)
     if edge == "fly":
         assert ctrl.mode == Mode.DONE and ctrl.held is None
+        # out of the mission where it came down: a replan of it that still has it on its way
+        # (asked for before it left) is refused, it stays done (`VehicleController._off_plan`)
+        assert not ctrl.replan(plan_for("cf1", path, MODEL, t0=T0), sim.t)
+        run(ctrl, sim, sim.t + 2.0, Mocap(MocapNoise()))
+        assert ctrl.mode == Mode.DONE and sim.z < 0.02 and not sim.truth().motors, ctrl.mode
         return
     if blown:
         assert max(blown) > 0.03, max(blown)

@@ -241,6 +241,9 @@ class VehicleController:
         if self._abort:
             log.warning("%s: new plan of %r refused: the mission is aborted (%s)", self.vid, plan.mission, self._abort)
             return False
+        if self.mode == Mode.DONE and old is not None and self.t0 is not None and (off := self._off_plan(plan, now)):
+            log.warning("%s: new plan of %r refused: it is done %s", self.vid, plan.mission, off)
+            return False
         if self.mode == Mode.DONE or old is None or self.t0 is None:
             return self.load(plan)  # it parked facing the way it came: it turns before driving off
         if self.held and self.rejoinable and (plan.rejoin or self._rejoin is not None) and not self._fault_landing:
@@ -261,6 +264,21 @@ class VehicleController:
         self._lowest_ground = lowest_ground(plan)
         log.info("%s: switched to a new plan of %r at %.2f s", self.vid, plan.mission, rel)
         return True
+
+    def _off_plan(self, plan: VehiclePlan, now: float) -> str:
+        """Why a vehicle done in its running mission may not take `plan` of it ("": it may): it is
+        not where the plan has it now (`guard_burst` x the margin: the tracking guard would hold it
+        at once). A vehicle done at its goal takes a plan that gives it a new one; one done where a
+        fault put it down (an emergency descent mid-flight) is out of the mission, and a replan
+        asked for before it left still has it on its old way (in a 32-vehicle soak cf10, come down
+        blind, took such a plan, tried to fly from where it stood and then drove 3 m from its
+        reference until the guard held it)."""
+        est = self.estimator.estimate(now)
+        where = Trajectory(plan.steps, self.params.trajectory).plan_position(self._rel(now))
+        off = math.dist((est.x, est.y, est.z), where)
+        if est.stale or off > self.params.faults.guard_burst * self.model.margin:
+            return "with its pose stale" if est.stale else f"{off:.3f} m from where the plan has it"
+        return ""
 
     def _take_back(self, plan: VehiclePlan, old: Trajectory, now: float) -> bool:
         """A held vehicle's way back into the mission's plan (`services/mission/rejoin.py`): it
