@@ -30,12 +30,12 @@ class Mode(StrEnum):
     """Following a land edge, or a fault's descent to the nearest safe point, until touchdown."""
     HOLDING = "holding"
     """On the ground, stopped by a fault (stale pose, lost link) that may clear, or by the tracking
-    guard (for good, unless held not for its own tracking and brought back into the plan), or where
+    guard (for good, unless held rejoinable and brought back into the plan), or where
     an emergency descent in a take-off or landing of its plan came down (it may be brought back)."""
     HOVERING = "hovering"
     """Airborne, held where it was by the tracking guard (off its plan) until the mission aborts,
-    or, held not for its own tracking, until the mission's plan brings it back (then flying on, or in
-    its take-off)."""
+    or, held rejoinable (late on its way, or for another's sake), until the mission's plan brings
+    it back (then flying on, or in its take-off)."""
     EMERGENCY_LANDING = "emergency_landing"
     """Airborne without a trustworthy pose: a blind, level descent, then motors off (done, or
     holding if it came down, seen, in the column of the take-off or landing it was in)."""

@@ -232,9 +232,9 @@ class VehicleController:
         keeps every path up to the first node at or after the switch time, so the reference is the
         same until then). A vehicle at rest after its mission takes it as a new plan (`load`).
         Refused (False, logged) when the vehicle does not follow its plan any more (fault landing,
-        held, aborted, landing) or the new plan's reference differs from the old one now. A vehicle
-        held not for its own tracking (`rejoinable`) takes a plan that brings it back (`VehiclePlan.rejoin`,
-        `_take_back`)."""
+        held, aborted, landing) or the new plan's reference differs from the old one now, or, done,
+        when the plan does not have it where it stands (`_off_plan`). A vehicle held `rejoinable`
+        takes a plan that brings it back (`VehiclePlan.rejoin`, `_take_back`)."""
         if plan.vid != self.vid:
             raise ValueError(f"plan for {plan.vid!r} given to the controller of {self.vid!r}")
         old = self.trajectory

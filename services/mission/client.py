@@ -152,7 +152,7 @@ class MissionClient(Service, Generic[R]):
     def on_fault(self, vid: str, kind: str, text: str, node: str, rejoinable: bool = False,
                  acted: bool = False) -> bool:
         """A fault of one vehicle (`kind`: its event, `node`: where its executor lands it, if it
-        said; `rejoinable`: held not for its own tracking, `VehicleEvent.rejoinable`; `acted`: its
+        said; `rejoinable`: held so that it may come back, `VehicleEvent.rejoinable`; `acted`: its
         executor's report of what it does, `VehicleEvent.acted`); whether the variant handles it
         (the mission goes on) instead of ending the mission."""
         return False

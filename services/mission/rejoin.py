@@ -2,9 +2,9 @@
 
 A vehicle that stopped short of another body (the proximity stop), held because another vehicle
 was held where its plan goes (the reflex), or stopped on the ground by a fault that may clear (a
-stale pose, a lost link) while its plan moved on leaves the mission like any held vehicle: the
-others are replanned around where it stands. It was not held for its own tracking (its executor
-says so: `VehicleEvent.rejoinable`), so once it has stood still, seen, for `REJOIN_AFTER_S` the
+stale pose, a lost link) while its plan moved on, or held by the tracking guard late on its plan's
+way (not off it), leaves the mission like any held vehicle: the others are replanned around where
+it stands. It may come back (its executor says so: `VehicleEvent.rejoinable`), so once it has stood still, seen, for `REJOIN_AFTER_S` the
 mission asks the planner to take it back: its old path, shifted in time so that the path has it
 where it stands at the replan's switch time (`progress_at`, `shifted_path`), planned on from its
 next node like every other vehicle. The planner refuses while the vehicle's way to its next node

@@ -82,7 +82,7 @@ class MissionSpec:
     """Who plans the mission on after a fault or a new task: SIPP (fast), or the ILP where its time
     limit allows (a mission the ILP planned; SIPP takes over when it finds no plan in time)."""
     rejoins: int = REJOINS
-    """How often a held vehicle (not for its own tracking) may be brought back into the plan (`rejoin.py`;
+    """How often a held vehicle (`rejoinable`) may be brought back into the plan (`rejoin.py`;
     0: never, it stays held as any held vehicle)."""
     hover: bool = False
     """A task may end at an air node (issue 19: single-vehicle take-off, go to, land): the vehicle
