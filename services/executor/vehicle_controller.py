@@ -267,17 +267,19 @@ class VehicleController:
 
     def _off_plan(self, plan: VehiclePlan, now: float) -> str:
         """Why a vehicle done in its running mission may not take `plan` of it ("": it may): it is
-        not where the plan has it now (`guard_burst` x the margin: the tracking guard would hold it
-        at once). A vehicle done at its goal takes a plan that gives it a new one; one done where a
-        fault put it down (an emergency descent mid-flight) is out of the mission, and a replan
-        asked for before it left still has it on its old way (in a 32-vehicle soak cf10, come down
-        blind, took such a plan, tried to fly from where it stood and then drove 3 m from its
-        reference until the guard held it)."""
+        seen away from where the plan has it now (`guard_burst` x the margin: the tracking guard
+        would hold it at once). A vehicle done at its goal takes a plan that gives it a new one
+        (with its pose stale too: a motion-capture stall as the plan comes must not lose a lifelong
+        mission its task; the guard judges it once it is seen); one done where a fault put it down
+        (an emergency descent mid-flight) is out of the mission, and a replan asked for before it
+        left still has it on its old way (in a 32-vehicle soak cf10, come down blind, took such a
+        plan, tried to fly from where it stood and then drove 3 m from its reference until the
+        guard held it)."""
         est = self.estimator.estimate(now)
         where = Trajectory(plan.steps, self.params.trajectory).plan_position(self._rel(now))
         off = math.dist((est.x, est.y, est.z), where)
-        if est.stale or off > self.params.faults.guard_burst * self.model.margin:
-            return "with its pose stale" if est.stale else f"{off:.3f} m from where the plan has it"
+        if not est.stale and off > self.params.faults.guard_burst * self.model.margin:
+            return f"{off:.3f} m from where the plan has it"
         return ""
 
     def _take_back(self, plan: VehiclePlan, old: Trajectory, now: float) -> bool:
