@@ -4,10 +4,10 @@ A vehicle that stopped short of another body (the proximity stop), held because 
 was held where its plan goes (the reflex), or stopped on the ground by a fault that may clear (a
 stale pose, a lost link) while its plan moved on, or held by the tracking guard late on its plan's
 way (not off it), leaves the mission like any held vehicle: the others are replanned around where
-it stands. It may come back (its executor says so: `VehicleEvent.rejoinable`), so once it has stood still, seen, for `REJOIN_AFTER_S` the
-mission asks the planner to take it back: its old path, shifted in time so that the path has it
-where it stands at the replan's switch time (`progress_at`, `shifted_path`), planned on from its
-next node like every other vehicle. The planner refuses while the vehicle's way to its next node
+it stands. It may come back (its executor says so: `VehicleEvent.rejoinable`), so once it has
+stood still, seen, for `REJOIN_AFTER_S` the mission asks the planner to take it back: its old
+path, shifted in time so that the path has it where it stands at the replan's switch time
+(`progress_at`, `shifted_path`), planned on from its next node like every other vehicle. The planner refuses while the vehicle's way to its next node
 crosses a body that left or a vehicle outside the mission (the one it stopped for may be either):
 the mission asks again every `REJOIN_EVERY_S`, `REJOIN_TRIES` times a hold. The plan says it
 brings the vehicle back (`VehiclePlan.rejoin`); its executor holds it until the new reference
