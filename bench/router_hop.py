@@ -4,21 +4,26 @@ to `--subscribers` processes, each taking it in its event loop as the executors 
 (`common.bus.pubsub.subscribe`), through the router (every fleet process is a client of it, which
 is where access control is enforced: docs/security.md), over direct peer links (the publisher
 listens, the subscribers connect to it), or over those with each frame in a shared-memory buffer
-(`zenoh.shm`). `--load N` runs N busy processes beside it (a loaded
-machine). Prints, per transport, the latency from the frame's stamp to its arrival in each
+(`zenoh.shm`), or through a router in a busy process: one that also subscribes to the frames in
+Python and runs Python work besides (as the soak's process did, with the mission runner and its
+ground-truth judge, before the router got a process of its own: docs/bus.md). `--load N` runs N
+busy processes beside it (a loaded machine). Prints, per transport, the latency from the frame's stamp to its arrival in each
 subscriber's loop and the CPU of each process; saves a PNG.
 
     python -m bench.router_hop [--bodies 80] [--subscribers 2] [--seconds 20] [--load 0]
+                               [--transports router,peer,shm,busy-router]
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import concurrent.futures
 import json
 import resource
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 
@@ -31,8 +36,11 @@ from common.bus.pubsub import Publisher, encode_message, subscribe
 from common.bus.session import InProcessRouter, ZenohConfig, free_tcp_endpoint, open_session
 
 KEY = "bench/frame"
-TRANSPORTS = ("router", "peer", "shm")
-"""Through the router; direct peer links; direct peer links with the frames in shared memory."""
+TRANSPORTS = ("router", "peer", "shm", "busy-router")
+"""Through the router; direct peer links; direct peer links with the frames in shared memory;
+through a router whose process runs Python besides (`busy_listener`)."""
+BUSY_WORK_S = 0.05
+"""s of Python work at a time in the busy router's process, each followed by as long idle."""
 SHM_POOL = 1 << 22
 """Bytes of the publisher's shared-memory pool."""
 SETTLE_S = 1.5
@@ -54,7 +62,7 @@ def cpu_s() -> float:
 
 def config(transport: str, endpoint: str, publisher: bool) -> ZenohConfig:
     """A client of the router at `endpoint`, or a peer listening there (the publisher) or connecting to it."""
-    if transport == "router":
+    if transport in ("router", "busy-router"):
         return ZenohConfig.client(endpoint)
     link = {"listen": (endpoint,)} if publisher else {"connect": (endpoint,)}
     return ZenohConfig(mode="peer", extra={"transport/shared_memory/enabled": transport == "shm"}, **link)
@@ -128,10 +136,31 @@ def receive(transport: str, endpoint: str, seconds: float) -> dict:
             "max_ms": at(1.0)}
 
 
+def busy_listener(endpoint: str, done: threading.Event) -> int:
+    """Until `done`: this process (the busy router's) decodes every frame in a subscriber of its own
+    and runs pure-Python work, `BUSY_WORK_S` at a time with as long idle between; frames heard."""
+    session = open_session(ZenohConfig.client(endpoint))
+    codec, heard = Codec(PoseFrame), [0]
+
+    def on_frame(sample: zenoh.Sample) -> None:
+        codec.decode(sample.payload.to_bytes())
+        heard[0] += 1
+
+    sub = session.declare_subscriber(KEY, on_frame)
+    while not done.is_set():
+        until = time.monotonic() + BUSY_WORK_S
+        while time.monotonic() < until:
+            sum(i * i for i in range(200))
+        done.wait(BUSY_WORK_S)
+    sub.undeclare()
+    session.close()
+    return heard[0]
+
+
 def measure(transport: str, subscribers: int, seconds: float, bodies: int, load: int) -> list[dict]:
     """One run: the publisher, the subscribers and `load` busy processes; the router (when used) in
-    this process, whose CPU share is then the router's."""
-    router = InProcessRouter(free_tcp_endpoint()) if transport == "router" else None
+    this process, whose CPU share is then the router's (with "busy-router", its Python work's too)."""
+    router = InProcessRouter(free_tcp_endpoint()) if transport in ("router", "busy-router") else None
     endpoint = router.endpoint if router is not None else free_tcp_endpoint()
     me = [sys.executable, "-m", "bench.router_hop", "--transport", transport, "--endpoint", endpoint,
           "--seconds", str(seconds)]
@@ -141,7 +170,15 @@ def measure(transport: str, subscribers: int, seconds: float, bodies: int, load:
         pub = subprocess.Popen([*me, "--role", "publisher", "--bodies", str(bodies)], stdout=subprocess.PIPE, text=True)
         subs = [subprocess.Popen([*me, "--role", "subscriber"], stdout=subprocess.PIPE, text=True)
                 for _ in range(subscribers)]
-        rows = [json.loads(p.communicate(timeout=seconds + HANG_S)[0]) for p in [pub, *subs]]
+        done = threading.Event()
+        busy = concurrent.futures.ThreadPoolExecutor(1).submit(busy_listener, endpoint, done) \
+            if transport == "busy-router" else None
+        try:
+            rows = [json.loads(p.communicate(timeout=seconds + HANG_S)[0]) for p in [pub, *subs]]
+        finally:
+            done.set()
+        if busy is not None:
+            rows.append({"process": "busy listener", "frames": busy.result()})  # (its CPU: the router row's)
         if router is not None:
             rows.append({"process": "router", "cpu": (cpu_s() - start) / (time.monotonic() - t0)})
     finally:
@@ -158,6 +195,7 @@ def main() -> None:
     parser.add_argument("--subscribers", type=int, default=2)
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--load", type=int, default=0, help="busy processes beside the measurement")
+    parser.add_argument("--transports", default=",".join(TRANSPORTS), help="which, comma-separated")
     # the benchmark's own processes:
     parser.add_argument("--role", choices=["publisher", "subscriber"], help=argparse.SUPPRESS)
     parser.add_argument("--transport", choices=TRANSPORTS, help=argparse.SUPPRESS)
@@ -169,16 +207,17 @@ def main() -> None:
     if args.role == "subscriber":
         print(json.dumps(receive(args.transport, args.endpoint, args.seconds)))
         return
-    rows = [row for transport in TRANSPORTS for row in measure(transport, args.subscribers, args.seconds,
+    transports = [t for t in TRANSPORTS if t in args.transports.split(",")]
+    rows = [row for transport in transports for row in measure(transport, args.subscribers, args.seconds,
                                                                args.bodies, args.load)]
     print(f"{args.bodies} bodies at 100 Hz to {args.subscribers} subscriber processes, {args.seconds:.0f} s, "
           f"{args.load} busy processes beside")
     print(format_table(["transport", "process", "frames", "latency p50/p99/max ms", "CPU %"],
                        [[r["transport"], r["process"], r.get("frames", "-"),
                          f"{r['p50_ms']:.2f}/{r['p99_ms']:.2f}/{r['max_ms']:.1f}" if "p50_ms" in r else "-",
-                         f"{100 * r['cpu']:.1f}"] for r in rows]))
+                         f"{100 * r['cpu']:.1f}" if "cpu" in r else "-"] for r in rows]))
     fig, (ax,) = new_figure()
-    for k, transport in enumerate(TRANSPORTS):
+    for k, transport in enumerate(transports):
         subs = [r for r in rows if r["transport"] == transport and r["process"] == "subscriber"]
         for j, q in enumerate(("p50_ms", "p99_ms")):
             ax.bar(k * 3 + j, max(r[q] for r in subs), label=f"{transport} {q[:3]}")

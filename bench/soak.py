@@ -167,7 +167,7 @@ class SoakLog:
     probe_ms: tuple[float, float] = (0.0, 0.0)
     """The machine's speed before the fleet started (`bench.tables.cpu_probe`: wall, CPU ms)."""
     own: list[tuple[float, float, float]] = field(default_factory=list)
-    """This process (the router, the mission and the soak's own listening) as `series` has the
+    """This process (the mission and the soak's own listening) as `series` has the
     fleet's: (t, RSS MB, CPU s). Not a service: its memory holds what the soak collects."""
 
     def sim_figures(self) -> dict[str, float | str]:
@@ -320,7 +320,7 @@ def report(log: SoakLog, seconds: float) -> str:
         rows.append([name, st.drops, st.drops - first.drops, extra])
     lines += ["", format_table(["service", "dropped", "of which in soak", "figures"], rows), ""]
     mem, total = [], 0.0
-    own = [("soak (router, mission)", log.own)] if len(log.own) > 1 else []
+    own = [("soak (mission)", log.own)] if len(log.own) > 1 else []
     for name, points in [*sorted(log.series.items()), *own]:
         cpu = (points[-1][2] - points[0][2]) / max(points[-1][0] - points[0][0], 1e-9)
         total += cpu

@@ -380,7 +380,8 @@ def test_token_of_a_killed_or_hung_process_disappears_within_a_second(
 
 def test_the_router_hop_benchmark_measures_every_transport(tmp_path: Path) -> None:
     """`bench.router_hop` (docs/bus.md, "The hot path and the router"): frames reach every subscriber
-    through the router, over peer links and in shared memory, and the table and the PNG come out.
+    through the router, over peer links, in shared memory and through a router in a busy process (whose
+    own subscriber hears them too), and the table and the PNG come out.
     Not in the compute lane: its processes must get the CPU within its 1.5 s of settling (at idle
     priority beside the flights a peer subscriber connected after the publisher had finished and
     got no frame)."""
@@ -388,6 +389,9 @@ def test_the_router_hop_benchmark_measures_every_transport(tmp_path: Path) -> No
                           "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=1100)
     assert run.returncode == 0, run.stderr[-2000:]
     rows = [line.split() for line in run.stdout.splitlines() if line.split()[1:2] == ["subscriber"]]
-    assert sorted(row[0] for row in rows) == ["peer", "peer", "router", "router", "shm", "shm"], run.stdout
+    assert sorted(row[0] for row in rows) == ["busy-router", "busy-router", "peer", "peer", "router", "router", "shm",
+                                              "shm"], run.stdout
     assert all(int(row[2]) > 0 for row in rows), run.stdout
+    busy = [line.split() for line in run.stdout.splitlines() if line.split()[1:3] == ["busy", "listener"]]
+    assert len(busy) == 1 and int(busy[0][3]) > 0, run.stdout
     assert (tmp_path / "router_hop.png").stat().st_size > 10_000

@@ -39,7 +39,8 @@ def test_router_restart_mid_flight_aborts_the_mission_cleanly(tmp_path) -> None:
     marks: dict[str, float] = {}
     restarted: list[InProcessRouter] = []
 
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="routerfault") as fleet:
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="routerfault",
+                     router_in_process=True) as fleet:
         async def scenario(watch: Watch, runner: MissionRunner) -> None:
             await until(lambda: watch.mode("cf1") == "flying" and watch.mode("cf2") == "flying", 60, "both flying")
             await until(airborne(watch, "cf1"), 5, "cf1 at cruise height")

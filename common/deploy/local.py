@@ -2,9 +2,15 @@
 overrides, each waited for by one readiness rule (its ready file, `common.bus.readiness`).
 
 `fleet up` does this from the command line; `fleet demo`, `fleet mission team --local`, the tests and
-the benchmarks do it through `bring_up`, which may also run the router inside this process (so
-that a test can stop and restart it) instead of as compose's `router` service. The deployment is
-secured as compose.yaml is: role credentials in <run dir>/secrets, access control at the router.
+the benchmarks do it through `bring_up`. The router is compose's `router` service, a process of its
+own, as deployed; `bring_up` may instead run it inside this process (`router_in_process`: a test
+that stops and restarts it). Not by default: zenoh's runtime threads are the process's, shared by
+the router's routing and this process's subscribers, which run Python and wait for its GIL; a
+process that plans, judges ground truth or runs a mission holds the GIL for long stretches, and
+the whole fleet's traffic waited with it (80-vehicle soaks, two runs each way: in this process,
+every service's event loop stalled 13-19 times for up to 0.5 s, all bodies lost to the motion
+capture at once, contacts; in its own, none: docs/bus.md). The deployment is secured as
+compose.yaml is: role credentials in <run dir>/secrets, access control at the router.
 """
 
 from __future__ import annotations
@@ -44,7 +50,7 @@ class LocalFleet:
 @contextmanager
 def bring_up(run_dir: Path, overrides: dict[str, str] | None = None, *, compose: Path = COMPOSE_FILE,
              profiles: Iterable[str] = (), only: Iterable[str] | None = None, adjust: Adjust | None = None,
-             router_in_process: bool = True, timeout_s: float = 60.0) -> Iterator[LocalFleet]:
+             router_in_process: bool = False, timeout_s: float = 60.0) -> Iterator[LocalFleet]:
     """Start `compose`'s services (those of `only`, with `profiles` active), `adjust`ed, and wait until
     every one serves; stop them all on exit. `overrides` set the compose file's variables; the fleet
     name is FLEET_NAME (default "default"). RuntimeError names the processes that did not come up."""

@@ -1,5 +1,5 @@
 """A fleet started from the API: compose.yaml's services as local processes (the path `fleet up`
-and `fleet demo` take, `common.deploy.local.bring_up`), the router in this process."""
+and `fleet demo` take, `common.deploy.local.bring_up`), the router among them."""
 
 from __future__ import annotations
 

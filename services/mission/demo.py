@@ -71,10 +71,12 @@ def with_args(procs: list[Process], extra: Mapping[str, list[str]]) -> list[Proc
 def local_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int = 2, per_radio: int = 2,
                 fleet: str = "demo", link: LinkModel | None = None, extra_args: Mapping[str, list[str]] | None = None,
                 without: Iterable[str] = (), control: ControlMode = "offboard",
-                gateway: GatewayParams | None = None) -> Iterator[LocalFleet]:
+                gateway: GatewayParams | None = None, router_in_process: bool = False) -> Iterator[LocalFleet]:
     """compose.yaml's fleet with simulated Crazyflies for `tasks`, up and serving; stopped on exit.
     `extra_args`: more arguments per service; `without`: services not to start; `control`: every
-    vehicle's control mode; `gateway`: the gateways' parameters (default: the radios file's)."""
+    vehicle's control mode; `gateway`: the gateways' parameters (default: the radios file's);
+    `router_in_process`: the router in this process (`LocalFleet.router`, to stop and restart it),
+    not compose's router process (`bring_up`)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     radios = demo_radios(map_name, tasks, per_radio, link, control=control, gateway=gateway)
     radios_path = run_dir / "radios.yaml"
@@ -83,7 +85,7 @@ def local_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors:
                  "FLEET_RECORDINGS": str(run_dir.parent / "recordings")}
     adjust = partial(demo_processes, radios_path=radios_path, radios=radios, extra_args=extra_args or {},
                      without=set(without))
-    with bring_up(run_dir, overrides, adjust=adjust) as local:
+    with bring_up(run_dir, overrides, adjust=adjust, router_in_process=router_in_process) as local:
         yield local
 
 
