@@ -1,7 +1,8 @@
 """The executor's whole-process cost per vehicle and its pose-to-command latency over zenoh, for
 8, 32, 80 and 200 vehicles (issue 15).
 
-An in-process router; executor processes (`fleet executor`) as in the deployment; this process
+A router process (`fleet router`: not in this process, which runs Python besides, docs/bus.md);
+executor processes (`fleet executor`) as in the deployment; this process
 plays the motion capture and the gateways: it publishes one `PoseFrame` of every vehicle at 100 Hz
 (each driving its plan, a 100 m road at 0.1 m/s, or hovering at 0.5 m with `--fly`), each
 vehicle's telemetry at 5 Hz naming one of `--gateways` gateways, and receives the executors'
@@ -28,7 +29,9 @@ import asyncio
 import os
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -37,7 +40,8 @@ from common.bus.keys import Keys
 from common.bus.liveliness import watch_alive
 from common.bus.messages import CmdBatch, FramePose, PlanStep, PoseFrame, Telemetry, VehiclePlan
 from common.bus.pubsub import Publisher, subscribe
-from common.bus.session import InProcessRouter, ZenohConfig, open_session
+from common.bus.session import ZenohConfig, open_session
+from common.deploy.local import router_process
 from common.domain.planfile import PlanModel
 from common.domain.vehicle_model import VehicleModel
 
@@ -151,9 +155,9 @@ def main() -> None:
                         help="the executors run plans on the wall clock")
     args = parser.parse_args()
     rows = []
-    with InProcessRouter() as router:
+    with tempfile.TemporaryDirectory() as run_dir, router_process(Path(run_dir)) as endpoint:
         for n in (int(v) for v in args.vehicles.split(",")):
-            r = asyncio.run(measure(router.endpoint, n, args.executors, args.seconds, args.fly, args.plan_clock))
+            r = asyncio.run(measure(endpoint, n, args.executors, args.seconds, args.fly, args.plan_clock))
             rows.append(r)
             print(f"{n} vehicles: {r}", flush=True)
     print(format_table(["vehicles", "executors", "cmd Hz/vehicle", "latency p50 ms", "p99 ms", "max ms",

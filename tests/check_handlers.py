@@ -360,6 +360,12 @@ HANDLINGS: tuple[Handling, ...] = (
               "    free = ground or [s for s in ground if all("),),
         "tests/test_closed_loop.py::test_an_abort_lands_on_the_nearest_landing_node_clear_of_the_vehicles_standing_there"),
     Handling(
+        "a fault landing flies round a body hovering in its way",
+        "executor: a fault landing flies level to its node whatever hovers in between",
+        (Edit("services/executor/faults.py", "            and not any(in_way(pos, s.pos, b, model) for b in bodies)]",
+              "]"),),
+        "tests/test_fault_landing.py::test_a_fault_landing_flies_round_no_body_hovering_in_its_way"),
+    Handling(
         "another executor's fault landing kept off",
         "executor: another executor's announced fault landing is not counted",
         (Edit("services/executor/service.py",

@@ -157,6 +157,25 @@ def test_a_fault_landing_with_nowhere_clear_hovers_until_the_vehicle_below_drive
     assert ctrl.landing_step is not None and ctrl.landing_step.node == STRAIGHT_DOWN
 
 
+def test_a_fault_landing_flies_round_no_body_hovering_in_its_way() -> None:
+    """cf2 hovers 0.3 m past l1 when its mission aborts, with another vehicle hovering, held, between
+    it and l1 at its height: it lands on l2 instead, 1.2 m on, and never comes near the other (it
+    used to fly level to l1, the nearest, through it: four such contacts in an 80-vehicle soak's
+    abort). A body behind it, which the flight to l1 only leaves, is no reason to go elsewhere."""
+    between = (0.80, 0.45, 0.50)
+    ctrl, sim, records, abort = hovering_abort(lambda _s: [between])
+    assert math.dist((sim.x, sim.y, sim.z), PADS["l2"]) < 0.03
+    after = [r.truth for r in records if r.t >= abort]
+    assert min(math.dist((r.x, r.y, r.z), between) for r in after) > 2.0 * MODEL.body()[0] + 0.02
+    behind = (1.10, 0.45, 0.50)
+    ctrl, sim, records, abort = hovering_abort(lambda _s: [behind])
+    assert math.dist((sim.x, sim.y, sim.z), PADS["l1"]) < 0.03
+    boxed = [between, behind]  # with one on either side it comes straight down, if clear below
+    assert safe_landing_steps((0.95, 0.45, 0.5), 0.0, STEPS, MODEL, boxed)[-1].node == STRAIGHT_DOWN
+    assert safe_landing_steps((0.95, 0.45, 0.5), 0.0, STEPS, MODEL, [*boxed, (0.95, 0.45, 0.0)]) is None
+    assert safe_landing_steps((0.95, 0.45, 0.5), 0.0, STEPS, MODEL, [(0.80, 0.45, 0.3)])[-1].node == "l1"  # beneath its level
+
+
 def test_a_fault_landing_with_its_reserve_spent_takes_the_nearest_node_all_the_same() -> None:
     nodes = [(*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)]
     ctrl, sim, records, abort = hovering_abort(lambda _s: nodes + [(0.95, 0.45, 0.0)], spend_reserve_at=2.0)

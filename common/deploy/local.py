@@ -15,6 +15,7 @@ compose.yaml is: role credentials in <run dir>/secrets, access control at the ro
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -84,3 +85,20 @@ def bring_up(run_dir: Path, overrides: dict[str, str] | None = None, *, compose:
     finally:
         if router is not None:
             router.close()
+
+
+@contextmanager
+def router_process(run_dir: Path) -> Iterator[str]:
+    """`fleet router` without access control on a free local port, a process of its own (not one
+    that runs Python besides: docs/bus.md, "A router in a busy process"), up while in the context;
+    its endpoint. For benchmarks that play parts of the fleet themselves."""
+    endpoint = free_tcp_endpoint()
+    argv = [sys.executable, "-m", "services.cli", "router", "--listen", endpoint]
+    start([Process("router", "router", argv, {})], run_dir, settle_s=0.0)
+    try:
+        missing = wait_ready(run_dir, 10.0)
+        if missing:
+            raise RuntimeError(f"the router did not come up: see {run_dir / 'logs' / 'router.log'}")
+        yield endpoint
+    finally:
+        stop(run_dir, grace_s=2.0)

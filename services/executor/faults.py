@@ -178,6 +178,23 @@ def in_column(node: tuple[float, float, float], body: tuple[float, float, float]
     return math.hypot(node[0] - body[0], node[1] - body[1]) < 2.0 * model.radius + model.margin
 
 
+def in_way(pos: tuple[float, float, float], node: tuple[float, float, float], body: tuple[float, float, float],
+           model: VehicleModel) -> bool:
+    """Whether `body` is in the way of a fault landing's level flight from `pos` to above `node`:
+    at its level (within a height and a margin) and within two radii and a margin of its line in the
+    horizontal, ahead of it (a body the flight only moves away from is not in its way)."""
+    if abs(body[2] - pos[2]) >= model.height + model.margin:
+        return False
+    dx, dy = node[0] - pos[0], node[1] - pos[1]
+    bx, by = body[0] - pos[0], body[1] - pos[1]
+    length2 = dx * dx + dy * dy
+    along = (bx * dx + by * dy) / length2 if length2 > 0.0 else 0.0
+    if along <= 0.0:
+        return False
+    along = min(along, 1.0)
+    return math.hypot(bx - along * dx, by - along * dy) < 2.0 * model.radius + model.margin
+
+
 def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence[PlanStep],
                        model: VehicleModel, bodies: Iterable[tuple[float, float, float]] = ()
                        ) -> list[PlanStep] | None:
@@ -186,14 +203,18 @@ def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence
     the plan takes off or lands come first: they are under the airspace it flies in (other ground
     nodes, e.g. a parking spot next to a landing node, may lie under a no-fly zone). A node with one
     of the other `bodies` below the vehicle in its column (two radii and a margin of it: a vehicle
-    parked there, or another's fault landing heading there) is passed over for the next nearest.
-    With every node taken, straight down onto the plan's lowest ground (node `STRAIGHT_DOWN`), if no body is
+    parked there, or another's fault landing heading there), or with one in the way of the level
+    flight there (`in_way`: a vehicle hovering, held, between them; in an 80-vehicle soak's abort
+    four flew into such), is passed over for the next nearest.
+    With every node taken or out of the way, straight down onto the plan's lowest ground (node `STRAIGHT_DOWN`), if no body is
     below the vehicle in its own column (the column a replan keeps clear below a vehicle that left:
     `services/mission/sweeps.py`); else None: there is nowhere to land without landing on a body
     (the nearest node all the same would come down onto the vehicle parked there)."""
     ground = landing_nodes(plan) or [s for s in plan if s.kind != "air"]
+    bodies = list(bodies)
     below = [b for b in bodies if b[2] < pos[2]]
-    free = [s for s in ground if all(not in_column(s.pos, b, model) for b in below)]
+    free = [s for s in ground if all(not in_column(s.pos, b, model) for b in below)
+            and not any(in_way(pos, s.pos, b, model) for b in bodies)]
     if free:
         target = min(free, key=lambda s: math.hypot(s.pos[0] - pos[0], s.pos[1] - pos[1]))
     elif any(in_column(pos, b, model) for b in below):
