@@ -7,9 +7,9 @@ own, as deployed; `bring_up` may instead run it inside this process (`router_in_
 that stops and restarts it). Not by default: zenoh's runtime threads are the process's, shared by
 the router's routing and this process's subscribers, which run Python and wait for its GIL; a
 process that plans, judges ground truth or runs a mission holds the GIL for long stretches, and
-the whole fleet's traffic waited with it (80-vehicle soaks, two runs each way: in this process,
-every service's event loop stalled 13-19 times for up to 0.5 s, all bodies lost to the motion
-capture at once, contacts; in its own, none: docs/bus.md). The deployment is secured as
+the whole fleet's traffic waited with it (`bench.router_hop`'s busy router: p99 1 -> 5-6 ms;
+80-vehicle soaks: event loops stalled 13.5 times a run in this process, 7.6 in its own:
+docs/bus.md, "A router in a busy process"). The deployment is secured as
 compose.yaml is: role credentials in <run dir>/secrets, access control at the router.
 """
 
