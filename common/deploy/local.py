@@ -52,9 +52,10 @@ class LocalFleet:
 def bring_up(run_dir: Path, overrides: dict[str, str] | None = None, *, compose: Path = COMPOSE_FILE,
              profiles: Iterable[str] = (), only: Iterable[str] | None = None, adjust: Adjust | None = None,
              router_in_process: bool = False, timeout_s: float = 60.0) -> Iterator[LocalFleet]:
-    """Start `compose`'s services (those of `only`, with `profiles` active), `adjust`ed, and wait until
-    every one serves; stop them all on exit. `overrides` set the compose file's variables; the fleet
-    name is FLEET_NAME (default "default"). RuntimeError names the processes that did not come up."""
+    """Start `compose`'s services (those of `only`, and the router, with `profiles` active),
+    `adjust`ed, and wait until every one serves; stop them all on exit. `overrides` set the compose
+    file's variables; the fleet name is FLEET_NAME (default "default"). RuntimeError names the
+    processes that did not come up."""
     run_dir.mkdir(parents=True, exist_ok=True)
     creds = ensure_credentials(run_dir / "secrets")
     env = {"FLEET_SECRETS": str(creds.dir.resolve()), **(overrides or {})}
@@ -67,8 +68,8 @@ def bring_up(run_dir: Path, overrides: dict[str, str] | None = None, *, compose:
     try:
         procs = load_compose(compose, env, run_dir, profiles)
         wanted = set(only) if only is not None else None
-        procs = [p for p in procs if (wanted is None or p.service in wanted)
-                 and not (router_in_process and p.service == "router")]
+        procs = [p for p in procs if (p.service == "router" and not router_in_process)
+                 or (p.service != "router" and (wanted is None or p.service in wanted))]
         if adjust is not None:
             procs = adjust(procs)
         endpoint = f"tcp/127.0.0.1:{env['FLEET_ROUTER_PORT']}"
