@@ -205,9 +205,9 @@ def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence
     of the other `bodies` below the vehicle in its column (two radii and a margin of it: a vehicle
     parked there, or another's fault landing heading there), or with one in the way of the level
     flight there (`in_way`: a vehicle hovering, held, between them; in an 80-vehicle soak's abort
-    four flew into such), is passed over for the next nearest.
-    With every node taken or out of the way, straight down onto the plan's lowest ground (node `STRAIGHT_DOWN`), if no body is
-    below the vehicle in its own column (the column a replan keeps clear below a vehicle that left:
+    four flew into such), is passed over for the next nearest. With every node taken or out of the
+    way, straight down onto the plan's lowest ground (node `STRAIGHT_DOWN`), if no body is below the
+    vehicle in its own column (the column a replan keeps clear below a vehicle that left:
     `services/mission/sweeps.py`); else None: there is nowhere to land without landing on a body
     (the nearest node all the same would come down onto the vehicle parked there)."""
     ground = landing_nodes(plan) or [s for s in plan if s.kind != "air"]
