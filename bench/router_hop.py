@@ -7,8 +7,8 @@ listens, the subscribers connect to it), or over those with each frame in a shar
 (`zenoh.shm`), or through a router in a busy process: one that also subscribes to the frames in
 Python and runs Python work besides (as the soak's process did, with the mission runner and its
 ground-truth judge, before the router got a process of its own: docs/bus.md). `--load N` runs N
-busy processes beside it (a loaded machine). Prints, per transport, the latency from the frame's stamp to its arrival in each
-subscriber's loop and the CPU of each process; saves a PNG.
+busy processes beside it (a loaded machine). Prints, per transport, the latency from the frame's
+stamp to its arrival in each subscriber's loop and the CPU of each process; saves a PNG.
 
     python -m bench.router_hop [--bodies 80] [--subscribers 2] [--seconds 20] [--load 0]
                                [--transports router,peer,shm,busy-router]
@@ -171,12 +171,12 @@ def measure(transport: str, subscribers: int, seconds: float, bodies: int, load:
         subs = [subprocess.Popen([*me, "--role", "subscriber"], stdout=subprocess.PIPE, text=True)
                 for _ in range(subscribers)]
         done = threading.Event()
-        busy = concurrent.futures.ThreadPoolExecutor(1).submit(busy_listener, endpoint, done) \
-            if transport == "busy-router" else None
-        try:
-            rows = [json.loads(p.communicate(timeout=seconds + HANG_S)[0]) for p in [pub, *subs]]
-        finally:
-            done.set()
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:
+            busy = pool.submit(busy_listener, endpoint, done) if transport == "busy-router" else None
+            try:
+                rows = [json.loads(p.communicate(timeout=seconds + HANG_S)[0]) for p in [pub, *subs]]
+            finally:
+                done.set()
         if busy is not None:
             rows.append({"process": "busy listener", "frames": busy.result()})  # (its CPU: the router row's)
         if router is not None:
