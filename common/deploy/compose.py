@@ -28,6 +28,7 @@ from typing import Any
 import msgspec
 
 from common.bus.keys import check_chunk
+from common.deploy.acl import ROUTER_CONFIG
 from common.deploy.credentials import ensure_credentials
 from common.domain.mapfile import _split_msgspec_error, decode_yaml, read_text
 from common.errors import InputError
@@ -131,9 +132,12 @@ def _order(services: dict[str, ComposeService], source: str) -> list[str]:
 
 
 def local_env(overrides: dict[str, str] | None, run_dir: Path | None) -> dict[str, str]:
-    """Variables for interpolating compose.yaml here: the environment, the local hosts, the secrets
-    directory (FLEET_SECRETS, or credentials made in run_dir/secrets), then `overrides`."""
-    env = {**os.environ, **LOCAL_HOSTS, **(overrides or {})}
+    """Variables for interpolating compose.yaml here: the shipped router configuration by its
+    absolute path (FLEET_ROUTER_CONFIG: a process started from another directory, an example run
+    anywhere, finds it; in a container it is `deploy/router.json5` under the image's directory), the
+    environment, the local hosts, the secrets directory (FLEET_SECRETS, or credentials made in
+    run_dir/secrets), then `overrides`."""
+    env = {"FLEET_ROUTER_CONFIG": str(ROUTER_CONFIG), **os.environ, **LOCAL_HOSTS, **(overrides or {})}
     if "FLEET_SECRETS" not in env and run_dir is not None:
         env["FLEET_SECRETS"] = str(ensure_credentials(run_dir / "secrets").dir.resolve())
     if "FLEET_SECRETS" in env:
