@@ -16,8 +16,8 @@ import pytest
 import zenoh
 
 from common.bus.keys import Keys
-from common.bus.messages import Cmd, FlightSetpoint, Telemetry, VehicleEvent
-from common.bus.pubsub import subscribe
+from common.bus.messages import Cmd, CmdBatch, FlightSetpoint, Telemetry, VehicleEvent
+from common.bus.pubsub import Publisher, subscribe
 from common.bus.session import ZenohConfig
 from common.deploy.radios import LinkModel, RadiosFile, RadioSpec, VehicleLink, simulated_radios
 from common.domain.ownership import owner_of
@@ -251,3 +251,35 @@ def test_ten_percent_loss_still_delivers_45hz_without_firmware_watchdog(
             assert sim.radios["r0"].lost > 0
 
     asyncio.run(main())
+
+
+def test_telemetry_goes_out_at_its_rate_however_often_command_batches_wake_the_gateway(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
+    """Two executors' command batches each control cycle (a radio's vehicles spread over both) make
+    the gateway tick about twice a period: each vehicle's telemetry still goes out at `status_hz`
+    (5 Hz), not at twice it (counted in ticks, the soak's went out at 10.6 Hz)."""
+    cfg = ZenohConfig.client(zenoh_router)
+    vids = ["cf0", "cf1"]
+    spec = simulated_radios(_starts(vids), per_radio=2)
+    sim, gw = SimService(spec, cfg), RadioGateway("r0", spec, cfg)
+    session = zsession()
+    batches = Publisher(session, KEYS.gateway_cmd("r0"), CmdBatch)
+
+    async def main() -> dict[str, int]:
+        watch = Watch(session)
+        async with running(sim, gw):
+            await until(lambda: all(v in watch.telemetry and watch.telemetry[v].link_ok for v in vids), 10.0,
+                        "both links up")
+            loop = asyncio.get_running_loop()
+            before = {vid: len(watch.history[vid]) for vid in vids}
+            due, end = loop.time(), loop.time() + 3.0
+            while loop.time() < end:  # e1's batch, then e2's 5 ms later, every 10 ms
+                for owner in ("e1", "e2"):
+                    batches.put(CmdBatch(owner=owner, t=time.time(), cmds=[]))
+                    due += 0.005
+                    await asyncio.sleep(max(due - loop.time(), 0.0))
+            return {vid: len(watch.history[vid]) - before[vid] for vid in vids}
+
+    heard = asyncio.run(main())
+    rate = spec.gateway.status_hz
+    assert all(3.0 * rate - 3 <= n <= 3.0 * rate + 3 for n in heard.values()), heard
