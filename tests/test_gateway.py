@@ -282,4 +282,4 @@ def test_telemetry_goes_out_at_its_rate_however_often_command_batches_wake_the_g
 
     heard = asyncio.run(main())
     rate = spec.gateway.status_hz
-    assert all(3.0 * rate - 3 <= n <= 3.0 * rate + 3 for n in heard.values()), heard
+    assert all(2.0 * rate <= n <= 4.0 * rate for n in heard.values()), heard  # 3 s at 5 Hz: 15 (ticks: 30)
