@@ -7,11 +7,12 @@ way (not off it), leaves the mission like any held vehicle: the others are repla
 it stands. It may come back (its executor says so: `VehicleEvent.rejoinable`), so once it has
 stood still, seen, for `REJOIN_AFTER_S` the mission asks the planner to take it back: its old
 path, shifted in time so that the path has it where it stands at the replan's switch time
-(`progress_at`, `shifted_path`), planned on from its next node like every other vehicle. The planner refuses while the vehicle's way to its next node
-crosses a body that left or a vehicle outside the mission (the one it stopped for may be either):
-the mission asks again every `REJOIN_EVERY_S`, `REJOIN_TRIES` times a hold. The plan says it
-brings the vehicle back (`VehiclePlan.rejoin`); its executor holds it until the new reference
-passes where it stands, then follows it (`VehicleController._take_back`).
+(`progress_at`, `shifted_path`), planned on from its next node like every other vehicle. The
+planner refuses while the vehicle's way to its next node crosses a body that left or a vehicle
+outside the mission (the one it stopped for may be either): the mission asks again every
+`REJOIN_EVERY_S`, `REJOIN_TRIES` times a hold. The plan says it brings the vehicle back
+(`VehiclePlan.rejoin`); its executor holds it until the new reference passes where it stands,
+then follows it (`VehicleController._take_back`).
 """
 
 from __future__ import annotations
