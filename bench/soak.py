@@ -313,7 +313,7 @@ def report(log: SoakLog, seconds: float) -> str:
                      f"{f.get('waited_p50_ms', 0):.0f}/{f.get('waited_max_ms', 0):.0f} ms, planned p50/max "
                      f"{f.get('planned_p50_ms', 0):.0f}/{f.get('planned_max_ms', 0):.0f} ms (latest {RECENT_PLANS})")
         elif st.service == "gateway":
-            extra = (f"refused {sum(v for k, v in st.counters.items() if k.startswith('refused:'))}, "
+            extra = (f"ticks {f.get('ticks', 0):.0f}, refused {sum(v for k, v in st.counters.items() if k.startswith('refused:'))}, "
                      f"radio_behind {st.counters.get('radio_behind', 0)}, pose->radio p50/p99 "
                      f"{f.get('pose_to_radio_p50_ms', 0):.1f}/{f.get('pose_to_radio_p99_ms', 0):.1f} ms, from the "
                      f"bridge {f.get('frame_to_radio_p50_ms', 0):.1f}/{f.get('frame_to_radio_p99_ms', 0):.1f} ms")

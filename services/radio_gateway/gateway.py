@@ -96,6 +96,7 @@ class RadioGateway(Service):
         """Capture time of the frame an executor's batch fused -> its setpoints handed to the radio (s)."""
         self.software_latency: deque[float] = deque(maxlen=20000)
         """The same from the frame's arrival at the mocap bridge (the capture system's latency excluded)."""
+        self.ticks = 0
 
     # ---- lifecycle ------------------------------------------------------------------------
 
@@ -132,7 +133,7 @@ class RadioGateway(Service):
         starved process) must not take its owner's waiting commands for missing ones. A tick runs
         every period, and at once when an executor's command batch arrives (its setpoints go out
         without waiting for the next tick; `VehicleChannel.flight_due` keeps the pace): with the
-        radio's vehicles spread over two executors, about twice a period. Telemetry goes out every
+        radio's vehicles spread over two executors, up to twice a period. Telemetry goes out every
         1 / `status_hz` s of the clock, not every so many ticks (counted in ticks, it went out at
         10.6 Hz a vehicle instead of 5: twice the puts, and twice the decoding in every process
         that hears telemetry)."""
@@ -149,6 +150,7 @@ class RadioGateway(Service):
                 for cmd, key in sub.drain():
                     self._on_cmd(cmd, key)
             now = time.time()
+            self.ticks += 1
             for vid, ch in self.channels.items():
                 if late > STALL_S:
                     ch.health.excuse(now)
@@ -339,7 +341,7 @@ class RadioGateway(Service):
 
     def _figures(self) -> dict[str, float]:
         chans = self.channels.values()
-        return {"vehicles": len(self.channels), "links_ok": sum(ch.health.link_ok for ch in chans),
+        return {"vehicles": len(self.channels), "ticks": self.ticks, "links_ok": sum(ch.health.link_ok for ch in chans),
                 "taken_over": sum(ch.took_over for ch in chans),
                 "skipped": sum(v for k, v in self.counters.items() if k.startswith("skipped:")),
                 "flight_skipped": self.scheduler.flight_skipped, **percentile_figures("pose_to_radio", self.latency),
