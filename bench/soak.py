@@ -15,7 +15,7 @@ a recorder process keeps every vehicle's ground truth, state, events and telemet
 contact or a hold by time afterwards (`bench/trace.py`).
 
     python -m bench.soak [--minutes 5] [--vehicles 80] [--executors 2] [--per-radio 8] [--truth-hz 50] [--sim-priority 5]
-                         [--trace FILE] [--no-plan-clock] [--control offboard|onboard]
+                         [--trace FILE] [--no-plan-clock] [--control offboard|onboard] [--radios-per-gateway 1]
     FLEET_SOAK_MINUTES=20 make soak        # the same through pytest -m soak (tests/test_soak.py)
 """
 
@@ -97,16 +97,18 @@ instead of 6.3-6.6, the simulator 32 % instead of 38, 2026-12-05)."""
 
 def soak_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int, per_radio: int,
                truth_hz: float, fleet: str = "soak", thrust_spread: float = 0.0,
-               sim_priority: int = SIM_PRIORITY, plan_clock: bool = True, control: ControlMode = "offboard"):
+               sim_priority: int = SIM_PRIORITY, plan_clock: bool = True, control: ControlMode = "offboard",
+               radios_each: int = 1):
     """The demo's fleet (services.mission.demo), minus the recorder, tuned for a large fleet
     (`LOG_PERIOD_S`); `sim_priority`: nice levels the simulator raises its priority by (`fleet sim
     --priority`); `plan_clock` False: the executors run plans on the wall clock (`fleet executor
-    --no-plan-clock`); `control`: every vehicle's control mode (docs/control.md)."""
+    --no-plan-clock`); `control`: every vehicle's control mode (docs/control.md); `radios_each`:
+    radios per gateway process."""
     return local_fleet(map_name, tasks, run_dir, executors, per_radio, fleet=fleet, without={"telemetry"},
                        extra_args={"sim": ["--truth-hz", str(truth_hz), "--thrust-spread", str(thrust_spread),
                                            "--priority", str(sim_priority)],
                                    "executor": [] if plan_clock else ["--no-plan-clock"]},
-                       gateway=GatewayParams(log_period_s=LOG_PERIOD_S), control=control)
+                       gateway=GatewayParams(log_period_s=LOG_PERIOD_S), control=control, radios_each=radios_each)
 
 
 @contextmanager
@@ -368,7 +370,8 @@ def figure(log: SoakLog, out: str | Path) -> Path:
 def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: int = 8, truth_hz: float = 50.0,
              sample_s: float = 5.0, seed: int = 0, run_dir: Path = Path("out/soak/run"),
              out: str | Path = "out", thrust_spread: float = 0.0, sim_priority: int = SIM_PRIORITY,
-             trace: Path | None = None, plan_clock: bool = True, control: ControlMode = "offboard") -> SoakLog:
+             trace: Path | None = None, plan_clock: bool = True, control: ControlMode = "offboard",
+             radios_each: int = 1) -> SoakLog:
     """Start the fleet, soak it for `minutes`, print the report and save the figure."""
     graph = load_graph(MAP)
     rng = random.Random(seed)
@@ -377,7 +380,8 @@ def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: 
     tasks = draw_tasks(graph, starts, rng)
     probe = cpu_probe()
     with soak_fleet(MAP, tasks, run_dir, executors, per_radio, truth_hz, thrust_spread=thrust_spread,
-                    sim_priority=sim_priority, plan_clock=plan_clock, control=control) as fleet, recording(fleet, trace):
+                    sim_priority=sim_priority, plan_clock=plan_clock, control=control,
+                    radios_each=radios_each) as fleet, recording(fleet, trace):
         log = asyncio.run(soak(fleet, graph, tasks, 60.0 * minutes, sample_s, seed))
     log.probe_ms = probe
     print(report(log, 60.0 * minutes))
@@ -407,10 +411,12 @@ def main() -> None:
                         help="the executors run plans on the wall clock (`fleet executor --no-plan-clock`): for comparison")
     parser.add_argument("--control", choices=["offboard", "onboard"], default="offboard",
                         help="every vehicle's control mode (docs/control.md, \"Onboard control mode\")")
+    parser.add_argument("--radios-per-gateway", type=int, default=1, metavar="N",
+                        help="gateway processes serve N radios each (`fleet gateway --radio a --radio b`)")
     args = parser.parse_args()
     log = run_soak(args.minutes, args.vehicles, args.executors, args.per_radio, args.truth_hz, args.sample_s,
                    args.seed, Path(args.run_dir), args.out, args.thrust_spread, args.sim_priority, args.trace,
-                   args.plan_clock, args.control)
+                   args.plan_clock, args.control, args.radios_per_gateway)
     if args.summary:
         Path(args.summary).write_text(json.dumps(summary(log), indent=1))
 

@@ -16,11 +16,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from common.deploy.compose import interpolate, load_compose
+from common.deploy.compose import Process, interpolate, load_compose
 from common.deploy.lab import HOST_NETWORK, lab_compose
 from common.deploy.launcher import start, status, stop, wait_ready
+from common.deploy.radios import simulated_radios
 from common.errors import InputError
 from services.cli import main
+from services.mission.demo import gateways_for_radios
 
 REPO = Path(__file__).resolve().parents[1]
 COMPOSE_FILES = [REPO / "compose.yaml", REPO / "deploy" / "compose.lab.yaml"]
@@ -300,3 +302,26 @@ def test_lab_compose_refuses_what_could_not_fly(tmp_path, capsys) -> None:
     assert err.value.source == "--radios"
     assert main(["compose", "lab", "--radios", radios, "--mocap", _mocap(tmp_path, "backend: sim\n")]) == 2
     assert "mocap.yaml: backend: sim is the simulator's" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("radios_each", "processes"), [
+    (1, [["radio0"], ["radio1"], ["radio2"], ["radio3"], ["radio4"]]),
+    (2, [["radio0", "radio1"], ["radio2", "radio3"], ["radio4"]]),
+])
+def test_a_local_fleet_runs_a_gateway_process_per_radio_or_per_group_of_radios(
+        tmp_path, radios_each: int, processes: list[list[str]]) -> None:
+    """compose's gateway replaced by gateway processes for the simulated radios: one per radio, as
+    compose runs them, or one per `radios_each` radios (`fleet gateway --radio a --radio b`)."""
+    cli = [sys.executable, "-m", "services.cli"]
+    procs = [Process("router", "router", [*cli, "router"]),
+             Process("gateway", "gateway-1", [*cli, "gateway", "--config", "deploy/radios.yaml", "--radio", "r0"],
+                     {"FLEET_NAME": "lab", "FLEET_INSTANCE": "gateway-1"}),
+             Process("executor", "executor-1", [*cli, "executor"])]
+    radios = simulated_radios({f"cf{i}": (0.5 * i, 0.0, 0.0) for i in range(5)}, per_radio=1, prefix="radio")
+    made = gateways_for_radios(procs, tmp_path / "radios.yaml", radios, radios_each)
+    gateways = made[1:-1]
+    assert [p.instance for p in (made[0], made[-1])] == ["router", "executor-1"]
+    assert [[a for a, flag in zip(p.argv[1:], p.argv[:-1], strict=True) if flag == "--radio"] for p in gateways] == processes
+    for p, radios_of in zip(gateways, processes, strict=True):
+        assert p.instance == p.env["FLEET_INSTANCE"] == "-".join(dict.fromkeys([radios_of[0], radios_of[-1]]))
+        assert p.env["FLEET_NAME"] == "lab" and p.argv[3:6] == ["gateway", "--config", str(tmp_path / "radios.yaml")]

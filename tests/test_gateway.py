@@ -6,20 +6,25 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import signal
 import socket
+import subprocess
+import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable
+from pathlib import Path
 
 import msgspec
 import pytest
 import zenoh
 
 from common.bus.keys import Keys
+from common.bus.liveliness import watch_alive
 from common.bus.messages import Cmd, CmdBatch, FlightSetpoint, Telemetry, VehicleEvent
 from common.bus.pubsub import Publisher, subscribe
 from common.bus.session import ZenohConfig
-from common.deploy.radios import LinkModel, RadiosFile, RadioSpec, VehicleLink, simulated_radios
+from common.deploy.radios import LinkModel, RadiosFile, RadioSpec, VehicleLink, dump_radios, simulated_radios
 from common.domain.ownership import owner_of
 from services.mocap_bridge.bridge import MocapBridge
 from services.mocap_bridge.config import MocapConfig
@@ -28,6 +33,7 @@ from services.sim.crazyflie.service import SimService
 from tests.support.fleet_faults import until
 from tests.support.loadgen import LoadCommander, running
 
+REPO = Path(__file__).resolve().parents[1]
 KEYS = Keys()
 FLYERS = ["cf0", "cf1", "cf2", "cf3"]
 DRIVERS = ["cf4", "cf5"]
@@ -253,6 +259,10 @@ def test_ten_percent_loss_still_delivers_45hz_without_firmware_watchdog(
     asyncio.run(main())
 
 
+async def _links_up(watch: Watch, vids: list[str]) -> None:
+    await until(lambda: all(v in watch.telemetry and watch.telemetry[v].link_ok for v in vids), 20.0, "the links up")
+
+
 def test_telemetry_goes_out_at_its_rate_however_often_command_batches_wake_the_gateway(
         zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
     """Two executors' command batches each control cycle (a radio's vehicles spread over both) make
@@ -268,8 +278,7 @@ def test_telemetry_goes_out_at_its_rate_however_often_command_batches_wake_the_g
     async def main() -> dict[str, int]:
         watch = Watch(session)
         async with running(sim, gw):
-            await until(lambda: all(v in watch.telemetry and watch.telemetry[v].link_ok for v in vids), 10.0,
-                        "both links up")
+            await _links_up(watch, vids)
             loop = asyncio.get_running_loop()
             before = {vid: len(watch.history[vid]) for vid in vids}
             due, end = loop.time(), loop.time() + 3.0
@@ -283,3 +292,38 @@ def test_telemetry_goes_out_at_its_rate_however_often_command_batches_wake_the_g
     heard = asyncio.run(main())
     rate = spec.gateway.status_hz
     assert all(2.0 * rate <= n <= 4.0 * rate for n in heard.values()), heard  # 3 s at 5 Hz: 15 (ticks: 30)
+
+
+@pytest.mark.timeout(90)
+def test_one_gateway_process_serves_several_radios_each_its_own_gateway(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session], tmp_path: Path) -> None:
+    """`fleet gateway --radio r0 --radio r1`: one process, a gateway per radio named after it (its
+    liveliness token, its vehicles' telemetry), every link up; a signal stops the process cleanly."""
+    vids = ["cf0", "cf1", "cf2", "cf3"]
+    spec = simulated_radios(_starts(vids), per_radio=2)
+    path = tmp_path / "radios.yaml"
+    path.write_text(dump_radios(spec))
+    sim = SimService(spec, ZenohConfig.client(zenoh_router))
+    session = zsession()
+    argv = [sys.executable, "-m", "services.cli", "gateway", "--config", str(path), "--radio", "r0", "--radio", "r1",
+            "--subscribe-each", "--connect", zenoh_router, "--fleet", KEYS.fleet]
+
+    async def main() -> dict[str, str]:
+        watch = Watch(session)
+        alive = await watch_alive(session, KEYS, "gateway")
+        async with running(sim):
+            gateway = subprocess.Popen(argv, cwd=REPO, stderr=subprocess.PIPE, text=True)
+            try:
+                await alive.wait_until(lambda s: s == {"r0", "r1"}, 60)
+                await _links_up(watch, vids)
+                served = {vid: watch.telemetry[vid].gateway for vid in vids}
+                gateway.send_signal(signal.SIGTERM)
+                await alive.wait_until(lambda s: not s, 10)
+                _, stderr = gateway.communicate(timeout=10)
+            finally:
+                gateway.kill()
+        assert gateway.returncode == 0, stderr
+        assert "Traceback" not in stderr
+        return served
+
+    assert asyncio.run(main()) == {vid: radio for radio, r in spec.radios.items() for vid in r.vehicles}

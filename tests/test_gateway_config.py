@@ -86,6 +86,12 @@ def test_commands_refuse_bad_input_before_starting(tmp_path: Path) -> None:
     args = _command("gateway", "--config", str(good), "--radio", "r7")
     with pytest.raises(InputError, match="no radio 'r7'"):
         args.handler(args)
+    args = _command("gateway", "--config", str(good), "--radio", "r0", "--radio", "r7")
+    with pytest.raises(InputError, match="no radio 'r7'"):
+        args.handler(args)
+    args = _command("gateway", "--config", str(good), "--radio", "r0", "--radio", "r1", "--instance", "gw")
+    with pytest.raises(InputError, match="several radios' are named after their radios"):
+        args.handler(args)
     args = _command("sim", "--config", str(good), "--truth-hz", "0")
     with pytest.raises(InputError, match="must be positive"):
         args.handler(args)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import signal
 import subprocess
 import sys
@@ -13,6 +14,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from common.bus.args import run_services
 from common.bus.keys import Keys
 from common.bus.liveliness import watch_alive
 from common.bus.messages import PlanReply, PlanRequest, Pose, VehicleState
@@ -114,6 +116,7 @@ def test_no_router_gives_exit_code_1_without_hanging() -> None:
 
 CHILD_SERVICE = """
 import asyncio, sys
+from common.bus.args import run_services
 from common.bus.keys import Keys
 from common.bus.service import Service
 from common.bus.session import ZenohConfig
@@ -142,3 +145,48 @@ def test_a_service_process_stops_cleanly_on_a_signal(
         child.kill()
     assert child.returncode == 0, stderr
     assert "Traceback" not in stderr
+
+
+CHILD_SERVICES = """
+import sys
+from common.bus.args import run_services
+from common.bus.args import run_services
+from common.bus.keys import Keys
+from common.bus.service import Service
+from common.bus.session import ZenohConfig
+sys.exit(run_services([Service("trivial", name, ZenohConfig.client(sys.argv[1]), Keys("test")) for name in ("t1", "t2")]))
+"""
+
+
+@pytest.mark.timeout(20)
+def test_services_side_by_side_are_ready_together_and_stop_together_on_a_signal(
+        zenoh_router: str, zsession: Sessions, tmp_path: Path) -> None:
+    """`run_services` (several radios' gateways in one process): both serve, the process tells its
+    launcher it is ready, and one signal stops both (the last service's signal handler replaces the
+    others', and the others stop because one of them ended)."""
+    watcher = zsession()
+    ready = tmp_path / "ready"
+    child = subprocess.Popen([sys.executable, "-c", CHILD_SERVICES, zenoh_router], cwd=REPO,
+                             stderr=subprocess.PIPE, text=True, env={**os.environ, "FLEET_READY_FILE": str(ready)})
+
+    async def scenario() -> None:
+        alive = await watch_alive(watcher, KEYS, "trivial")
+        await alive.wait_until(lambda s: s == {"t1", "t2"}, 10)
+        await eventually(ready.exists, 3.0)
+        child.send_signal(signal.SIGTERM)
+        await alive.wait_until(lambda s: not s, 2)
+
+    try:
+        asyncio.run(scenario())
+        _, stderr = child.communicate(timeout=5)
+    finally:
+        child.kill()
+    assert child.returncode == 0, stderr
+    assert "Traceback" not in stderr
+
+
+@pytest.mark.timeout(10)
+def test_when_one_of_the_services_side_by_side_fails_the_others_stop(zenoh_router: str) -> None:
+    """The process ends, with the failure's exit code, so that its supervisor restarts all of them."""
+    config = ZenohConfig.client(zenoh_router)
+    assert run_services([Service("trivial", "t3", config, KEYS), Crashing("crash", "c2", config, KEYS)]) == 1

@@ -13,7 +13,7 @@ import argparse
 import asyncio
 import os
 import socket
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from importlib import import_module
 from pathlib import Path
 
@@ -90,3 +90,17 @@ def lazy_handler(target: str) -> Callable[[argparse.Namespace], int]:
 def run_service(service: Service) -> int:
     """Run a service to its end in this process; its exit code."""
     return asyncio.run(service.run())
+
+
+def run_services(services: Sequence[Service]) -> int:
+    """Run services side by side in this process's event loop (several radios' gateways in one
+    process); when one ends, the others are stopped, so that the process ends and its supervisor
+    restarts all of them. The worst exit code."""
+    async def main() -> int:
+        runs = [asyncio.create_task(service.run()) for service in services]
+        await asyncio.wait(runs, return_when=asyncio.FIRST_COMPLETED)
+        for service in services:
+            service.stop()
+        return max(await asyncio.gather(*runs))
+
+    return asyncio.run(main())

@@ -13,6 +13,8 @@ Subclass `Service` and override `main()` (or compose: call its helpers from your
 `run()` stops on SIGINT/SIGTERM, on `stop()`, when `main()` returns, or when `main()` or a spawned
 task fails (exit code 1). Stopping cancels the tasks, closes everything declared through the
 helpers (newest first), drops the liveliness token and closes the session, on the event loop.
+Several services may run side by side in one process (`common.bus.args.run_services`): the process
+is ready once each of them serves.
 """
 
 from __future__ import annotations
@@ -58,6 +60,10 @@ LOOP_STALL_S = 0.2
 starved of CPU, a GC pause): logged at WARNING and counted as `loop_stall`."""
 
 
+_running: set[Service] = set()
+"""The services running in this process (readiness waits for all of those of one event loop)."""
+
+
 class Service:
     """One fleet process: `name` is its service kind, `instance` tells replicas apart."""
 
@@ -73,6 +79,7 @@ class Service:
         self._stop = asyncio.Event()
         self._stop_requested = False
         self._failed = False
+        self._serving = False
         self._tasks: set[asyncio.Task[Any]] = set()
         self._closers: list[Callable[[], None]] = []
 
@@ -141,6 +148,7 @@ class Service:
         self._loop = asyncio.get_running_loop()
         if self._stop_requested:
             self._stop.set()
+        _running.add(self)
         signals = _install_signal_handlers(self._loop, self.stop)
         try:
             try:
@@ -150,7 +158,9 @@ class Service:
                 return 1
             self._closers.append(declare_alive(self.session, self.keys, self.name, self.instance).undeclare)
             log.info("%s/%s running", self.name, self.instance)
-            mark_ready()
+            self._serving = True
+            if all(service._serving for service in _running if service._loop is self._loop):
+                mark_ready()
             self.spawn(self._watch_loop(), name="loop-watch")
             main = self.spawn(self.main(), name="main")
             stop = asyncio.create_task(self._stop.wait())
@@ -159,6 +169,7 @@ class Service:
             return 1 if self._failed else 0
         finally:
             await self._shutdown()
+            _running.discard(self)
             for sig in signals:
                 self._loop.remove_signal_handler(sig)
 

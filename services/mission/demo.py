@@ -47,15 +47,25 @@ def demo_radios(map_name: str, tasks: dict[str, Task], per_radio: int = 2, link:
         for name, radio in radios.radios.items()})
 
 
-def one_gateway_per_radio(procs: list[Process], radios_path: Path, radios: RadiosFile) -> list[Process]:
-    """compose.yaml's gateways replaced by one per radio of `radios` (same role, same environment)."""
+def gateways_for_radios(procs: list[Process], radios_path: Path, radios: RadiosFile, radios_each: int = 1
+                        ) -> list[Process]:
+    """compose.yaml's gateways replaced by gateway processes for the radios of `radios` (same role,
+    same environment): one per radio, as compose runs them, or one per `radios_each` radios (each
+    radio still its own gateway, named after it: `fleet gateway --radio a --radio b`), which spares
+    a simulated fleet's machine the cost of a process per radio (docs/radio.md)."""
     gateways = [p for p in procs if p.service.startswith("gateway")]
     if not gateways:
         return procs
+    if radios_each < 1:
+        raise ValueError("radios_each must be at least 1")
     template = gateways[0]
     cli = template.argv[:template.argv.index("gateway")]
-    made = [Process("gateway", name, [*cli, "gateway", "--config", str(radios_path), "--radio", name, "--subscribe-each"],
-                    {**template.env, "FLEET_INSTANCE": name}) for name in radios.radios]
+    names = list(radios.radios)
+    groups = [names[i:i + radios_each] for i in range(0, len(names), radios_each)]
+    made = [Process("gateway", name, [*cli, "gateway", "--config", str(radios_path),
+                                      *(arg for radio in group for arg in ("--radio", radio)), "--subscribe-each"],
+                    {**template.env, "FLEET_INSTANCE": name})
+            for group in groups for name in [group[0] if len(group) == 1 else f"{group[0]}-{group[-1]}"]]
     at = procs.index(template)
     rest = [p for p in procs if p not in gateways]
     return rest[:at] + made + rest[at:]
@@ -71,10 +81,12 @@ def with_args(procs: list[Process], extra: Mapping[str, list[str]]) -> list[Proc
 def local_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int = 2, per_radio: int = 2,
                 fleet: str = "demo", link: LinkModel | None = None, extra_args: Mapping[str, list[str]] | None = None,
                 without: Iterable[str] = (), control: ControlMode = "offboard",
-                gateway: GatewayParams | None = None, router_in_process: bool = False) -> Iterator[LocalFleet]:
+                gateway: GatewayParams | None = None, router_in_process: bool = False,
+                radios_each: int = 1) -> Iterator[LocalFleet]:
     """compose.yaml's fleet with simulated Crazyflies for `tasks`, up and serving; stopped on exit.
     `extra_args`: more arguments per service; `without`: services not to start; `control`: every
     vehicle's control mode; `gateway`: the gateways' parameters (default: the radios file's);
+    `radios_each`: radios per gateway process (`gateways_for_radios`);
     `router_in_process`: the router in this process (`LocalFleet.router`, to stop and restart it),
     not compose's router process (`bring_up`)."""
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -84,16 +96,16 @@ def local_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors:
     overrides = {"FLEET_NAME": fleet, "FLEET_RADIOS": str(radios_path), "FLEET_EXECUTORS": str(executors),
                  "FLEET_RECORDINGS": str(run_dir.parent / "recordings")}
     adjust = partial(demo_processes, radios_path=radios_path, radios=radios, extra_args=extra_args or {},
-                     without=set(without))
+                     without=set(without), radios_each=radios_each)
     with bring_up(run_dir, overrides, adjust=adjust, router_in_process=router_in_process) as local:
         yield local
 
 
 def demo_processes(procs: list[Process], radios_path: Path, radios: RadiosFile,
-                   extra_args: Mapping[str, list[str]], without: set[str]) -> list[Process]:
-    """compose.yaml's processes as the demo runs them: one gateway per simulated radio, some
-    services left out, some with more arguments."""
-    procs = [p for p in one_gateway_per_radio(procs, radios_path, radios) if p.service not in without]
+                   extra_args: Mapping[str, list[str]], without: set[str], radios_each: int = 1) -> list[Process]:
+    """compose.yaml's processes as the demo runs them: gateway processes for the simulated radios
+    (one per radio, or per `radios_each`), some services left out, some with more arguments."""
+    procs = [p for p in gateways_for_radios(procs, radios_path, radios, radios_each) if p.service not in without]
     return with_args(procs, extra_args)
 
 
