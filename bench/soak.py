@@ -1,8 +1,9 @@
 """Soak: many simulated vehicles through back-to-back missions for a set time (issue 8).
 
-The fleet runs as in `fleet demo` (in-process router with access control, every service a process,
+The fleet runs as in `fleet demo` (a router process with access control, every service a process,
 simulated Crazyflies), sized for a large fleet: gateways with `--subscribe-each` and log blocks at
-5 Hz (`LOG_PERIOD_S`), the simulator's ground truth at `--truth-hz`, no telemetry recorder. Missions
+5 Hz (`LOG_PERIOD_S`), `--radios-per-gateway` radios to a gateway process, the simulator's ground
+truth at `--truth-hz`, no telemetry recorder. Missions
 on the city934 map follow each other: each starts where the last one left the vehicles, with fresh
 goals. Collected while it runs:
 
@@ -15,7 +16,7 @@ a recorder process keeps every vehicle's ground truth, state, events and telemet
 contact or a hold by time afterwards (`bench/trace.py`).
 
     python -m bench.soak [--minutes 5] [--vehicles 80] [--executors 2] [--per-radio 8] [--truth-hz 50] [--sim-priority 5]
-                         [--trace FILE] [--no-plan-clock] [--control offboard|onboard] [--radios-per-gateway 1]
+                         [--trace FILE] [--no-plan-clock] [--control offboard|onboard] [--radios-per-gateway 5]
     FLEET_SOAK_MINUTES=20 make soak        # the same through pytest -m soak (tests/test_soak.py)
 """
 
@@ -95,10 +96,17 @@ not 10: telemetry goes out at 5 Hz anyway (`status_hz`), a lost link is still ju
 instead of 6.3-6.6, the simulator 32 % instead of 38, 2026-12-05)."""
 
 
+RADIOS_EACH = 5
+"""Radios per gateway process: each process costs its overhead besides its radios' work (an idle
+gateway of 8 vehicles takes 5-6 % of a core): in 1-minute 80-vehicle soaks the gateways took 69-72 % of a core as ten processes,
+50-53 % as two of five radios, 48 % as one, the whole fleet 165-169 %, 155-161 % and 147 %
+(2026-12-06, docs/radio.md "Several radios in one process")."""
+
+
 def soak_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int, per_radio: int,
                truth_hz: float, fleet: str = "soak", thrust_spread: float = 0.0,
                sim_priority: int = SIM_PRIORITY, plan_clock: bool = True, control: ControlMode = "offboard",
-               radios_each: int = 1):
+               radios_each: int = RADIOS_EACH):
     """The demo's fleet (services.mission.demo), minus the recorder, tuned for a large fleet
     (`LOG_PERIOD_S`); `sim_priority`: nice levels the simulator raises its priority by (`fleet sim
     --priority`); `plan_clock` False: the executors run plans on the wall clock (`fleet executor
@@ -371,7 +379,7 @@ def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: 
              sample_s: float = 5.0, seed: int = 0, run_dir: Path = Path("out/soak/run"),
              out: str | Path = "out", thrust_spread: float = 0.0, sim_priority: int = SIM_PRIORITY,
              trace: Path | None = None, plan_clock: bool = True, control: ControlMode = "offboard",
-             radios_each: int = 1) -> SoakLog:
+             radios_each: int = RADIOS_EACH) -> SoakLog:
     """Start the fleet, soak it for `minutes`, print the report and save the figure."""
     graph = load_graph(MAP)
     rng = random.Random(seed)
@@ -411,7 +419,7 @@ def main() -> None:
                         help="the executors run plans on the wall clock (`fleet executor --no-plan-clock`): for comparison")
     parser.add_argument("--control", choices=["offboard", "onboard"], default="offboard",
                         help="every vehicle's control mode (docs/control.md, \"Onboard control mode\")")
-    parser.add_argument("--radios-per-gateway", type=int, default=1, metavar="N",
+    parser.add_argument("--radios-per-gateway", type=int, default=RADIOS_EACH, metavar="N",
                         help="gateway processes serve N radios each (`fleet gateway --radio a --radio b`)")
     args = parser.parse_args()
     log = run_soak(args.minutes, args.vehicles, args.executors, args.per_radio, args.truth_hz, args.sample_s,
