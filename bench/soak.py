@@ -3,9 +3,8 @@
 The fleet runs as in `fleet demo` (a router process with access control, every service a process,
 simulated Crazyflies), sized for a large fleet: gateways with `--subscribe-each` and log blocks at
 5 Hz (`LOG_PERIOD_S`), `--radios-per-gateway` radios to a gateway process, the simulator's ground
-truth at `--truth-hz`, no telemetry recorder. Missions
-on the city934 map follow each other: each starts where the last one left the vehicles, with fresh
-goals. Collected while it runs:
+truth at `--truth-hz`, no telemetry recorder. Missions on the city934 map follow each other: each
+starts where the last one left the vehicles, with fresh goals. Collected while it runs:
 
 - every service's `stats/<service>/<instance>` (common/bus/stats.py): dropped messages, refusals,
   the executors' missed control deadlines and pose-to-command latency, the simulator's lag;
@@ -98,9 +97,9 @@ instead of 6.3-6.6, the simulator 32 % instead of 38, 2026-12-05)."""
 
 RADIOS_EACH = 5
 """Radios per gateway process: each process costs its overhead besides its radios' work (an idle
-gateway of 8 vehicles takes 5-6 % of a core): in 1-minute 80-vehicle soaks the gateways took 69-72 % of a core as ten processes,
-50-53 % as two of five radios, 48 % as one, the whole fleet 165-169 %, 155-161 % and 147 %
-(2026-12-06, docs/radio.md "Several radios in one process")."""
+gateway of 8 vehicles takes 5-6 % of a core): in 1-minute 80-vehicle soaks the gateways took
+69-72 % of a core as ten processes, 50-53 % as two of five radios, 48 % as one, the whole fleet
+165-169 %, 155-161 % and 147 % (2026-12-06, docs/radio.md "Several radios in one process")."""
 
 
 def soak_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: int, per_radio: int,

@@ -61,11 +61,12 @@ def gateways_for_radios(procs: list[Process], radios_path: Path, radios: RadiosF
     template = gateways[0]
     cli = template.argv[:template.argv.index("gateway")]
     names = list(radios.radios)
-    groups = [names[i:i + radios_each] for i in range(0, len(names), radios_each)]
-    made = [Process("gateway", name, [*cli, "gateway", "--config", str(radios_path),
-                                      *(arg for radio in group for arg in ("--radio", radio)), "--subscribe-each"],
-                    {**template.env, "FLEET_INSTANCE": name})
-            for group in groups for name in [group[0] if len(group) == 1 else f"{group[0]}-{group[-1]}"]]
+    made = []
+    for group in (names[i:i + radios_each] for i in range(0, len(names), radios_each)):
+        name = group[0] if len(group) == 1 else f"{group[0]}-{group[-1]}"
+        radio_args = [arg for radio in group for arg in ("--radio", radio)]
+        made.append(Process("gateway", name, [*cli, "gateway", "--config", str(radios_path), *radio_args,
+                                              "--subscribe-each"], {**template.env, "FLEET_INSTANCE": name}))
     at = procs.index(template)
     rest = [p for p in procs if p not in gateways]
     return rest[:at] + made + rest[at:]
