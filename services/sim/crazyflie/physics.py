@@ -72,6 +72,11 @@ def unit_thrust(vid: str, spread: float) -> float:
     return 1.0 + spread * (2.0 * (zlib.crc32(vid.encode()) % 10007) / 10006 - 1.0)
 
 
+def _lag(h: float, tau: float) -> float:
+    """How far a first-order lag of time constant `tau` closes on its input over `h` s."""
+    return 1.0 - math.exp(-h / tau)
+
+
 @dataclass(frozen=True, slots=True)
 class BatteryState:
     charge_used_ah: float
@@ -108,6 +113,8 @@ class SimFlyingCar:
         self._wheels_t = -math.inf
         self._gust: tuple[float, float, float] = (0.0, 0.0, -math.inf)
         self._battery: tuple[tuple[float, float], BatteryState] = ((math.nan, math.nan), BatteryState(0, 0, 0, 0))
+        self._lags_at: tuple[float, tuple[float, float, float, float]] = (math.nan, (0.0, 0.0, 0.0, 0.0))
+        self._thrust_of: tuple[int, float] = (0, 0.0)
 
     def push(self, ax: float, ay: float, until: float) -> None:
         """Wind (a `gust` fault): a horizontal acceleration (m/s^2, world frame) on the body in
@@ -162,31 +169,46 @@ class SimFlyingCar:
             return False
         return not any(self._wheels) or self.t - self._wheels_t > self.params.wheel_watchdog_s
 
+    def _lags(self, h: float) -> tuple[float, float, float, float]:
+        """The first-order lags' factors 1 - exp(-h / tau) over a step of `h` s: wheels, motors,
+        roll and pitch, yaw rate (computed once for the step size every sub-step uses)."""
+        if self._lags_at[0] != h:
+            p = self.params
+            self._lags_at = (h, (_lag(h, p.wheels.tau), _lag(h, p.tau_motor), _lag(h, p.tau_roll_pitch),
+                                 _lag(h, p.tau_yaw_rate)))
+        return self._lags_at[1]
+
+    def _thrust_target(self, cmd: int) -> float:
+        """The thrust (N) the motors settle to at command `cmd` (the last command's, kept)."""
+        if self._thrust_of[0] != cmd:
+            self._thrust_of = (cmd, thrust_newtons(cmd) * self.params.thrust_scale)
+        return self._thrust_of[1]
+
     def _substep(self, h: float) -> None:
         p = self.params
+        kw, km, ka, ky = self._lags(h)
         roll_c, pitch_c, yaw_rate_c, cmd = self.flight_command()
         wl, wr = self._wheels if self.t - self._wheels_t <= p.wheel_watchdog_s else (0.0, 0.0)
-        lim = p.wheels.max_speed
-        kw = 1.0 - math.exp(-h / p.wheels.tau)
-        self.wheel_left += (min(max(wl, -lim), lim) - self.wheel_left) * kw
-        self.wheel_right += (min(max(wr, -lim), lim) - self.wheel_right) * kw
-        self.thrust += (thrust_newtons(cmd) * p.thrust_scale - self.thrust) * (1.0 - math.exp(-h / p.tau_motor))
-        weight = self.mass * G
-        if not self.airborne and self.thrust > weight:
+        if wl or wr or self.wheel_left or self.wheel_right:
+            lim = p.wheels.max_speed
+            self.wheel_left += (min(max(wl, -lim), lim) - self.wheel_left) * kw
+            self.wheel_right += (min(max(wr, -lim), lim) - self.wheel_right) * kw
+        self.thrust += (self._thrust_target(cmd) - self.thrust) * km
+        if not self.airborne and self.thrust > self.mass * G:
             self.airborne = True
         if self.airborne:
-            self._fly(h, roll_c, pitch_c, yaw_rate_c)
+            self._fly(h, roll_c, pitch_c, yaw_rate_c, ka, ky)
         else:
             self._drive(h)
         self._drain(h)
         self.t += h
 
-    def _fly(self, h: float, roll_c: float, pitch_c: float, yaw_rate_c: float) -> None:
+    def _fly(self, h: float, roll_c: float, pitch_c: float, yaw_rate_c: float, ka: float, ky: float) -> None:
+        """One sub-step in the air; `ka`, `ky`: the roll/pitch and yaw-rate lags' factors."""
         p = self.params
-        ka = 1.0 - math.exp(-h / p.tau_roll_pitch)
         self.roll += (roll_c - self.roll) * ka
         self.pitch += (pitch_c - self.pitch) * ka
-        self.yaw_rate += (yaw_rate_c - self.yaw_rate) * (1.0 - math.exp(-h / p.tau_yaw_rate))
+        self.yaw_rate += (yaw_rate_c - self.yaw_rate) * ky
         self.yaw = math.remainder(self.yaw + self.yaw_rate * h, 2.0 * math.pi)
         cr, sr = math.cos(self.roll), math.sin(self.roll)
         cp, sp = math.cos(self.pitch), math.sin(self.pitch)
