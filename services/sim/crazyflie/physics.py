@@ -157,8 +157,9 @@ class SimFlyingCar:
             return
         n = max(1, math.ceil(dt / self.params.max_substep - 1e-9))
         h = dt / n
+        lags = self._lags(h)
         for _ in range(n):
-            self._substep(h)
+            self._substep(h, lags)
 
     def _parked(self) -> bool:
         """On the ground with motors and wheels at rest and no command to move them in force
@@ -184,16 +185,18 @@ class SimFlyingCar:
             self._thrust_of = (cmd, thrust_newtons(cmd) * self.params.thrust_scale)
         return self._thrust_of[1]
 
-    def _substep(self, h: float) -> None:
+    def _substep(self, h: float, lags: tuple[float, float, float, float]) -> None:
+        """One sub-step of `h` s; `lags`: `_lags(h)`."""
         p = self.params
-        kw, km, ka, ky = self._lags(h)
+        kw, km, ka, ky = lags
         roll_c, pitch_c, yaw_rate_c, cmd = self.flight_command()
         wl, wr = self._wheels if self.t - self._wheels_t <= p.wheel_watchdog_s else (0.0, 0.0)
         if wl or wr or self.wheel_left or self.wheel_right:
             lim = p.wheels.max_speed
             self.wheel_left += (min(max(wl, -lim), lim) - self.wheel_left) * kw
             self.wheel_right += (min(max(wr, -lim), lim) - self.wheel_right) * kw
-        self.thrust += (self._thrust_target(cmd) - self.thrust) * km
+        if cmd or self.thrust:
+            self.thrust += (self._thrust_target(cmd) - self.thrust) * km
         if not self.airborne and self.thrust > self.mass * G:
             self.airborne = True
         if self.airborne:
