@@ -347,6 +347,45 @@ def test_an_abort_lands_on_the_nearest_landing_node_clear_of_the_vehicles_standi
             assert low and min(math.dist((r.truth.x, r.truth.y), parked[:2]) for r in low) > 0.5
 
 
+@pytest.mark.parametrize("way", ["clear again", "crossed"])
+def test_an_aborted_vehicle_whose_flight_to_its_node_heads_into_a_body_hovers_and_chooses_again(way: str) -> None:
+    """The proximity stop on an abort's flight to its landing node (in an 80-vehicle soak two
+    pairs of aborted vehicles' flights crossed, 11 cm deep): told to stop short on its way, the
+    vehicle hovers there, not held, its node given up, and chooses again half a second later. With
+    the way clear again it flies on to its node; with a body hovering on its way (the one it
+    stopped for) it passes that node over: here, with the other node taken, straight down."""
+    hovering = T0 + next(s.t for s in STEPS if s.node == "a2")
+    l1, l2 = (next(s.pos for s in STEPS if s.node == node) for node in ("l1", "l2"))
+    bodies: list[tuple[float, float, float]] = [(l2[0], l2[1], 0.0)]  # parked on l2: it flies back to l1
+    stop: list[tuple[float, tuple[float, float, float]]] = []
+    seen: list[tuple[Mode, str | None, str]] = []
+
+    def hook(ctrl: VehicleController, now: float) -> None:
+        if now >= hovering + 0.5:
+            ctrl.abort("abort")
+        if not stop and ctrl.landing_node == "l1" and now >= hovering + 2.0:
+            assert ctrl.motion() is not None
+            assert ctrl.stop_short("stops short of cf9")
+            est = ctrl.estimator.estimate(now)
+            stop.append((now, (est.x, est.y, est.z)))
+            if way == "crossed":
+                bodies.append((1.2, l1[1], 0.52))
+        elif stop and now < stop[0][0] + 0.45:
+            seen.append((ctrl.mode, ctrl.landing_node, ctrl.held))
+
+    ctrl, sim, records = fly_plan(until=hovering + 14.0, hook=hook, bodies=bodies)
+    at, where = stop[0]
+    assert seen[-1] == (Mode.HOVERING, None, None), seen[-1]  # hovering to choose again, not held
+    paused = [r for r in records if at <= r.t < at + 0.45]
+    assert max(math.dist(position(r), where) for r in paused) < 0.05
+    assert [tr.reason for tr in ctrl.machine.history][-1] == "landed after fault"
+    if way == "clear again":
+        assert math.dist((sim.x, sim.y, sim.z), l1) < 0.03
+    else:
+        assert math.dist((sim.x, sim.y), where[:2]) < 0.05 and sim.z < 0.01
+        assert min(r.truth.x for r in records if r.t > at) > 1.2 + 2 * MODEL.radius
+
+
 def link_lost_during(start: float, end: float) -> Hook:
     def hook(ctrl: VehicleController, now: float) -> None:
         ctrl.on_telemetry(Telemetry(vid="cf1", t=now, gateway="sim", vbat=4.0, link_quality=1.0, sent=0,

@@ -178,6 +178,7 @@ class VehicleController:
         self._fault_landing = False
         self._choose_again = False  # another executor's fault landing took its node (`landing_wanted_by`)
         self._landing_retry: float | None = None  # a fault landing hovers, every node taken: choose again then
+        self._landing_paused: str | None = None  # its flight to its node headed into a body (`stop_short`)
         self._landing_reason = ""  # why the fault landing (low battery, lost link, the abort)
         self._ground_z = 0.0  # height of the ground the vehicle took off from or lands on
         self._landing_end = 0.0
@@ -463,6 +464,8 @@ class VehicleController:
             if reason and not self._fault_landing:
                 self._begin_safe_landing(now, rel, est, reason)
                 return
+            if self._landing_paused is not None:
+                self._pause_landing(now, rel, est, self._landing_paused)
             if self._choose_again and self._active is not None:
                 self._choose_again = False
                 if m.mode == Mode.LANDING and rel < self._active.steps[-2].t:  # not above its node yet
@@ -693,11 +696,18 @@ class VehicleController:
                 and not self._yield and not self._fault_landing and not self._abort
                 and self.machine.mode not in (Mode.DONE, Mode.EMERGENCY_LANDING))
 
+    def _landing_flight(self) -> bool:
+        """Whether the vehicle is on a fault landing's level flight to above its node (its
+        descent not begun), at its last tick."""
+        step, traj = self.landing_step, self._active
+        return (step is not None and traj is not None and self._seen is not None and len(traj.steps) > 2
+                and self.machine.mode == Mode.LANDING and self._rel(self._seen[0]) < traj.steps[-2].t)
+
     def motion(self) -> tuple[float, float, float, float, float, float] | None:
         """The last tick's estimated and planned velocities (vx, vy, vz of each, flat) while the
-        vehicle moves on its plan (driving, taking off, flying, landing), for the proximity stop
-        (`services/executor/proximity.py`); None otherwise."""
-        if self._seen is None or self.machine.mode not in MOVING or not self._may_yield():
+        vehicle moves on its plan (driving, taking off, flying, landing) or flies to the node of a
+        fault landing, for the proximity stop (`services/executor/proximity.py`); None otherwise."""
+        if self._seen is None or self.machine.mode not in MOVING or not (self._may_yield() or self._landing_flight()):
             return None
         _, est, ref = self._seen
         if est.stale or ref is None:
@@ -706,7 +716,12 @@ class VehicleController:
 
     def stop_short(self, why: str) -> bool:
         """The proximity stop: this vehicle heads into another body (`why`); it holds at its next
-        tick, like a vehicle the tracking guard holds (reported as `tracking_hold`). Whether it will."""
+        tick, like a vehicle the tracking guard holds (reported as `tracking_hold`). On a fault
+        landing's flight to its node (an abort's, a low battery's, a lost link's), which must go on,
+        it hovers where it is instead and chooses its node again (`_pause_landing`). Whether it will."""
+        if self._landing_flight():
+            self._landing_paused = why
+            return True
         if not self._may_yield():
             return False
         self._yield = why
@@ -769,11 +784,7 @@ class VehicleController:
             if self._landing_retry is None:
                 log.warning("%s: %s, with a body below every node it may land on and below itself: "
                             "hovers where it is until one is clear", self.vid, self._landing_reason)
-            self._landing_retry = now + LANDING_RETRY_S
-            self._active = self.trajectory  # (no landing node claimed: `landing_step`)
-            if self.machine.mode != Mode.HOVERING:
-                self._hover_ref = self._hover_here(rel, est)
-                self.machine.request(Mode.HOVERING, now, f"{self._landing_reason}: nowhere clear to land")
+            self._hover_to_choose_again(now, rel, est, "nowhere clear to land")
             return
         self._landing_retry = self._hover_ref = None
         self._active = Trajectory(steps, self.params.trajectory, yaw0=est.yaw)
@@ -781,6 +792,24 @@ class VehicleController:
         self._ground_z = steps[-1].pos[2]
         if self.machine.mode != Mode.LANDING:
             self.machine.request(Mode.LANDING, now, self._landing_reason)
+
+    def _hover_to_choose_again(self, now: float, rel: float, est: Estimate, why: str) -> None:
+        """A fault landing hovers where the vehicle is (no node claimed: `landing_step`) and
+        chooses its node again in `LANDING_RETRY_S`."""
+        self._landing_retry = now + LANDING_RETRY_S
+        self._active = self.trajectory
+        if self.machine.mode != Mode.HOVERING:
+            self._hover_ref = self._hover_here(rel, est)
+            self.machine.request(Mode.HOVERING, now, f"{self._landing_reason}: {why}")
+
+    def _pause_landing(self, now: float, rel: float, est: Estimate, why: str) -> None:
+        """The proximity stop on a fault landing's flight (`stop_short`): the vehicles of an abort
+        each fly to their own nearest clear node at once, and one's flight may cross another's (an
+        80-vehicle soak's abort: two pairs came into contact in the air, 11 cm deep). It hovers and
+        chooses again: a body then in the way of its flight is passed over (`in_way`)."""
+        self._landing_paused = None
+        log.warning("%s: its %s landing's flight %s: hovers and chooses again", self.vid, self._landing_reason, why)
+        self._hover_to_choose_again(now, rel, est, why)
 
     def landing_wanted_by(self, vid: str, at: tuple[float, float, float]) -> None:
         """Another executor's vehicle `vid` announced a fault landing coming down at `at`. Two fault
