@@ -366,6 +366,12 @@ HANDLINGS: tuple[Handling, ...] = (
               "]"),),
         "tests/test_fault_landing.py::test_a_fault_landing_flies_round_no_body_hovering_in_its_way"),
     Handling(
+        "a fault landing's flight stops short of a body",
+        "executor: a fault landing's flight to its node goes on whatever it heads into",
+        (Edit("services/executor/vehicle_controller.py",
+              "        if self._landing_flight():\n            self._landing_paused = why\n            return True\n", ""),),
+        "tests/test_closed_loop.py::test_an_aborted_vehicle_whose_flight_to_its_node_heads_into_a_body_hovers_and_chooses_again"),
+    Handling(
         "another executor's fault landing kept off",
         "executor: another executor's announced fault landing is not counted",
         (Edit("services/executor/service.py",
