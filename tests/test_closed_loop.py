@@ -358,7 +358,7 @@ def test_an_aborted_vehicle_whose_flight_to_its_node_heads_into_a_body_hovers_an
     l1, l2 = (next(s.pos for s in STEPS if s.node == node) for node in ("l1", "l2"))
     bodies: list[tuple[float, float, float]] = [(l2[0], l2[1], 0.0)]  # parked on l2: it flies back to l1
     stop: list[tuple[float, tuple[float, float, float]]] = []
-    seen: list[tuple[Mode, str | None, str]] = []
+    seen: list[tuple[Mode, str | None, str | None, str]] = []
 
     def hook(ctrl: VehicleController, now: float) -> None:
         if now >= hovering + 0.5:
@@ -371,11 +371,11 @@ def test_an_aborted_vehicle_whose_flight_to_its_node_heads_into_a_body_hovers_an
             if way == "crossed":
                 bodies.append((1.2, l1[1], 0.52))
         elif stop and now < stop[0][0] + 0.45:
-            seen.append((ctrl.mode, ctrl.landing_node, ctrl.held))
+            seen.append((ctrl.mode, ctrl.landing_node, ctrl.held, ctrl.landing_wait))
 
     ctrl, sim, records = fly_plan(until=hovering + 14.0, hook=hook, bodies=bodies)
     at, where = stop[0]
-    assert seen[-1] == (Mode.HOVERING, None, None), seen[-1]  # hovering to choose again, not held
+    assert seen[-1] == (Mode.HOVERING, None, None, "stops short of cf9"), seen[-1]  # to choose again, not held
     paused = [r for r in records if at <= r.t < at + 0.45]
     assert max(math.dist(position(r), where) for r in paused) < 0.05
     assert [tr.reason for tr in ctrl.machine.history][-1] == "landed after fault"

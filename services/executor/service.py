@@ -550,7 +550,8 @@ class ExecutorService(Service):
     def _report_mode(self, vid: str, ctl: VehicleController, now: float) -> None:
         """Tell everyone (`vehicle/<vid>/event`) when a vehicle enters a fault mode, or leaves its
         plan for a battery or link fault: "low_battery" / "link_lost", with the node it lands at
-        (none: it lands where it is, stopped, or hovers with nowhere clear to land)."""
+        (none: it lands where it is, stopped, or hovers to choose its node again: nowhere clear to
+        land, or its flight there stopped short of a body)."""
         prev, mode = self._last_mode.get(vid), ctl.mode
         self._last_mode[vid] = mode
         if ctl.held and self._told_held.get(vid) != ctl.holds and mode in (Mode.HOVERING, Mode.HOLDING):
@@ -571,7 +572,7 @@ class ExecutorService(Service):
             node = ctl.landing_node or ""
             where = ("landing straight down" if node == STRAIGHT_DOWN else f"landing at {node}" if node
                      else "landing here" if mode == Mode.LANDING
-                     else "hovering here, nowhere clear to land" if mode == Mode.HOVERING else "stopped here")
+                     else f"hovering here, {ctl.landing_wait}" if mode == Mode.HOVERING else "stopped here")
             detail = f"from {prev}: {where}"
         if kind is not None:
             self._event.put(vid,

@@ -179,6 +179,7 @@ class VehicleController:
         self._choose_again = False  # another executor's fault landing took its node (`landing_wanted_by`)
         self._landing_retry: float | None = None  # a fault landing hovers, every node taken: choose again then
         self._landing_paused: str | None = None  # its flight to its node headed into a body (`stop_short`)
+        self.landing_wait = ""  # why a fault landing hovers to choose its node again (`_hover_to_choose_again`)
         self._landing_reason = ""  # why the fault landing (low battery, lost link, the abort)
         self._ground_z = 0.0  # height of the ground the vehicle took off from or lands on
         self._landing_end = 0.0
@@ -798,6 +799,7 @@ class VehicleController:
         chooses its node again in `LANDING_RETRY_S`."""
         self._landing_retry = now + LANDING_RETRY_S
         self._active = self.trajectory
+        self.landing_wait = why
         if self.machine.mode != Mode.HOVERING:
             self._hover_ref = self._hover_here(rel, est)
             self.machine.request(Mode.HOVERING, now, f"{self._landing_reason}: {why}")
