@@ -456,8 +456,8 @@ class ExecutorService(Service):
         """The proximity stop (`services/executor/proximity.py`): every owned vehicle moving on its
         plan that heads into another body holds (at the tick that follows; on a fault landing's
         flight to its node: hovers and chooses its node again, `VehicleController.stop_short`),
-        judged every cycle, a new frame or not (`Bodies.reaction`). The guard's switch (`FaultParams.guard`) turns it off
-        too."""
+        judged every cycle, a new frame or not (`Bodies.reaction`). The guard's switch
+        (`FaultParams.guard`) turns it off too."""
         if not self.control.faults.guard:
             return
         movers: list[str] = []
