@@ -372,6 +372,12 @@ HANDLINGS: tuple[Handling, ...] = (
               "        if self._landing_flight():\n            self._landing_paused = why\n            return True\n", ""),),
         "tests/test_closed_loop.py::test_an_aborted_vehicle_whose_flight_to_its_node_heads_into_a_body_hovers_and_chooses_again"),
     Handling(
+        "a replan that ran out of its time asked again",
+        "mission runner: a replan whose planner ran out of its time limit fails the mission",
+        (Edit("services/mission/runner.py", "            if not reply.ok and reply.timed_out and k + 1 < len(REPLAN_TIME_LIMITS_S):",
+              "            if False:"),),
+        "tests/test_replan_burst.py::test_a_replan_that_ran_out_of_its_time_is_asked_again_with_more"),
+    Handling(
         "another executor's fault landing kept off",
         "executor: another executor's announced fault landing is not counted",
         (Edit("services/executor/service.py",

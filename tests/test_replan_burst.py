@@ -16,8 +16,10 @@ from common.bus.messages import PlanReply, VehicleState
 from common.bus.pubsub import query
 from common.bus.session import ZenohConfig
 from common.domain.scenario import read_scenario
+from services.mission import runner as mission_runner
 from services.mission.runner import MissionRunner, MissionSpec
 from services.planner.service import PlannerService
+from services.planner.sipp import search as sipp_search
 
 KEYS = Keys("replanburst")
 TASKS = read_scenario("maps/scenarios/town_8.yaml").tasks
@@ -101,6 +103,36 @@ def test_a_burst_of_holds_during_a_replan_is_replanned_once_after_it(zenoh_route
     fly_burst(zenoh_router, runner)
     assert runner.asked == 2 and runner.replans_skipped == 2, (runner.asked, runner.events)
     assert any("the replan of a later fault tries again" in e for e in runner.events), runner.events
+
+
+class OneHold(Burst):
+    """`FIRST` held at its start spot, nothing else: the replan around it."""
+
+    def __init__(self, router: str) -> None:
+        super().__init__(router)
+        self.burst = []
+
+    async def main(self) -> None:
+        try:
+            await self.start_parked(holding=FIRST)
+            assert self.on_fault(FIRST, "tracking_hold", f"{FIRST}: held", "")
+            await self._replanning
+        finally:
+            self.stop()
+
+
+@pytest.mark.timeout(60)
+def test_a_replan_that_ran_out_of_its_time_is_asked_again_with_more(zenoh_router: str, monkeypatch) -> None:
+    """A loaded machine's planner gets a share of a core: a replan whose time limit ended it with
+    more to try (an 80-vehicle soak's mission aborted so) is asked for again, from later, with more
+    time (`REPLAN_TIME_LIMITS_S`), and the mission goes on. Here the first try gets next to no time
+    (its search looks at the clock at every expansion)."""
+    monkeypatch.setattr(mission_runner, "REPLAN_TIME_LIMITS_S", (1e-6, 0.6))  # (a limit must be positive)
+    monkeypatch.setattr(sipp_search, "DEADLINE_EVERY", 1)
+    runner = OneHold(zenoh_router)
+    with_planner(zenoh_router, runner)
+    assert runner.plan is not None and set(runner.plan.paths) == set(TASKS) - {FIRST}, runner.events
+    assert [e for e in runner.events if "the planner ran out of its 0.0 s" in e], runner.events
 
 
 class RejoinDuringFault(Burst):

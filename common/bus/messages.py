@@ -427,7 +427,8 @@ class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """`planner`: which planner made the plan (a replan's: the ILP, or SIPP after it found none);
     `failed_vehicle`: without a plan, the vehicle prioritized planning could not place, if one;
     `refused`: the vehicles of `Replan.rejoin` that cannot come back yet, each with why (every
-    one of them: `failed_vehicle` is the first)."""
+    one of them: `failed_vehicle` is the first); `timed_out`: without a plan, a replan's time
+    limit ended it with more left to try (asked again with more time, it may find one)."""
 
     ok: bool
     error: str = ""
@@ -436,6 +437,7 @@ class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     team_plan: TeamPlan | None = None
     planner: str = ""
     refused: dict[str, str] = {}
+    timed_out: bool = False
 
 
 class GraphRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -66,7 +66,7 @@ class FaultParams:
     another is held, or under one coming down in an emergency landing, in the next `yield_s` s
     holds too, before a replan could steer it around (the
     mission's replan switches a second after it hears of the hold, or 3 s when its planner had to
-    be asked again: `services.mission.runner.REPLAN_TRIES`); 0 disables the reflex."""
+    be asked again: `services.mission.runner.REPLAN_TIME_LIMITS_S`); 0 disables the reflex."""
 
     vbat_low: float = 3.3
     vbat_critical: float = 3.1

@@ -135,12 +135,13 @@ GONE_KINDS = frozenset({"emergency_landing", "low_battery", "crash"})
 """Faults after which a vehicle that left does not come back (nor after a fault landing to a node)."""
 GROUND_MODES = frozenset({"driving", "parked", "holding"})
 """Modes of a vehicle on the ground that can stop where it is."""
-REPLAN_TRIES = 2
-"""How often a replan is asked for when the planner's answer does not come before its switch time;
-each try gives the planner one `REPLAN_LEAD_S` more (a loaded machine's planner is slow for a while).
-The executors' reflex to a held vehicle looks as far ahead (`FaultParams.yield_s`)."""
-REPLAN_TIME_LIMIT_S = 0.6
-"""s: the planner's time limit for a replan (SIPP, paper 000 §V-D)."""
+REPLAN_TIME_LIMITS_S = (0.6, 1.2)
+"""s: the planner's time limit for a replan (SIPP, paper 000 §V-D), try by try: a replan is asked
+for again when the planner's answer does not come before its switch time, or says its time limit
+ran out with more to try (`PlanReply.timed_out`; an 80-vehicle soak's mission aborted so, on a
+machine whose planner got a share of a core); each try gives the planner one `REPLAN_LEAD_S` more
+(a loaded machine's planner is slow for a while). The executors' reflex to a held vehicle looks as
+far ahead as the tries reach (`FaultParams.yield_s`)."""
 CAPABILITIES_WAIT_S = 1.0
 """How long a mission waits for its vehicles' telemetry (their capabilities, 5 Hz) before planning."""
 
@@ -500,15 +501,16 @@ class MissionRunner(MissionClient[MissionResult]):
     async def _ask_replan(self, plan: Plan, left: list[str], goals: dict[str, str],
                           rejoin: Sequence[str] = ()) -> tuple[PlanReply, float, float] | str:
         """The planner's replan of `plan` (its reply, the switch time and how long it took), asked
-        again from later when it does not come before its switch time; or why there is none. The
-        held vehicles `rejoin` come back (`rejoin.py`)."""
+        again from later when it does not come before its switch time or its time limit ran out
+        (`REPLAN_TIME_LIMITS_S`); or why there is none. The held vehicles `rejoin` come back
+        (`rejoin.py`)."""
         late = ""
-        for k in range(REPLAN_TRIES):  # a planner too slow this time is asked again, from later
+        for k, limit in enumerate(REPLAN_TIME_LIMITS_S):  # a planner too slow this time is asked again, from later
             lead = REPLAN_LEAD_S * (k + 1)
             at = self.plan_time() + lead
             base, sweeps = self._with_rejoining(plan, rejoin, at)
             req = PlanRequest(map=self.spec.map, tasks={}, planner="sipp" if rejoin else self.spec.replanner,
-                              mu=self.spec.mu, time_limit=REPLAN_TIME_LIMIT_S, reply_within=lead,
+                              mu=self.spec.mu, time_limit=limit, reply_within=lead,
                               replan=Replan(base=base, at=at, left=left, sweeps=sweeps, goals=goals, strand=True,
                                             rejoin=list(rejoin)))
             started = time.perf_counter()
@@ -522,13 +524,17 @@ class MissionRunner(MissionClient[MissionResult]):
             except RuntimeError:  # the mission ended (its session closed) while this replan waited
                 return "the mission ended"
             took = time.perf_counter() - started
+            if not reply.ok and reply.timed_out and k + 1 < len(REPLAN_TIME_LIMITS_S):
+                late = f"the planner ran out of its {limit:.1f} s ({reply.error})"
+                self.events.append(f"replan: {late}; asked again with more time")
+                continue
             if not reply.ok or reply.plan is None:
                 self._blocked, self._refused = reply.failed_vehicle, dict(reply.refused)
                 return f"replanning failed: {reply.error}"
             if self.plan_time() <= at:
                 return reply, at, took
             late = f"the replan came too late ({took:.2f} s)"
-        return f"{late} ({REPLAN_TRIES} times)"
+        return f"{late} ({len(REPLAN_TIME_LIMITS_S)} times)"
 
     def _with_rejoining(self, plan: Plan, rejoin: Sequence[str], at: float) -> tuple[Plan, list[Sweep]]:
         """`plan` with the held vehicles `rejoin` back in it (their paths shifted so that each is

@@ -107,9 +107,12 @@ def solve_replan(req: PlanRequest) -> PlanReply:
         log.info("replan: the ILP found no plan (%s): SIPP plans on", reply.error)
     first: list[str] = []
     while True:
-        reply, later = _replan_with(graph, req, "sipp", max(deadline - time.perf_counter(), 0.05), first)
-        if reply.ok or later is None or later in first or time.perf_counter() > deadline:
+        reply, later = _replan_with(graph, req, "sipp", max(deadline - time.perf_counter(), min(0.05, req.time_limit)),
+                                    first)
+        if reply.ok or later is None or later in first:
             return reply
+        if time.perf_counter() > deadline:  # another order was left to try
+            return msgspec.structs.replace(reply, timed_out=True)
         first.insert(0, later)
 
 
@@ -128,7 +131,7 @@ def _replan_with(graph: FleetGraph, req: PlanRequest, planner: str, time_limit: 
     result = _load(REPLANNERS[planner])(graph, rp, base.mu, time_limit, req.seed, **extra)
     if not result.ok:
         return PlanReply(ok=False, error=f"no plan (could not place {result.failed_vehicle}): {result.error}",
-                         failed_vehicle=result.failed_vehicle), None
+                         failed_vehicle=result.failed_vehicle, timed_out=result.timed_out), None
     tasks = {vid: msgspec.structs.replace(base.tasks[vid], goal=result.paths[vid][-1].node
                                           if vid in result.stranded else rp.goals.get(vid, base.tasks[vid].goal))
              for vid in result.paths}

@@ -148,5 +148,6 @@ def rejoins_blocked(graph: FleetGraph, replan: Replan) -> dict[str, str]:
     return blocked
 
 
-def failed(vid: str, reason: str, t0: float) -> PlanResult:
-    return PlanResult(ok=False, error=f"{vid}: {reason}", failed_vehicle=vid, planning_time_s=time.perf_counter() - t0)
+def failed(vid: str, reason: str, t0: float, timed_out: bool = False) -> PlanResult:
+    return PlanResult(ok=False, error=f"{vid}: {reason}", failed_vehicle=vid, planning_time_s=time.perf_counter() - t0,
+                      timed_out=timed_out)

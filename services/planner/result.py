@@ -25,6 +25,8 @@ class PlanResult:
     priority: list[str] = field(default_factory=list)
     stranded: dict[str, str] = field(default_factory=dict)
     """Replanning: vehicles given a goal short of their own, and why theirs was out of reach."""
+    timed_out: bool = False
+    """Without a plan: the time limit ended the search with more left to try."""
 
 
 def to_plan(graph: FleetGraph, map_name: str, planner: str, mu: float, tasks: dict[str, Task], result: PlanResult) -> Plan:

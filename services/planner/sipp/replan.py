@@ -98,7 +98,7 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
             return PlanResult(ok=True, paths={v: paths[v] for v in replan.base.paths if v in paths}, cost=cost,
                               planning_time_s=time.perf_counter() - t0, stats={"orders": tried},
                               priority=[leg.vid for leg in order], stranded=stranded)
-        vid, reason = outcome
+        vid, reason, out_of_time = outcome
         leg = next(leg for leg in order if leg.vid == vid)
         key = tuple([vid] + [x.vid for x in order if x.vid != vid])
         if key in seen and replan.strand and vid not in held and time.perf_counter() <= deadline:
@@ -115,8 +115,9 @@ def replan_sipp(graph: FleetGraph, replan: Replan, mu: float, time_limit: float,
                 seen = {tuple(x.vid for x in order)}
                 continue
         order = [leg] + [x for x in order if x.vid != vid]
-        if key in seen or time.perf_counter() > deadline:
-            return failed(vid, f"{reason} after {tried} priority order{'s' if tried > 1 else ''}", t0)
+        if key in seen or time.perf_counter() > deadline:  # every order tried, or the time is up
+            return failed(vid, f"{reason} after {tried} priority order{'s' if tried > 1 else ''}", t0,
+                          timed_out=out_of_time or key not in seen)
         seen.add(key)
 
 
@@ -165,8 +166,9 @@ def _claimed(graph: FleetGraph, sweeps: list[Sweep], fixed: dict[str, list[PathE
 
 
 def _plan_order(graph: FleetGraph, res: Reservations, order: list[Leg], mu: float,
-                deadline: float) -> dict[str, TimedPath] | tuple[str, str]:
-    """One pass of prioritized planning in `order` on `res` (`_claimed`, a copy: it is changed)."""
+                deadline: float) -> dict[str, TimedPath] | tuple[str, str, bool]:
+    """One pass of prioritized planning in `order` on `res` (`_claimed`, a copy: it is changed);
+    on failure the vehicle it could not place, why, and whether its search ran out of time."""
     out: dict[str, TimedPath] = {}
     for leg in order:
         ctg = CostToGo.of(graph, mu, leg.task.capabilities)
@@ -179,9 +181,9 @@ def _plan_order(graph: FleetGraph, res: Reservations, order: list[Leg], mu: floa
                 path = sipp(SearchGraph.of(graph, mu, leg.task.capabilities), res, leg.start, leg.goal,
                             ctg.h[leg.goal], ctg.q[leg.goal], leg.usable, deadline, t_start=leg.depart)
             except SearchTimeout:
-                return leg.vid, f"time limit reached while planning {where}"
+                return leg.vid, f"time limit reached while planning {where}", True
         if path is None:
-            return leg.vid, f"no collision-free path {where} within the battery ({len(out)} vehicles placed)"
+            return leg.vid, f"no collision-free path {where} within the battery ({len(out)} vehicles placed)", False
         if len(leg.prefix) > 1:  # its last step into its switch node, now that it is placed
             _reserve_entries(res, graph, leg.prefix[-2:], forever=False)
         for i, node in enumerate(path.nodes):
