@@ -188,6 +188,20 @@ def test_a_replan_the_battery_cannot_serve_names_the_vehicle() -> None:
     reply = solve(PlanRequest(map="town", tasks={}, time_limit=10,
                               replan=Replan(base=base, at=1.0, goals={"cf4": "EP4"})))
     assert not reply.ok and "cf4" in reply.error and "short by" in reply.error, reply.error
+    assert not reply.timed_out  # no time would serve it: not to be asked again
+
+
+def test_a_replan_its_time_limit_ended_says_so(monkeypatch) -> None:
+    """`PlanReply.timed_out`: the mission asks such a replan again, with more time
+    (`tests/test_replan_burst.py`). Here the search looks at the clock at every expansion."""
+    from services.planner.sipp import search
+
+    monkeypatch.setattr(search, "DEADLINE_EVERY", 1)
+    base = plan_of()
+    replan = Replan(base=base, at=1.0, goals={"cf4": "EP4"})
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=1e-6, replan=replan))
+    assert not reply.ok and reply.timed_out and "time limit reached" in reply.error, reply.error
+    assert solve(PlanRequest(map="town", tasks={}, time_limit=10, replan=replan)).ok
 
 
 def test_a_replan_naming_an_unknown_vehicle_or_node_is_refused() -> None:
