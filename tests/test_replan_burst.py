@@ -31,10 +31,13 @@ class Burst(MissionRunner):
     """A started mission (its plan accepted, every vehicle parked at its start) whose vehicles are
     held: `FIRST`, and `BURST` while the replan around it asks the planner."""
 
+    held_during: tuple[str, ...] = BURST
+    """The vehicles held while the first replan asks the planner (none: a scenario without the burst)."""
+
     def __init__(self, router: str) -> None:
         super().__init__(MissionSpec(map="town", tasks=TASKS, time_limit=20), ZenohConfig.client(router), KEYS,
                          progress=False)
-        self.burst = list(BURST)
+        self.burst = list(self.held_during)
         self.asked = 0
         """Replans asked of the planner."""
 
@@ -108,9 +111,7 @@ def test_a_burst_of_holds_during_a_replan_is_replanned_once_after_it(zenoh_route
 class OneHold(Burst):
     """`FIRST` held at its start spot, nothing else: the replan around it."""
 
-    def __init__(self, router: str) -> None:
-        super().__init__(router)
-        self.burst = []
+    held_during = ()
 
     async def main(self) -> None:
         try:
@@ -139,9 +140,10 @@ class RejoinDuringFault(Burst):
     """`FIRST` held for another's sake at its start spot; while the replan that would bring it back
     asks the planner, `BURST[0]` is held for its own tracking."""
 
+    held_during = ()
+
     def __init__(self, router: str) -> None:
         super().__init__(router)
-        self.burst = []
         self.fault_during: str | None = BURST[0]
 
     async def _ask_replan(self, *args, **kwargs):  # type: ignore[no-untyped-def]
@@ -183,9 +185,7 @@ class LinkWords(Burst):
     """`FIRST`'s link lost, in two words: its gateway's (`LinkHealth`: no log block for a second),
     then its executor's report of what it does about it (`VehicleEvent.acted`)."""
 
-    def __init__(self, router: str) -> None:
-        super().__init__(router)
-        self.burst = []
+    held_during = ()
 
     async def main(self) -> None:
         try:
