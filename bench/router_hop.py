@@ -10,7 +10,7 @@ ground-truth judge, before the router got a process of its own: docs/bus.md). `-
 busy processes beside it (a loaded machine). Prints, per transport, the latency from the frame's
 stamp to its arrival in each subscriber's loop and the CPU of each process; saves a PNG.
 
-    python -m bench.router_hop [--bodies 80] [--subscribers 2] [--seconds 20] [--load 0]
+    python -m bench.router_hop [--bodies 80] [--subscribers 2] [--seconds 20] [--load 0] [--warmup 300]
                                [--transports router,peer,shm,busy-router]
 """
 
@@ -46,7 +46,8 @@ SHM_POOL = 1 << 22
 SETTLE_S = 1.5
 """s the publisher waits for the subscribers' declarations before it publishes."""
 WARMUP = 300
-"""Frames published before the measured ones (3 s: every process started and connected)."""
+"""Frames published before the measured ones by default (`--warmup`; 3 s: every process started
+and connected, the routes settled)."""
 HANG_S = 420.0
 """s past its run after which a publisher or subscriber process is taken to hang: a guard, not a
 budget. The suite runs this benchmark in its compute lane at idle CPU priority, which gets only
@@ -84,15 +85,15 @@ def frame_sender(session: zenoh.Session, transport: str) -> Callable[[PoseFrame]
     return put
 
 
-def publish(transport: str, endpoint: str, seconds: float, bodies: int) -> dict:
-    """`WARMUP` frames, then frames at 100 Hz for `seconds`; this process's CPU share over those."""
+def publish(transport: str, endpoint: str, seconds: float, bodies: int, warmup: int) -> dict:
+    """`warmup` frames, then frames at 100 Hz for `seconds`; this process's CPU share over those."""
     session = open_session(config(transport, endpoint, publisher=True))
     put = frame_sender(session, transport)
     time.sleep(SETTLE_S)
-    due, total = time.monotonic(), WARMUP + round(100 * seconds)
+    due, total = time.monotonic(), warmup + round(100 * seconds)
     start = cpu_s()
     for seq in range(total):
-        if seq == WARMUP:
+        if seq == warmup:
             start = cpu_s()
         poses = [FramePose(f"cf{i:02d}", 0.1 * i, 0.2, 0.3, 0.0) for i in range(bodies)]
         put(PoseFrame(t=time.time(), seq=seq, poses=poses))
@@ -101,25 +102,25 @@ def publish(transport: str, endpoint: str, seconds: float, bodies: int) -> dict:
     share = (cpu_s() - start) / seconds
     time.sleep(0.5)
     session.close()
-    return {"process": "publisher", "cpu": share, "frames": total - WARMUP}
+    return {"process": "publisher", "cpu": share, "frames": total - warmup}
 
 
-def receive(transport: str, endpoint: str, seconds: float) -> dict:
-    """Every frame's latency into this process's event loop; its CPU share."""
+def receive(transport: str, endpoint: str, seconds: float, warmup: int) -> dict:
+    """Every frame's latency after the `warmup` ones into this process's event loop; its CPU share."""
     session = open_session(config(transport, endpoint, publisher=False))
     latencies: list[float] = []
 
     async def main() -> float:
         sub = subscribe(session, KEY, PoseFrame)
-        start, last = None, WARMUP + round(100 * seconds) - 1
+        start, last = None, warmup + round(100 * seconds) - 1
         heard = False
         while True:
             try:  # (the first frame: however late the publisher gets the CPU, `HANG_S`)
-                frame, _key = await asyncio.wait_for(sub.recv(), WARMUP / 100 + SETTLE_S + 5.0 if heard else HANG_S)
+                frame, _key = await asyncio.wait_for(sub.recv(), warmup / 100 + SETTLE_S + 5.0 if heard else HANG_S)
             except TimeoutError:  # the publisher is done (its last frames lost)
                 break
             heard = True
-            if frame.seq < WARMUP:
+            if frame.seq < warmup:
                 continue
             start = cpu_s() if start is None else start
             latencies.append(time.time() - frame.t)
@@ -157,13 +158,13 @@ def busy_listener(endpoint: str, done: threading.Event) -> int:
     return heard[0]
 
 
-def measure(transport: str, subscribers: int, seconds: float, bodies: int, load: int) -> list[dict]:
+def measure(transport: str, subscribers: int, seconds: float, bodies: int, load: int, warmup: int) -> list[dict]:
     """One run: the publisher, the subscribers and `load` busy processes; the router (when used) in
     this process, whose CPU share is then the router's (with "busy-router", its Python work's too)."""
     router = InProcessRouter(free_tcp_endpoint()) if transport in ("router", "busy-router") else None
     endpoint = router.endpoint if router is not None else free_tcp_endpoint()
     me = [sys.executable, "-m", "bench.router_hop", "--transport", transport, "--endpoint", endpoint,
-          "--seconds", str(seconds)]
+          "--seconds", str(seconds), "--warmup", str(warmup)]
     hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(load)]
     try:
         start, t0 = cpu_s(), time.monotonic()
@@ -195,6 +196,7 @@ def main() -> None:
     parser.add_argument("--subscribers", type=int, default=2)
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--load", type=int, default=0, help="busy processes beside the measurement")
+    parser.add_argument("--warmup", type=int, default=WARMUP, help="frames published before the measured ones")
     parser.add_argument("--transports", default=",".join(TRANSPORTS), help="which, comma-separated")
     # the benchmark's own processes:
     parser.add_argument("--role", choices=["publisher", "subscriber"], help=argparse.SUPPRESS)
@@ -202,14 +204,14 @@ def main() -> None:
     parser.add_argument("--endpoint", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.role == "publisher":
-        print(json.dumps(publish(args.transport, args.endpoint, args.seconds, args.bodies)))
+        print(json.dumps(publish(args.transport, args.endpoint, args.seconds, args.bodies, args.warmup)))
         return
     if args.role == "subscriber":
-        print(json.dumps(receive(args.transport, args.endpoint, args.seconds)))
+        print(json.dumps(receive(args.transport, args.endpoint, args.seconds, args.warmup)))
         return
     transports = [t for t in TRANSPORTS if t in args.transports.split(",")]
     rows = [row for transport in transports for row in measure(transport, args.subscribers, args.seconds,
-                                                               args.bodies, args.load)]
+                                                               args.bodies, args.load, args.warmup)]
     print(f"{args.bodies} bodies at 100 Hz to {args.subscribers} subscriber processes, {args.seconds:.0f} s, "
           f"{args.load} busy processes beside")
     print(format_table(["transport", "process", "frames", "latency p50/p99/max ms", "CPU %"],

@@ -4,7 +4,7 @@ planned against the others' paths while they move). Once, the first vehicle is s
 when it reaches its first goal (`add_task`: it replaces the random goal it may have got). Prints each
 task done and the tasks done per minute.
 
-    python examples/lifelong.py [--vehicles cf1,cf2] [--goals WP2,WP6] [--minutes 2] [--radios FILE]
+    python examples/lifelong.py [--vehicles cf1,cf2] [--goals WP2,WP6] [--minutes 2] [--seed 0] [--radios FILE]
 
 A new goal given to a car while it drives may need it to turn round on its road, which the executors
 do not do (the tracking guard holds it): redirect vehicles at rest or in the air.
@@ -24,6 +24,7 @@ def main() -> None:
     parser.add_argument("--vehicles", default="cf1,cf2")
     parser.add_argument("--goals", default="WP2,WP6", help="each vehicle's first goal")
     parser.add_argument("--minutes", type=float, default=2.0, help="how long to keep giving new tasks")
+    parser.add_argument("--seed", type=int, default=0, help="the random goals' seed")
     parser.add_argument("--radios", help="when no fleet is running here: start one with these vehicles")
     args = parser.parse_args()
     vehicles = args.vehicles.split(",")
@@ -45,7 +46,8 @@ def main() -> None:
 
         # a goal alone: from the spot the vehicle stands on
         mission = fleet.start_mission("town", dict(zip(vehicles, args.goals.split(","), strict=True)),
-                                      lifelong_minutes=args.minutes, on_event=on_event)
+                                      lifelong_minutes=args.minutes, seed=args.seed,
+                                      on_event=on_event)
         if first_arrived.wait(60.0 * args.minutes + 60.0):
             home = mission.plans[first].steps[0].node  # where its first plan started
             try:

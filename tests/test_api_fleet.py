@@ -135,7 +135,11 @@ def test_the_examples_plan_fly_one_vehicle_fly_a_mission_and_read_its_recording(
         cf4 = fleet.vehicles(["cf4"], timeout=30)["cf4"]
         if math.dist((cf4.x, cf4.y), EP1) > 0.05:  # a rerun after an attempt that flew it: back to its start
             assert fleet.run_mission("town", {"cf4": "EP1"}).ok
-    out = run_example("town_mission.py", "--only", "cf4", env=env)
+    # the example with a scenario of its own: cf4 to the next spot along its road (7 s; the town
+    # mission's flights over the gap are flown by tests/test_fleet_up.py, 28 s for cf4's alone)
+    short = tmp_path / "short.yaml"
+    short.write_text(yaml.safe_dump({"map": "town", "tasks": {"cf4": {"start": "EP1", "goal": "EP2"}}}))
+    out = run_example("town_mission.py", "--scenario", str(short), env=env)
     assert "OK (every vehicle arrived)" in out and "contacts: 0" in out, out
     recording = max((run_dir / "recordings").glob("*.rrd"), key=lambda p: p.stat().st_mtime)
     out = run_example("read_recording.py", str(recording))
@@ -156,7 +160,8 @@ def test_the_team_example_runs_a_ground_air_mission(tmp_path: Path) -> None:
 
 @pytest.mark.timeout(200)
 def test_the_lifelong_example_keeps_giving_random_tasks(tmp_path: Path) -> None:
-    """On a fleet of its own with two vehicles (the town fleet's parked vehicles would sit on free spots)."""
+    """On a fleet of its own with two vehicles (the town fleet's parked vehicles would sit on free spots);
+    seed 38 draws cf2 a random goal near its first (seed 0: across its region, a 30 s drive)."""
     radios = yaml.safe_load((REPO / "deploy" / "radios-town.yaml").read_text())
     radios["radios"] = {"radio0": radios["radios"]["radio0"]}  # cf1 on WP1, cf2 on WP5
     for vehicle in radios["radios"]["radio0"]["vehicles"].values():  # not the ports of this module's fleet
@@ -165,7 +170,8 @@ def test_the_lifelong_example_keeps_giving_random_tasks(tmp_path: Path) -> None:
             vehicle["uri"] = f"udp://${{SIM_HOST:-sim}}:{free.getsockname()[1]}"
     (tmp_path / "radios.yaml").write_text(yaml.safe_dump(radios))
     env = {k: v for k, v in os.environ.items() if not k.startswith("FLEET_")}
-    proc = subprocess.run([sys.executable, str(REPO / "examples" / "lifelong.py"), "--minutes", "0.15", "--radios", str(tmp_path / "radios.yaml")],
+    proc = subprocess.run([sys.executable, str(REPO / "examples" / "lifelong.py"), "--minutes", "0.15", "--seed", "38",
+                           "--radios", str(tmp_path / "radios.yaml")],
                           cwd=tmp_path, capture_output=True, text=True, timeout=180, env=env)
     out = proc.stdout
     assert proc.returncode == 0, out[-3000:] + proc.stderr[-3000:]

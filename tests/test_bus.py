@@ -385,7 +385,7 @@ def test_the_router_hop_benchmark_measures_every_transport(tmp_path: Path) -> No
     Not in the compute lane: its processes must get the CPU within its 1.5 s of settling (at idle
     priority beside the flights a peer subscriber connected after the publisher had finished and
     got no frame)."""
-    run = subprocess.run([sys.executable, "-m", "bench.router_hop", "--bodies", "8", "--seconds", "1",
+    run = subprocess.run([sys.executable, "-m", "bench.router_hop", "--bodies", "8", "--seconds", "1", "--warmup", "50",
                           "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=1100)
     assert run.returncode == 0, run.stderr[-2000:]
     rows = [line.split() for line in run.stdout.splitlines() if line.split()[1:2] == ["subscriber"]]

@@ -338,14 +338,15 @@ class AsyncFleet:
     # ---- missions ------------------------------------------------------------------------------
     async def start_mission(self, map: str, tasks: Mapping[str, Task | tuple[str, str] | str], *, planner: str = "sipp",
                             mu: float = 0.5, time_limit: float = 30.0, keep_going: bool = False,
-                            lifelong_minutes: float = 0.0, rejoins: int | None = None,
+                            lifelong_minutes: float = 0.0, seed: int = 0, rejoins: int | None = None,
                             on_event: Callable[[MissionEvent], None] | None = None) -> Mission:
         """Start a mission of flying cars: the fleet's mission runner plans `tasks` (as in `plan`)
         on `map`, hands the plans out, starts every vehicle together and watches (one vehicle's
         fault: the others are planned on around it; a fault they cannot be planned around aborts
         it, unless `keep_going`).
         `lifelong_minutes`: for that long, every vehicle that arrives gets a random free parking spot
-        as its next goal (then the last tasks are flown out); `add_task` gives one a goal of yours.
+        as its next goal (then the last tasks are flown out), drawn with `seed` (the same seed, the same
+        draws on the same fleet); `add_task` gives one a goal of yours.
         `rejoins`: how often a vehicle held for another's sake, or stopped by a fault that cleared,
         may be brought back into the plan once its way is clear (None: the runner's default, 3; 0:
         it stays held).
@@ -355,7 +356,7 @@ class AsyncFleet:
             raise ValueError(f"lifelong_minutes must not be negative, got {lifelong_minutes}")
         if rejoins is not None and rejoins < 0:
             raise ValueError(f"rejoins must be 0 or more, got {rejoins}")
-        extra = ["--lifelong", "--minutes", repr(lifelong_minutes)] if lifelong_minutes else []
+        extra = ["--lifelong", "--minutes", repr(lifelong_minutes), "--seed", str(seed)] if lifelong_minutes else []
         extra += ["--rejoins", str(rejoins)] if rejoins is not None else []
         return await self._start(map, tasks, planner, mu, time_limit, keep_going, on_event, extra)
 
@@ -401,13 +402,13 @@ class AsyncFleet:
 
     async def run_mission(self, map: str, tasks: Mapping[str, Task | tuple[str, str] | str], *, planner: str = "sipp",
                           mu: float = 0.5, time_limit: float = 30.0, keep_going: bool = False,
-                          lifelong_minutes: float = 0.0, rejoins: int | None = None,
+                          lifelong_minutes: float = 0.0, seed: int = 0, rejoins: int | None = None,
                           on_event: Callable[[MissionEvent], None] | None = None,
                           check: bool = True) -> MissionResult:
         """`start_mission` and wait for its result; `MissionFailed` (with the result) if not every
         vehicle arrived without contact, unless `check` is False."""
         mission = await self.start_mission(map, tasks, planner=planner, mu=mu, time_limit=time_limit,
-                                           keep_going=keep_going, lifelong_minutes=lifelong_minutes,
+                                           keep_going=keep_going, lifelong_minutes=lifelong_minutes, seed=seed,
                                            rejoins=rejoins, on_event=on_event)
         return self._checked(await mission.wait(), check)
 
