@@ -143,6 +143,29 @@ class Watch:
         s = self.truth[vid][-1]
         return not s.airborne and not s.motors and s.z < 0.01
 
+    def rest_since(self, vid: str) -> float | None:
+        """The time (ground truth's clock) from which `vid` has been at rest on the ground; None if
+        it is not at rest now."""
+        samples = self.truth[vid]
+        if not samples or not self.at_rest_on_ground(vid):
+            return None
+        since = samples[-1].t
+        for s in reversed(samples):
+            if s.airborne or s.motors or s.z >= 0.01:
+                break
+            since = s.t
+        return since
+
+    def last_touchdown(self) -> float:
+        """The time (ground truth's clock) of the last vehicle's last touchdown: its first sample on
+        the ground after one in the air (0 if none flew; its last sample if one is still up)."""
+        last = 0.0
+        for samples in self.truth.values():
+            up = next((k for k in range(len(samples) - 1, -1, -1) if samples[k].airborne), None)
+            if up is not None:
+                last = max(last, samples[min(up + 1, len(samples) - 1)].t)
+        return last
+
     def distance_to(self, vid: str, pos: tuple[float, float, float]) -> float:
         """m from where `vid` is in ground truth (its last truth) to `pos`."""
         s = self.truth[vid][-1]
@@ -201,11 +224,14 @@ def fly(fleet: LocalFleet, spec: MissionSpec, scenario: Scenario) -> tuple[Missi
             mission = asyncio.create_task(runner.run())
             await scenario(watch, runner)
             assert await mission == 0
-            ended = time.time()  # the simulator's figures from after the end
             await settle(watch, runner.spec.tasks, SETTLE_S)
-            if any(watch.first(v, "emergency_landing") for v in runner.spec.tasks):
-                await asyncio.sleep(SUPERVISOR_WATCH_S)
-            await until(lambda: "sim" in watch.stats and watch.stats["sim"].t > ended, 5.0, "the sim's stats")
+            landed = [watch.rest_since(v) for v in runner.spec.tasks if watch.first(v, "emergency_landing")]
+            if landed:
+                rested = max(landed) if None not in landed else time.time()
+                await asyncio.sleep(max(rested + SUPERVISOR_WATCH_S - time.time(), 0.0))
+            # the simulator's figures (touchdowns, motors cut) from after the last touchdown
+            touchdown = watch.last_touchdown()
+            await until(lambda: "sim" in watch.stats and watch.stats["sim"].t > touchdown, 5.0, "the sim's stats")
         finally:
             watch.close()
 
