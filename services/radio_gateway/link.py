@@ -57,6 +57,9 @@ LOG_VARIABLES: tuple[tuple[str, str], ...] = (
 """The gateway's log block: battery (mV, power manager state), supervisor state bits, link RSSI."""
 TOC_CACHE = Path(tempfile.gettempdir()) / "fleet-toc-cache"
 """Log and parameter tables by CRC, shared by every gateway of this machine (cflib's cache)."""
+CLOSE_WAIT_S = 3.0
+"""s `VehicleLink.close` waits at most for cflib to close a link (the driver's thread joined: a
+Crazyradio's waits for its last packet)."""
 _init_lock = threading.Lock()
 
 
@@ -117,15 +120,26 @@ class VehicleLink:
             self._ended(cf, "failed", f"cannot open {self.uri}: {exc}")
 
     def close(self) -> None:
-        """Close the link (cflib sends one zero setpoint first, as `close_link` always does)."""
+        """Close the link (cflib sends one zero setpoint first, as `close_link` always does). Returns
+        once the link is closed: `close_link` then waits up to 1 s more for its packet thread to end
+        (`incoming.join(timeout=1)`, which blocks on the link's queue for as long), which it does on
+        a thread of its own, so that a stopping gateway does not wait a second for nothing."""
         with self._lock:
             cf, self._cf = self._cf, None
         self._ready.clear()
-        if cf is not None:
-            try:
-                cf.close_link()
-            except Exception as exc:
-                log.warning("%s: closing %s: %s", self.vid, self.uri, exc)
+        if cf is None:
+            return
+        closing = threading.Thread(target=self._close_link, args=(cf,), name=f"close {self.vid}", daemon=True)
+        closing.start()
+        deadline = time.monotonic() + CLOSE_WAIT_S
+        while cf.link is not None and closing.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.005)
+
+    def _close_link(self, cf: Crazyflie) -> None:
+        try:
+            cf.close_link()
+        except Exception as exc:
+            log.warning("%s: closing %s: %s", self.vid, self.uri, exc)
 
     def reboot(self) -> None:
         """Close, then reboot the vehicle through its radio chip (cflib `PowerSwitch`)."""
