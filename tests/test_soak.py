@@ -7,7 +7,7 @@ leave the world safe, judged in ground truth: no contact, no crash (touchdowns u
   only (a loaded 2-core machine may stall the fleet long enough for the tracking guard to hold
   vehicles: not every mission can arrive; since the simulator's costs were cut, six runs of six
   arrived whole). Not flown again when it fails, as the other flights are (tests/conftest.py): a
-  contact or a crash is never the machine's fault;
+  contact or a crash fails the gate whatever its cause;
 - the long one (issue 8; `make soak`): 80 vehicles for FLEET_SOAK_MINUTES (default 5) minutes; every
   mission must also arrive, and no process may grow more than 5 MB a minute after the first third of
   the run."""

@@ -345,8 +345,8 @@ class AsyncFleet:
         fault: the others are planned on around it; a fault they cannot be planned around aborts
         it, unless `keep_going`).
         `lifelong_minutes`: for that long, every vehicle that arrives gets a random free parking spot
-        as its next goal (then the last tasks are flown out), drawn with `seed` (the same seed, the same
-        draws on the same fleet); `add_task` gives one a goal of yours.
+        as its next goal (then the last tasks are flown out), drawn with `seed` (the same seed, the
+        same sequence of choices; unused without `lifelong_minutes`); `add_task` gives one a goal of yours.
         `rejoins`: how often a vehicle held for another's sake, or stopped by a fault that cleared,
         may be brought back into the plan once its way is clear (None: the runner's default, 3; 0:
         it stays held).

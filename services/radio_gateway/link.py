@@ -109,9 +109,11 @@ class VehicleLink:
         cf.fully_connected.add_callback(lambda _uri: self._connected(cf))
         cf.connection_failed.add_callback(lambda _uri, msg: self._ended(cf, "failed", msg))
         cf.connection_lost.add_callback(lambda _uri, msg: self._ended(cf, "lost", msg))
+        # (a closed link's packet thread may hand on one more packet after `close` returned: dropped)
         cf.appchannel.packet_received.add_callback(
-            lambda data: self._on_app(self.vid, bytes((crtp.PORT_PLATFORM << 4 | crtp.APP_CHANNEL,)) + bytes(data)))
-        cf.add_port_callback(crtp.PORT_PLATFORM, self._on_platform)
+            lambda data: self._on_app(self.vid, bytes((crtp.PORT_PLATFORM << 4 | crtp.APP_CHANNEL,)) + bytes(data))
+            if cf is self._cf else None)
+        cf.add_port_callback(crtp.PORT_PLATFORM, lambda pk: self._on_platform(pk) if cf is self._cf else None)
         with self._lock:
             self._cf = cf
         try:
@@ -120,22 +122,26 @@ class VehicleLink:
             self._ended(cf, "failed", f"cannot open {self.uri}: {exc}")
 
     def close(self) -> None:
-        """Close the link (cflib sends one zero setpoint first, as `close_link` always does). Returns
-        once the link is closed: `close_link` then waits up to 1 s more for its packet thread to end
-        (`incoming.join(timeout=1)`, which blocks on the link's queue for as long), which it does on
-        a thread of its own, so that a stopping gateway does not wait a second for nothing."""
+        """Close the link (cflib sends one zero setpoint first, as `close_link` always does);
+        returns once the link is closed, or after `CLOSE_WAIT_S` with a warning."""
         with self._lock:
             cf, self._cf = self._cf, None
         self._ready.clear()
         if cf is None:
             return
+        # `close_link` closes the link, then waits up to 1 s for its packet thread, blocked on the
+        # link's queue for as long (`incoming.join(timeout=1)`): that wait goes on without us
         closing = threading.Thread(target=self._close_link, args=(cf,), name=f"close {self.vid}", daemon=True)
         closing.start()
         deadline = time.monotonic() + CLOSE_WAIT_S
-        while cf.link is not None and closing.is_alive() and time.monotonic() < deadline:
+        while cf.link is not None and closing.is_alive():
+            if time.monotonic() > deadline:
+                log.warning("%s: %s not closed within %.0f s; going on", self.vid, self.uri, CLOSE_WAIT_S)
+                return
             time.sleep(0.005)
 
     def _close_link(self, cf: Crazyflie) -> None:
+        """cflib's `close_link` (on a thread of its own: `close`)."""
         try:
             cf.close_link()
         except Exception as exc:
@@ -174,7 +180,8 @@ class VehicleLink:
         for name, kind in LOG_VARIABLES:
             if cf.log.toc.get_element_by_complete_name(name) is not None:
                 config.add_variable(name, kind)
-        config.data_received_cb.add_callback(lambda _ts, data, _conf: self._on_log(self.vid, time.time(), data))
+        config.data_received_cb.add_callback(
+            lambda _ts, data, _conf: self._on_log(self.vid, time.time(), data) if cf is self._cf else None)
         old, self._log_config = self._log_config, None
         if old is not None:  # first: its id is free again, and no start of it can come after the delete
             old.delete()

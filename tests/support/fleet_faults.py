@@ -200,9 +200,10 @@ SETTLE_S = 3.0
 """s after a mission's end for its vehicles to come to rest: a landing's last stop can be lost on
 the radio, and the gateway repeats it when the next status reply still shows the motors running."""
 
-SUPERVISOR_WATCH_S = 3.0
+SUPERVISOR_WATCH_S = 4.0
 """s watched after a safety landing came to rest: the firmware's supervisor locks a vehicle whose
-setpoints stop while it still counts as flying (2 s commander watchdog), so a lock would show here."""
+setpoints stop while it still counts as flying (its motors above idle within 1.5 s, then the 2 s
+commander watchdog: up to 3.6 s after the motors stopped), so a lock would show here."""
 
 
 async def settle(watch: Watch, vids: Iterable[str], timeout: float) -> None:
@@ -229,7 +230,7 @@ def fly(fleet: LocalFleet, spec: MissionSpec, scenario: Scenario) -> tuple[Missi
             if landed:
                 rested = max(landed) if None not in landed else time.time()
                 await asyncio.sleep(max(rested + SUPERVISOR_WATCH_S - time.time(), 0.0))
-            # the simulator's figures (touchdowns, motors cut) from after the last touchdown
+            # the simulator's figures (touchdowns, motors cut in the air) from after the last touchdown
             touchdown = watch.last_touchdown()
             await until(lambda: "sim" in watch.stats and watch.stats["sim"].t > touchdown, 5.0, "the sim's stats")
         finally:
