@@ -109,11 +109,9 @@ class VehicleLink:
         cf.fully_connected.add_callback(lambda _uri: self._connected(cf))
         cf.connection_failed.add_callback(lambda _uri, msg: self._ended(cf, "failed", msg))
         cf.connection_lost.add_callback(lambda _uri, msg: self._ended(cf, "lost", msg))
-        # (a closed link's packet thread may hand on one more packet after `close` returned: dropped)
-        cf.appchannel.packet_received.add_callback(
-            lambda data: self._on_app(self.vid, bytes((crtp.PORT_PLATFORM << 4 | crtp.APP_CHANNEL,)) + bytes(data))
-            if cf is self._cf else None)
-        cf.add_port_callback(crtp.PORT_PLATFORM, lambda pk: self._on_platform(pk) if cf is self._cf else None)
+        cf.appchannel.packet_received.add_callback(self._while_current(
+            cf, lambda data: self._on_app(self.vid, bytes((crtp.PORT_PLATFORM << 4 | crtp.APP_CHANNEL,)) + bytes(data))))
+        cf.add_port_callback(crtp.PORT_PLATFORM, self._while_current(cf, self._on_platform))
         with self._lock:
             self._cf = cf
         try:
@@ -139,6 +137,14 @@ class VehicleLink:
                 log.warning("%s: %s not closed within %.0f s; going on", self.vid, self.uri, CLOSE_WAIT_S)
                 return
             time.sleep(0.005)
+
+    def _while_current(self, cf: Crazyflie, fn: Callable[..., object]) -> Callable[..., None]:
+        """`fn` as a callback of `cf` that does nothing once `cf` is not this link's connection (a
+        closed link's packet thread may hand on one more packet after `close` returned)."""
+        def callback(*args: object) -> None:
+            if cf is self._cf:
+                fn(*args)
+        return callback
 
     def _close_link(self, cf: Crazyflie) -> None:
         """cflib's `close_link` (on a thread of its own: `close`)."""
@@ -181,7 +187,7 @@ class VehicleLink:
             if cf.log.toc.get_element_by_complete_name(name) is not None:
                 config.add_variable(name, kind)
         config.data_received_cb.add_callback(
-            lambda _ts, data, _conf: self._on_log(self.vid, time.time(), data) if cf is self._cf else None)
+            self._while_current(cf, lambda _ts, data, _conf: self._on_log(self.vid, time.time(), data)))
         old, self._log_config = self._log_config, None
         if old is not None:  # first: its id is free again, and no start of it can come after the delete
             old.delete()

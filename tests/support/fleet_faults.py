@@ -140,18 +140,17 @@ class Watch:
         return bool(kinds) and kinds[-1] == "sim_locked"
 
     def at_rest_on_ground(self, vid: str) -> bool:
-        s = self.truth[vid][-1]
-        return not s.airborne and not s.motors and s.z < 0.01
+        return _at_rest(self.truth[vid][-1])
 
     def rest_since(self, vid: str) -> float | None:
         """The time (ground truth's clock) from which `vid` has been at rest on the ground; None if
         it is not at rest now."""
         samples = self.truth[vid]
-        if not samples or not self.at_rest_on_ground(vid):
+        if not samples or not _at_rest(samples[-1]):
             return None
         since = samples[-1].t
         for s in reversed(samples):
-            if s.airborne or s.motors or s.z >= 0.01:
+            if not _at_rest(s):
                 break
             since = s.t
         return since
@@ -192,6 +191,11 @@ class Watch:
         sep = self.separation
         gap = "none closer than 1 m" if sep.min_gap == math.inf else f"{100 * sep.min_gap:.1f} cm {sep.min_pair}"
         return f"ground truth: closest bodies {gap}, contacts {len(sep.contacts)}"
+
+
+def _at_rest(s: SimTruth) -> bool:
+    """On the ground, motors off."""
+    return not s.airborne and not s.motors and s.z < 0.01
 
 
 Scenario = Callable[[Watch, MissionRunner], Awaitable[None]]
