@@ -17,7 +17,13 @@ from common.bus.pubsub import Publisher, subscribe
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
-from services.executor.faults import STRAIGHT_DOWN, safe_landing_steps
+from services.executor.faults import (
+    ASIDE,
+    ASIDE_REACH,
+    STRAIGHT_DOWN,
+    safe_landing_steps,
+    spots_under_flights,
+)
 from services.executor.service import ExecutorService
 from services.executor.vehicle_controller import VehicleController
 from services.sim.crazyflie.physics import SimFlyingCar
@@ -27,6 +33,14 @@ KEYS = Keys("landing")
 MODEL = VehicleModel()
 STEPS = reference_steps(MODEL)
 PADS = {s.node: s.pos for s in STEPS if s.node in ("l1", "l2")}
+COLUMN = 2.0 * MODEL.radius + MODEL.margin
+"""The column a fault landing comes down through (`in_column`)."""
+
+
+def either_side(x: float, y: float, z: float) -> list[tuple[float, float, float]]:
+    """Two vehicles hovering, held, 15 cm before and after (x, y, z) on the flight from l1 to l2:
+    every spot beside it under that flight is past one of them (`safe_landing_steps`)."""
+    return [(x - 0.15, y, z), (x + 0.15, y, z)]
 
 
 def state(vid: str, owner: str, landing: tuple[float, float, float] | None) -> VehicleState:
@@ -99,14 +113,44 @@ def test_two_fault_landings_of_an_abort_that_chose_one_node_part(other: str, nod
         assert low and min(math.dist((r.truth.x, r.truth.y), PADS["l2"][:2]) for r in low) > 0.5
 
 
-def test_with_every_node_taken_it_lands_straight_down_if_clear_below_else_nowhere() -> None:
+def test_with_every_node_taken_it_lands_straight_down_if_clear_below_else_beside_it_else_nowhere() -> None:
     above = (1.2, 0.45, 0.5)  # over the flight between l1 and l2
     on_l1, on_l2 = (*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)
     assert safe_landing_steps(above, 0.0, STEPS, MODEL, [on_l2])[-1].node == "l1"
     down = safe_landing_steps(above, 0.0, STEPS, MODEL, [on_l1, on_l2])
     assert down is not None and down[-1].node == STRAIGHT_DOWN and down[-1].pos == (1.2, 0.45, 0.0)
-    assert safe_landing_steps(above, 0.0, STEPS, MODEL, [on_l1, on_l2, (1.25, 0.45, 0.0)]) is None
     assert safe_landing_steps(above, 0.0, STEPS, MODEL, [(1.2, 0.45, 0.6)])[-1].node == "l1"  # above it: no matter
+    # a body parked 5 cm on: beside it, the nearest spot under its flight whose column is clear of that
+    # body (two radii and a margin, 12 cm): 10 cm back along the flight
+    parked = (1.25, 0.45, 0.0)
+    aside = safe_landing_steps(above, 0.0, STEPS, MODEL, [on_l1, on_l2, parked])
+    assert aside is not None and aside[-1].node == ASIDE
+    assert aside[-1].pos == pytest.approx((1.10, 0.45, 0.0)) and math.dist(aside[-1].pos, parked) >= COLUMN
+    assert [s.edge for s in aside] == ["", "fly", "land"] and aside[1].pos == pytest.approx((1.10, 0.45, 0.5))
+    # one hovering, held, on its level 15 cm back (the flight there would pass it): past the parked one
+    back = (1.05, 0.45, 0.5)
+    aside = safe_landing_steps(above, 0.0, STEPS, MODEL, [on_l1, on_l2, parked, back])
+    assert aside is not None and aside[-1].node == ASIDE and aside[-1].pos == pytest.approx((1.40, 0.45, 0.0))
+    # and one 15 cm on: nowhere
+    assert safe_landing_steps(above, 0.0, STEPS, MODEL, [on_l1, on_l2, parked, back, (1.35, 0.45, 0.5)]) is None
+
+
+def test_the_spots_beside_it_are_under_its_plans_flights_only() -> None:
+    """Off the flight (15 cm to its side, where no flight of the plan passes: under it may be a
+    no-fly zone), the spots it comes down on beside itself are still on the flight's line, the
+    nearest first; spots farther than `ASIDE_REACH` are not tried."""
+    beside = (1.2, 0.60, 0.5)
+    spots = spots_under_flights(beside, STEPS)
+    assert spots and all(y == pytest.approx(0.45) for _, y in spots)
+    assert all(math.dist(beside[:2], s) <= ASIDE_REACH for s in spots)
+    assert spots[0] == pytest.approx((1.2, 0.45))
+    dists = [math.dist(beside[:2], s) for s in spots]
+    assert dists == sorted(dists)
+    assert spots_under_flights((1.2, 1.2, 0.5), STEPS) == []  # 0.75 m from any flight
+    on_l1, on_l2 = (*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)
+    aside = safe_landing_steps(beside, 0.0, STEPS, MODEL, [on_l1, on_l2, (1.2, 0.62, 0.0)])
+    assert aside is not None and aside[-1].node == ASIDE and aside[-1].pos[1] == pytest.approx(0.45)
+    assert math.dist(aside[-1].pos[:2], (1.2, 0.62)) >= COLUMN
 
 
 def hovering_abort(bodies: Callable[[float], list[tuple[float, float, float]]], spend_reserve_at: float = math.inf
@@ -135,18 +179,21 @@ def hovering_abort(bodies: Callable[[float], list[tuple[float, float, float]]], 
 
 
 def test_a_fault_landing_with_nowhere_clear_hovers_until_the_vehicle_below_drives_off() -> None:
-    """The abort finds vehicles on both nodes of cf2's plan and one parked right below it, which
-    drives off 3 s later: cf2 hovers where it is until then and comes straight down after it (it
-    used to land on the nearest node all the same: onto the vehicle there)."""
+    """The abort finds vehicles on both nodes of cf2's plan, one parked right below it, which
+    drives off 3 s later, and one hovering on either side of it: cf2 hovers where it is until then
+    and comes straight down after it (it used to land on the nearest node all the same: onto the
+    vehicle there)."""
     nodes = [(*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)]
     below: list[tuple[float, float, float]] = []
+    beside: list[tuple[float, float, float]] = []
 
     def bodies(since_abort: float) -> list[tuple[float, float, float]]:
-        return nodes + (below if since_abort < 3.0 else [])
+        return nodes + beside + (below if since_abort < 3.0 else [])
 
     ctrl, sim, records, abort = hovering_abort(bodies)
     at_abort = next(r.truth for r in records if r.t >= abort)
     below.append((at_abort.x, at_abort.y, 0.0))
+    beside += either_side(at_abort.x, at_abort.y, at_abort.z)
     ctrl, sim, records, abort = hovering_abort(bodies)  # again, the vehicle below there from the start
     waiting = [r for r in records if abort + 0.1 <= r.t < abort + 3.0]
     assert all(r.mode == Mode.HOVERING and r.truth.z > 0.4 for r in waiting)
@@ -178,25 +225,33 @@ def test_a_fault_landing_flies_round_no_body_hovering_in_its_way() -> None:
 
 def test_a_fault_landing_with_its_reserve_spent_takes_the_nearest_node_all_the_same() -> None:
     nodes = [(*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)]
-    ctrl, sim, records, abort = hovering_abort(lambda _s: nodes + [(0.95, 0.45, 0.0)], spend_reserve_at=2.0)
+    ctrl, sim, records, abort = hovering_abort(lambda _s: nodes + [(0.95, 0.45, 0.0), *either_side(0.95, 0.45, 0.5)],
+                                               spend_reserve_at=2.0)
     assert all(r.truth.z > 0.4 for r in records if abort + 0.1 <= r.t < abort + 2.0)
     assert math.dist((sim.x, sim.y, sim.z), PADS["l1"]) < 0.03
 
 
 @pytest.mark.timeout(60)
-def test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_straight_down(
-        zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
-    """The executor's events for a fault landing that waits (what the mission plans the others
-    around): cf2's link is lost in flight with bodies on both nodes of its plan and one right below
-    it, which drives off 2 s later. Heard on the bus, both marked as the executor's report of what
-    it does (`acted`: the mission tells them from a gateway's `link_lost`, which it leaves to the
-    executor): "link_lost from flying: hovering here, nowhere clear to land", then "link_lost from
-    hovering: landing straight down" naming the node `STRAIGHT_DOWN` (a descent for the replan)."""
+@pytest.mark.parametrize("boxed_in", [True, False])
+def test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_straight_down_or_beside(
+        boxed_in: bool, zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
+    """The executor's events for a fault landing that waits or goes beside the vehicle (what the
+    mission plans the others around): cf2's link is lost in flight with bodies on both nodes of its
+    plan and one right below it. Heard on the bus, each marked as the
+    executor's report of what it does (`acted`: the mission tells them from a gateway's `link_lost`,
+    which it leaves to the executor), with where it comes down (`at`). With a vehicle hovering on
+    either side of it (and the one below driving off 2 s later): "link_lost from flying: hovering here, nowhere clear to land", then
+    "link_lost from hovering: landing straight down" naming the node `STRAIGHT_DOWN` (a descent for
+    the replan). Without: at once "link_lost from flying: landing beside it at (x, y)", node `ASIDE`,
+    down onto a spot under its flight, clear of the body below (ground truth)."""
     nodes = [(*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)]
     below: list[tuple[float, float, float]] = []
     heard: list[tuple[str, str, bool]] = []
+    where: list[tuple[float, float, float] | None] = []
     t0 = 0.5
     lost = t0 + next(s.t for s in STEPS if s.node == "a1") + 1.0
+    sim = SimFlyingCar("cf2", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    lowest: list[float] = []  # how near the body below cf2 came, horizontally, within 0.45 m of the ground
 
     async def scenario() -> VehicleController:
         svc = ExecutorService("e1", ZenohConfig.client(zenoh_router), KEYS)
@@ -205,10 +260,10 @@ def test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_strai
 
         def on_event(event: VehicleEvent, _key: str) -> None:
             heard.append((event.kind, f"{event.detail} ({event.node})", event.acted))
+            where.append(event.at)
 
         events = subscribe(session, KEYS.vehicle("cf2", "event"), VehicleEvent, on_event)
         await asyncio.sleep(0.5)
-        sim = SimFlyingCar("cf2", MODEL, pos=STEPS[0].pos, yaw=0.0)
         ctrl = VehicleController("cf2", MODEL, owner="e1", bodies=lambda: nodes + below)
         ctrl.on_pose(Pose(vid="cf2", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=sim.yaw))
         ctrl.load(plan_for("cf2", STEPS, MODEL, t0=t0))
@@ -220,7 +275,11 @@ def test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_strai
                                             dropped=0, cmd_rate_hz=100.0, link_ok=link_ok), now)
             if now >= lost and not below and not ctrl._fault_landing:
                 below.append((sim.x, sim.y, 0.0))
-            if below and now >= lost + 2.0:
+                if boxed_in:
+                    nodes.extend(either_side(sim.x, sim.y, sim.z))
+            if below and sim.z < 0.45:
+                lowest.append(math.dist((sim.x, sim.y), below[0][:2]))
+            if boxed_in and below and now >= lost + 2.0:
                 below.clear()
             if ctrl._seen is not None:
                 svc._report_mode("cf2", ctrl, now)
@@ -235,6 +294,15 @@ def test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_strai
         return ctrl
 
     ctrl = asyncio.run(scenario())
-    assert heard == [("link_lost", "from flying: hovering here, nowhere clear to land ()", True),
-                     ("link_lost", f"from hovering: landing straight down ({STRAIGHT_DOWN})", True)], heard
-    assert ctrl.mode == Mode.DONE
+    assert ctrl.mode == Mode.DONE and sim.z < 0.01
+    if boxed_in:
+        assert heard == [("link_lost", "from flying: hovering here, nowhere clear to land ()", True),
+                         ("link_lost", f"from hovering: landing straight down ({STRAIGHT_DOWN})", True)], heard
+        assert where[0] is None and where[1] is not None and where[1][2] == 0.0
+        return
+    assert len(heard) == 1 and heard[0][0] == "link_lost" and heard[0][2], heard
+    assert heard[0][1].startswith("from flying: landing beside it at (") and heard[0][1].endswith(f") ({ASIDE})")
+    spot = where[0]
+    assert spot is not None and spot[1] == pytest.approx(0.45) and spot[2] == 0.0  # under its flight
+    assert math.dist((sim.x, sim.y), spot[:2]) < 0.03
+    assert lowest and min(lowest) >= COLUMN - 0.02  # never came down onto the body below

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import time
 
+import msgspec
 import pytest
 
 from common.bus.keys import Keys
@@ -16,6 +17,7 @@ from common.bus.messages import PlanReply, VehicleState
 from common.bus.pubsub import query
 from common.bus.session import ZenohConfig
 from common.domain.scenario import read_scenario
+from services.executor.faults import ASIDE
 from services.mission import runner as mission_runner
 from services.mission.runner import MissionRunner, MissionSpec
 from services.planner.service import PlannerService
@@ -204,3 +206,34 @@ def test_a_gateways_link_lost_is_left_to_the_executor_whose_report_takes_the_veh
     runner = LinkWords(zenoh_router)
     with_planner(zenoh_router, runner)
     assert runner.plan is not None and FIRST not in runner.plan.paths
+
+
+class LandsAside(Burst):
+    """`FIRST`, hovering half a metre above its start, lands beside where it is on a low battery:
+    its executor's event names no node of the graph (`ASIDE`) but where it comes down (`at`)."""
+
+    held_during = ()
+    spot: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    hover: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    async def main(self) -> None:
+        try:
+            await self.start_parked()
+            state = self.states[FIRST]
+            self.hover, self.spot = (state.x, state.y, 0.5), (state.x + 0.3, state.y, 0.0)
+            self.states[FIRST] = msgspec.structs.replace(state, mode="landing", z=0.5)
+            assert self.on_fault(FIRST, "low_battery", f"{FIRST}: low_battery from hovering: landing beside it",
+                                 ASIDE, acted=True, at=self.spot)
+            await self._replanning
+        finally:
+            self.stop()
+
+
+@pytest.mark.timeout(60)
+def test_a_fault_landing_beside_the_vehicle_is_planned_around_where_it_comes_down(zenoh_router: str) -> None:
+    runner = LandsAside(zenoh_router)
+    with_planner(zenoh_router, runner)
+    mine = [s for s in runner.sweeps if s.vid == FIRST]
+    above = (runner.spot[0], runner.spot[1], runner.hover[2])
+    assert any(s.p0 == runner.hover and s.p1 == above for s in mine), mine  # level to above the spot
+    assert any(s.rest and s.p0 == runner.spot for s in mine), mine  # then resting on it

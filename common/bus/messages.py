@@ -269,6 +269,9 @@ class VehicleEvent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Its executor's report of what it does about a fault of its vehicle (it holds, lands, stops or
     hovers with nowhere clear to land), not another service's word on its health (a gateway's
     `link_lost`): a mission plans the others around the former (`MissionRunner.on_fault`)."""
+    at: tuple[float, float, float] | None = None
+    """Where the fault landing it reports comes down (`node`'s position; the only word of it for a
+    spot that is no node of the graph: `STRAIGHT_DOWN`, `ASIDE` in `services/executor/faults.py`)."""
 
 
 class MocapBody(msgspec.Struct, frozen=True, forbid_unknown_fields=True, array_like=True):

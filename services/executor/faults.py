@@ -6,7 +6,8 @@ not fall below C_low), lost radio link, and where to go when the plan must be le
 - lost link: the gateway reports `link_ok = False`, or telemetry that was flowing stops;
 - safe landing: fly level to above the nearest node of the vehicle's own plan where it takes off or
   lands (a node it was going to use anyway, under airspace it flies in), then descend at the
-  landing speed;
+  landing speed; with every such node taken, straight down, or down beside it under one of its
+  plan's flights (`safe_landing_steps`);
 - emergency descent: without a trustworthy pose, a descent at `descent_speed` on the
   dead-reckoned state, its horizontal speed braked to a stop, then level (the estimator predicts
   with the commanded accelerations); the real vehicle
@@ -20,6 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from itertools import pairwise
 
 from common.bus.messages import PlanStep, Telemetry
 from common.domain.vehicle_model import VehicleModel
@@ -164,6 +166,13 @@ class FaultMonitor:
 
 STRAIGHT_DOWN = "below"
 """The node name of a fault landing straight down from where the vehicle is (`safe_landing_steps`)."""
+ASIDE = "aside"
+"""The node name of a fault landing onto a spot beside the vehicle under its plan's flights (`safe_landing_steps`)."""
+ASIDE_REACH = 0.5
+"""m: how far from the vehicle, in the horizontal, a fault landing with every node taken and a body
+below the vehicle may come down beside it (about three columns, `in_column`, of the shipped maps)."""
+ASIDE_STEP = 0.05
+"""m: the spacing of the spots tried along each of the plan's flights (`spots_under_flights`)."""
 
 
 def landing_nodes(plan: Sequence[PlanStep]) -> list[PlanStep]:
@@ -195,6 +204,39 @@ def in_way(pos: tuple[float, float, float], node: tuple[float, float, float], bo
     return math.hypot(bx - along * dx, by - along * dy) < 2.0 * model.radius + model.margin
 
 
+def spots_under_flights(pos: tuple[float, float, float], plan: Sequence[PlanStep],
+                        reach: float = ASIDE_REACH, step: float = ASIDE_STEP) -> list[tuple[float, float]]:
+    """Points every `step` m along the plan's flights (its `fly` edges, in the horizontal) within
+    `reach` of `pos`, nearest first: under the airspace the plan flies in, which the planner keeps
+    a body's radius clear of the map's no-fly zones and obstacles (any other spot nearby may be in
+    one)."""
+    spots: list[tuple[float, tuple[float, float]]] = []
+    for a, b in pairwise(plan):
+        if b.edge != "fly":
+            continue
+        (ax, ay, _), (bx, by, _) = a.pos, b.pos
+        length = math.hypot(bx - ax, by - ay)
+        if _segment_distance(pos, a.pos, b.pos) > reach:
+            continue  # (most of a plan's flights pass far from where it is)
+        for k in range(int(length / step) + 1):
+            f = k * step / length if length > 0.0 else 0.0
+            x, y = ax + f * (bx - ax), ay + f * (by - ay)
+            d = math.hypot(x - pos[0], y - pos[1])
+            if d <= reach:
+                spots.append((d, (x, y)))
+    spots.sort()
+    return [xy for _, xy in spots]
+
+
+def _segment_distance(p: tuple[float, float, float], a: tuple[float, float, float],
+                      b: tuple[float, float, float]) -> float:
+    """Horizontal distance from `p` to the segment a-b."""
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    length2 = dx * dx + dy * dy
+    f = min(max(((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / length2, 0.0), 1.0) if length2 > 0.0 else 0.0
+    return math.hypot(p[0] - a[0] - f * dx, p[1] - a[1] - f * dy)
+
+
 def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence[PlanStep],
                        model: VehicleModel, bodies: Iterable[tuple[float, float, float]] = ()
                        ) -> list[PlanStep] | None:
@@ -208,20 +250,32 @@ def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence
     four flew into such), is passed over for the next nearest. With every node taken or out of the
     way, straight down onto the plan's lowest ground (node `STRAIGHT_DOWN`), if no body is below the
     vehicle in its own column (the column a replan keeps clear below a vehicle that left:
-    `services/mission/sweeps.py`); else None: there is nowhere to land without landing on a body
-    (the nearest node all the same would come down onto the vehicle parked there)."""
+    `services/mission/sweeps.py`); else down onto the nearest spot beside it under the plan's
+    flights (`spots_under_flights`, node `ASIDE`) whose column is clear and whose way is (held
+    vehicles hovering in a cluster, each with one lower beside it: in an 80-vehicle soak's abort
+    five hovered on for 40 s); else None: there is nowhere to land without landing on a body (the
+    nearest node all the same would come down onto the vehicle parked there)."""
     ground = landing_nodes(plan) or [s for s in plan if s.kind != "air"]
     bodies = list(bodies)
     below = [b for b in bodies if b[2] < pos[2]]
-    free = [s for s in ground if all(not in_column(s.pos, b, model) for b in below)
-            and not any(in_way(pos, s.pos, b, model) for b in bodies)]
+
+    def clear(xy: tuple[float, float]) -> bool:
+        spot = (xy[0], xy[1], 0.0)
+        return (all(not in_column(spot, b, model) for b in below)
+                and not any(in_way(pos, spot, b, model) for b in bodies))
+
+    free = [s for s in ground if clear(s.pos[:2])]
     if free:
         target = min(free, key=lambda s: math.hypot(s.pos[0] - pos[0], s.pos[1] - pos[1]))
-    elif any(in_column(pos, b, model) for b in below):
-        return None
     else:
         floor = min((s.pos[2] for s in ground), default=0.0)
-        target = PlanStep(node=STRAIGHT_DOWN, t=0.0, pos=(pos[0], pos[1], floor), kind="land")
+        if clear(pos[:2]):
+            target = PlanStep(node=STRAIGHT_DOWN, t=0.0, pos=(pos[0], pos[1], floor), kind="land")
+        else:
+            aside = next((xy for xy in spots_under_flights(pos, plan) if clear(xy)), None)
+            if aside is None:
+                return None
+            target = PlanStep(node=ASIDE, t=0.0, pos=(aside[0], aside[1], floor), kind="land")
     gx, gy, gz = target.pos
     steps = [PlanStep(node="fault", t=t, pos=pos, kind="air")]
     reach = math.hypot(gx - pos[0], gy - pos[1])

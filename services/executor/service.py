@@ -66,7 +66,7 @@ from common.bus.stats import percentile_figures, publish_stats
 from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
 from common.flight.modes import Mode
 from common.flight.plan_clock import ClockParams, PlanClock, latency_pace
-from services.executor.faults import STRAIGHT_DOWN, FaultParams
+from services.executor.faults import ASIDE, STRAIGHT_DOWN, FaultParams
 from services.executor.proximity import Bodies, ProximityParams
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
@@ -549,8 +549,8 @@ class ExecutorService(Service):
 
     def _report_mode(self, vid: str, ctl: VehicleController, now: float) -> None:
         """Tell everyone (`vehicle/<vid>/event`) when a vehicle enters a fault mode, or leaves its
-        plan for a battery or link fault: "low_battery" / "link_lost", with the node it lands at
-        (none: it lands where it is, stopped, or hovers to choose its node again: nowhere clear to
+        plan for a battery or link fault: "low_battery" / "link_lost", with the node it lands at and
+        where that is (none: it lands where it is, stopped, or hovers to choose its node again: nowhere clear to
         land, or its flight there stopped short of a body)."""
         prev, mode = self._last_mode.get(vid), ctl.mode
         self._last_mode[vid] = mode
@@ -561,7 +561,7 @@ class ExecutorService(Service):
             return
         if prev == mode:
             return
-        kind, detail, node = FAULT_MODES.get(mode), f"from {prev}", ""
+        kind, detail, node, at = FAULT_MODES.get(mode), f"from {prev}", "", None
         leaves_plan = (mode == Mode.LANDING or (mode == Mode.DONE and prev != Mode.LANDING)
                        or (mode == Mode.HOVERING and not ctl.held))  # (a fault landing with nowhere clear)
         if kind is None and leaves_plan:
@@ -569,14 +569,17 @@ class ExecutorService(Service):
                 kind = "low_battery"
             elif ctl.faults.link_lost(now):
                 kind = "link_lost"
-            node = ctl.landing_node or ""
-            where = ("landing straight down" if node == STRAIGHT_DOWN else f"landing at {node}" if node
+            step = ctl.landing_step
+            node, at = (step.node, step.pos) if step is not None else ("", None)
+            where = ("landing straight down" if node == STRAIGHT_DOWN
+                     else f"landing beside it at ({at[0]:.2f}, {at[1]:.2f})" if node == ASIDE and at is not None
+                     else f"landing at {node}" if node
                      else "landing here" if mode == Mode.LANDING
                      else f"hovering here, {ctl.landing_wait}" if mode == Mode.HOVERING else "stopped here")
             detail = f"from {prev}: {where}"
         if kind is not None:
             self._event.put(vid,
-                VehicleEvent(vid=vid, t=now, kind=kind, detail=detail, node=node, acted=True))
+                VehicleEvent(vid=vid, t=now, kind=kind, detail=detail, node=node, acted=True, at=at))
 
 
 def cmd_executor(args: argparse.Namespace) -> int:

@@ -150,11 +150,12 @@ class MissionClient(Service, Generic[R]):
         return ""
 
     def on_fault(self, vid: str, kind: str, text: str, node: str, rejoinable: bool = False,
-                 acted: bool = False) -> bool:
+                 acted: bool = False, at: tuple[float, float, float] | None = None) -> bool:
         """A fault of one vehicle (`kind`: its event, `node`: where its executor lands it, if it
-        said; `rejoinable`: held so that it may come back, `VehicleEvent.rejoinable`; `acted`: its
-        executor's report of what it does, `VehicleEvent.acted`); whether the variant handles it
-        (the mission goes on) instead of ending the mission."""
+        said, and `at` its position; `rejoinable`: held so that it may come back,
+        `VehicleEvent.rejoinable`; `acted`: its executor's report of what it does,
+        `VehicleEvent.acted`); whether the variant handles it (the mission goes on) instead of
+        ending the mission."""
         return False
 
     def on_state(self, state: VehicleState) -> None:
@@ -305,7 +306,7 @@ class MissionClient(Service, Generic[R]):
 
     def _fault(self, event: VehicleEvent, text: str) -> None:
         """A fault of one vehicle: the variant's to handle (`on_fault`), or the mission's."""
-        if not self.on_fault(event.vid, event.kind, text, event.node, event.rejoinable, event.acted):
+        if not self.on_fault(event.vid, event.kind, text, event.node, event.rejoinable, event.acted, event.at):
             self.fault = self.fault or text
 
     def elapsed(self) -> float:

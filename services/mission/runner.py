@@ -55,7 +55,7 @@ from common.domain.vehicle_model import VehicleModel
 from services.mission.client import MissionClient, MissionTiming
 from services.mission.rejoin import REJOINS, Candidate, progress_at, shifted_path
 from services.mission.separation import SeparationMonitor
-from services.mission.sweeps import left_vehicle
+from services.mission.sweeps import Point, left_vehicle
 
 
 def ground_height(plan: Plan) -> float:
@@ -392,7 +392,7 @@ class MissionRunner(MissionClient[MissionResult]):
             return
 
     def on_fault(self, vid: str, kind: str, text: str, node: str, rejoinable: bool = False,
-                 acted: bool = False) -> bool:
+                 acted: bool = False, at: Point | None = None) -> bool:
         if kind == "link_lost" and not acted:
             return True  # the gateway's word (`LinkHealth`): the executor reports what it does (a hold, a landing)
         if vid in self.left:
@@ -403,7 +403,7 @@ class MissionRunner(MissionClient[MissionResult]):
             if text not in self.left[vid]:
                 self.left[vid] += f"; {text}"
             if node and kind in REPLAN_KINDS and self.t0 is not None:  # it now lands there: plan around that too
-                self.sweeps += self._sweeps(vid, node, kind)
+                self.sweeps += self._sweeps(vid, node, kind, at)
                 self.events.append(f"{vid} ({kind}) lands at {node}: replanning the others")
                 self._queue_replan()
             return True
@@ -415,7 +415,7 @@ class MissionRunner(MissionClient[MissionResult]):
             self._left_with[vid] = (self.plan.paths[vid], self.plan.tasks[vid])
         if rejoinable and kind == "tracking_hold":
             self._may_rejoin(vid)
-        self.sweeps += self._sweeps(vid, node, kind)
+        self.sweeps += self._sweeps(vid, node, kind, at)
         self.events.append(f"{vid} left the mission ({kind}): replanning the others")
         self._queue_replan()
         return True
@@ -431,15 +431,16 @@ class MissionRunner(MissionClient[MissionResult]):
         self._fault_replans += 1
         self._replanning = asyncio.get_running_loop().create_task(self._replan(self._replanning, self._fault_replans))
 
-    def _sweeps(self, vid: str, node: str, kind: str) -> list[Sweep]:
+    def _sweeps(self, vid: str, node: str, kind: str, at: Point | None) -> list[Sweep]:
         """Where `vid` may be from its latest state on (`sweeps.left_vehicle`); `node`: where its
-        fault landing goes, if its event named one."""
+        fault landing goes, if its event named one, and `at` where that is (a spot beside it that is
+        no node of the graph: `VehicleEvent.at`)."""
         assert self.plan is not None and self.t0 is not None
         state = self.states[vid]
         nodes = self.plan.graph.nodes
         ground = ground_height(self.plan)
         return left_vehicle(vid, kind, (state.x, state.y, state.z), self.plan_time(), ground,
-                            nodes[node].pos if node in nodes else None)
+                            nodes[node].pos if node in nodes else at)
 
     async def _replan(self, previous: asyncio.Task | None, ticket: int) -> None:
         """After `previous`, plan the remaining vehicles on around those that left and hand the new
