@@ -356,14 +356,14 @@ HANDLINGS: tuple[Handling, ...] = (
     Handling(
         "a fault landing keeps off another vehicle's column",
         "executor: a fault landing comes down on the nearest landing node, whoever stands there",
-        (Edit("services/executor/faults.py", "    free = [s for s in ground if all(",
-              "    free = ground or [s for s in ground if all("),),
+        (Edit("services/executor/faults.py", "    free = [s for s in ground if clear(",
+              "    free = ground or [s for s in ground if clear("),),
         "tests/test_closed_loop.py::test_an_abort_lands_on_the_nearest_landing_node_clear_of_the_vehicles_standing_there"),
     Handling(
         "a fault landing flies round a body hovering in its way",
         "executor: a fault landing flies level to its node whatever hovers in between",
-        (Edit("services/executor/faults.py", "            and not any(in_way(pos, s.pos, b, model) for b in bodies)]",
-              "]"),),
+        (Edit("services/executor/faults.py", "                and not any(in_way(pos, spot, b, model) for b in bodies))",
+              ")"),),
         "tests/test_fault_landing.py::test_a_fault_landing_flies_round_no_body_hovering_in_its_way"),
     Handling(
         "a fault landing's flight stops short of a body",
@@ -396,6 +396,14 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/faults.py", "    if free:\n", "    if free or ground:\n"),
          Edit("services/executor/faults.py", "        target = min(free, key=", "        target = min(free or ground, key=")),
         "tests/test_fault_landing.py::test_a_fault_landing_with_nowhere_clear_hovers_until_the_vehicle_below_drives_off"),
+    Handling(
+        "a fault landing with a body below it comes down beside it",
+        "executor: with every node of its plan taken and a body below it, a fault landing hovers",
+        (Edit("services/executor/faults.py",
+              "            aside = next((xy for xy in spots_under_flights(pos, plan) if clear(xy)), None)\n",
+              "            aside = None\n"),),
+        "tests/test_fault_landing.py::"
+        "test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_straight_down_or_beside[False]"),
     Handling(
         "a held vehicle taken over stays held",
         "executor: a take-over takes up the vehicle's old plan, held or not",
