@@ -63,6 +63,9 @@ in CI (docs/radio.md). What it moves is
 where the machine's shortage shows: two raised runs had the executors and gateways starved instead,
 take-offs landed on stale commands and touched down at 1.2-1.8 m/s."""
 SERVICES = ("executor", "gateway", "sim", "mocap", "planner")
+FAILED_PLANS = "failed-plans"
+"""The folder of the run directory the planner keeps the requests it could not plan in (`fleet
+planner --keep-failed`)."""
 END_TRUTH_S = 1.0
 """How long the soak listens to the simulator's ground truth at its end (every vehicle's, at `truth_hz`)."""
 REST_WAIT_S = 40.0
@@ -114,7 +117,8 @@ def soak_fleet(map_name: str, tasks: dict[str, Task], run_dir: Path, executors: 
     return local_fleet(map_name, tasks, run_dir, executors, per_radio, fleet=fleet, without={"telemetry"},
                        extra_args={"sim": ["--truth-hz", str(truth_hz), "--thrust-spread", str(thrust_spread),
                                            "--priority", str(sim_priority)],
-                                   "executor": [] if plan_clock else ["--no-plan-clock"]},
+                                   "executor": [] if plan_clock else ["--no-plan-clock"],
+                                   "planner": ["--keep-failed", str(run_dir / FAILED_PLANS)]},
                        gateway=GatewayParams(log_period_s=LOG_PERIOD_S), control=control, radios_each=radios_each)
 
 
@@ -392,6 +396,9 @@ def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: 
         log = asyncio.run(soak(fleet, graph, tasks, 60.0 * minutes, sample_s, seed))
     log.probe_ms = probe
     print(report(log, 60.0 * minutes))
+    if kept := sorted((run_dir / FAILED_PLANS).glob("*.msgpack")):
+        print(f"plan requests the planner could not plan, kept: {len(kept)} in {run_dir / FAILED_PLANS} "
+              f"(`fleet replay-plan FILE` plans one again)")
     print(f"saved {figure(log, out)}")
     return log
 

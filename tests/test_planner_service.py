@@ -6,14 +6,18 @@ from __future__ import annotations
 
 import asyncio
 import time
+from pathlib import Path
 
 import pytest
 
 from common.bus.keys import Keys
-from common.bus.messages import PlanReply, PlanRequest, ServiceStats, VehiclePlan
+from common.bus.messages import PlanReply, PlanRequest, Replan, ServiceStats, Sweep, VehiclePlan
 from common.bus.pubsub import QueryError, query, subscribe
 from common.bus.session import ZenohConfig, open_session
 from common.domain.planfile import Task
+from services.cli import main as fleet_main
+from services.planner.failed_requests import FailedRequests
+from services.planner.registry import solve
 from services.planner.service import PlannerService
 from services.planner.validate import validate_plan
 
@@ -25,8 +29,8 @@ EIGHT = {**TASKS, "cf3": Task(start="WP10", goal="EP8"), "cf4": Task(start="EP7"
 """Eight vehicles on the town map: the ILP plans them until its time limit (5 s -> 5.05 s)."""
 
 
-async def _with_planner(endpoint: str, body):
-    svc = PlannerService("planner", "p1", ZenohConfig.client(endpoint), KEYS)
+async def _with_planner(endpoint: str, body, keep_failed: Path | None = None):
+    svc = PlannerService("planner", "p1", ZenohConfig.client(endpoint), KEYS, keep_failed=keep_failed)
     task = asyncio.create_task(svc.run())
     client = open_session(ZenohConfig.client(endpoint))
     try:
@@ -133,3 +137,39 @@ def test_a_request_is_planned_within_what_is_left_of_its_wait(zenoh_router: str)
     reply, took = asyncio.run(_with_planner(zenoh_router, body))
     assert reply.ok and reply.plan is not None and validate_plan(reply.plan).ok
     assert took < 4.0, f"answered after {took:.1f} s"
+
+
+@pytest.mark.timeout(60)
+def test_a_request_it_could_not_plan_is_kept_and_replays_to_the_same_answer(
+        zenoh_router: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`fleet planner --keep-failed DIR`: a replan that finds no plan (cf2 came down on cf1's goal,
+    without stranding) is written to DIR; `fleet replay-plan` plans it again to the same error (exit
+    1). A plan and an expired request are not kept; a file that is no request is a clear error (2)."""
+    base = solve(PlanRequest(map="town", tasks=TASKS, time_limit=20)).plan
+    assert base is not None
+    goal = base.graph.nodes["EP4"].pos
+    replan = PlanRequest(map="town", tasks={}, time_limit=10, replan=Replan(
+        base=base, at=1.0, left=["cf2"], sweeps=[Sweep("cf2", goal, goal, 1.0, 1.0, rest=True)]))
+    kept = tmp_path / "failed"
+
+    async def body(client, _svc):
+        ok = await query(client, KEYS.planner_plan, PlanRequest(map="town", tasks=TASKS, time_limit=20), PlanReply,
+                         timeout=30)
+        failed = await query(client, KEYS.planner_plan, replan, PlanReply, timeout=30)
+        return ok, failed
+
+    ok, failed = asyncio.run(_with_planner(zenoh_router, body, keep_failed=kept))
+    assert ok.ok and not failed.ok and "could not place cf1" in failed.error, failed.error
+    files = sorted(kept.iterdir())
+    assert [f.name for f in files] == ["001-replan.msgpack"]
+    capsys.readouterr()
+    assert fleet_main(["replay-plan", str(files[0])]) == 1
+    out = capsys.readouterr().out
+    assert "replan of 2 vehicles from 1.0 s around cf2 on town" in out and failed.error in out, out
+    bad = tmp_path / "bad.msgpack"
+    bad.write_bytes(b"not msgpack")
+    assert fleet_main(["replay-plan", str(bad)]) == 2
+    assert f"{bad}: not a kept plan request" in capsys.readouterr().err
+    expired = FailedRequests(tmp_path / "none")
+    assert expired.keep(replan, PlanReply(ok=False, error="expired: waited 2.00 s behind other plans")) is None
+    assert not (tmp_path / "none").exists()

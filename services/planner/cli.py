@@ -15,6 +15,8 @@ from common.errors import InputError
 def _register_service(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("planner", help="run the planner service (zenoh queryable planner/plan)")
     add_zenoh_args(p, default_instance="planner")
+    p.add_argument("--keep-failed", metavar="DIR",
+                   help="write each request it could not plan to DIR (for `fleet replay-plan`)")
     p.set_defaults(handler=lazy_handler("services.planner.service:cmd_planner"))
 
 
@@ -59,6 +61,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="independently check a plan file")
     p.add_argument("plan")
     p.set_defaults(handler=cmd_validate)
+
+    p = sub.add_parser("replay-plan", help="plan again a request the planner service kept (--keep-failed)")
+    p.add_argument("request", help="a DIR/NNN-KIND.msgpack file of `fleet planner --keep-failed DIR`")
+    p.set_defaults(handler=cmd_replay_plan)
     _register_service(sub)
 
 
@@ -157,3 +163,23 @@ def cmd_validate(args: argparse.Namespace) -> int:
     report = validate_plan(plan)
     print(report.summary())
     return 0 if report.ok else 1
+
+
+def cmd_replay_plan(args: argparse.Namespace) -> int:
+    """Plan a kept request again (`services/planner/failed_requests.py`): what it asked, and the
+    planner's answer now; exit 0 if it planned, 1 if not."""
+    from services.planner.failed_requests import read_request
+    from services.planner.registry import solve
+
+    req = read_request(Path(args.request))
+    what = (f"replan of {len(req.replan.base.paths)} vehicles from {req.replan.at:.1f} s around "
+            f"{', '.join(req.replan.left) or 'none'}" if req.replan is not None else f"plan of {len(req.tasks)} vehicles")
+    print(f"{args.request}: {what} on {req.map}, {req.planner}, time limit {req.time_limit:.2f} s")
+    t0 = time.perf_counter()
+    reply = solve(req)
+    took = time.perf_counter() - t0
+    if reply.ok:
+        print(f"planned in {took:.2f} s")
+        return 0
+    print(f"not planned ({took:.2f} s): {reply.error}")
+    return 1

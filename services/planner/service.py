@@ -12,6 +12,7 @@ import asyncio
 import logging
 import time
 from collections import deque
+from pathlib import Path
 
 import msgspec
 import zenoh
@@ -22,6 +23,7 @@ from common.bus.service import KeyedPublishers, Service
 from common.bus.stats import percentile_figures, publish_stats
 from common.bus.vehicle_plans import robot_plans, vehicle_plans
 from common.errors import InputError
+from services.planner.failed_requests import FailedRequests
 from services.planner.registry import solve
 
 log = logging.getLogger(__name__)
@@ -31,8 +33,10 @@ RECENT = 100
 
 
 class PlannerService(Service):
-    def __init__(self, *args, **kwargs) -> None:
+    def __init__(self, *args, keep_failed: Path | None = None, **kwargs) -> None:
+        """`keep_failed`: the folder each request it could not plan is written to (`FailedRequests`)."""
         super().__init__(*args, **kwargs)
+        self._failed_requests = FailedRequests(keep_failed) if keep_failed is not None else None
         self._lock = asyncio.Lock()
         self._waited: deque[float] = deque(maxlen=RECENT)
         self._planned: deque[float] = deque(maxlen=RECENT)
@@ -87,6 +91,8 @@ class PlannerService(Service):
             reply = await asyncio.to_thread(solve, req)
             self._planned.append(time.monotonic() - started)
         self.counters.inc("plans_ok" if reply.ok else "plans_failed")
+        if self._failed_requests is not None and (kept := self._failed_requests.keep(req, reply)) is not None:
+            log.warning("plan request not planned (%s); kept: fleet replay-plan %s", reply.error[:300], kept)
         if reply.ok and req.mission and reply.plan is not None and self._plans is not None:
             self._plans.put_all(vehicle_plans(reply.plan, req.mission))
         if reply.ok and req.mission and reply.team_plan is not None and req.team and self._team_plans is not None:
@@ -104,5 +110,6 @@ def graph_of(req: GraphRequest) -> GraphReply:
 
 
 def cmd_planner(args: argparse.Namespace) -> int:
-    svc = PlannerService("planner", args.instance, zconfig_from_args(args), keys_from_args(args))
+    svc = PlannerService("planner", args.instance, zconfig_from_args(args), keys_from_args(args),
+                         keep_failed=Path(args.keep_failed) if args.keep_failed else None)
     return run_service(svc)

@@ -1,0 +1,63 @@
+"""Plan requests the planner could not answer with a plan, kept for replay (`fleet planner
+--keep-failed DIR`, `fleet replay-plan FILE`).
+
+A replan of a running fleet is asked from a moment that does not come again: the vehicles' states,
+the bodies that left, the previous plan. When one fails (no plan, or a plan the validator refused:
+a planner bug), its request is what it takes to see why, and it is gone once the mission moves on.
+The service writes each such request, as the bus carried it (msgpack), to DIR/NNN-KIND.msgpack, up
+to `KEEP_MAX` a run; `fleet replay-plan` plans it again on any machine with the same maps. (In an
+80-vehicle soak a replan's plan failed validation, two vehicles 0 m apart on a road, once in four
+runs; nothing of it was left to look at.)
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import msgspec
+
+from common.bus.messages import PlanReply, PlanRequest
+from common.errors import InputError
+
+log = logging.getLogger(__name__)
+
+KEEP_MAX = 50
+"""Failed requests kept a run (an 80-vehicle replan is about 0.3 MB)."""
+
+
+class FailedRequests:
+    """Writes failed requests to `folder` (made on the first), numbered, at most `keep_max`."""
+
+    def __init__(self, folder: Path, keep_max: int = KEEP_MAX) -> None:
+        self.folder = folder
+        self.keep_max = keep_max
+        self.kept = 0
+
+    def keep(self, req: PlanRequest, reply: PlanReply) -> Path | None:
+        """Write `req` if `reply` is a failure worth replaying (not an expired wait); its path, or
+        None (not kept: a success, expired, the limit reached, or the folder not writable)."""
+        if reply.ok or reply.error.startswith("expired") or self.kept >= self.keep_max:
+            return None
+        kind = "replan" if req.replan is not None else "plan"
+        path = self.folder / f"{self.kept + 1:03d}-{kind}.msgpack"
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(msgspec.msgpack.encode(req))
+        except OSError as exc:
+            log.warning("could not keep a failed plan request in %s: %s", self.folder, exc)
+            return None
+        self.kept += 1
+        return path
+
+
+def read_request(path: Path) -> PlanRequest:
+    """A request kept by `FailedRequests`; an `InputError` naming the file if it is not one."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(str(path), "", f"cannot read ({exc.strerror})") from None
+    try:
+        return msgspec.msgpack.decode(data, type=PlanRequest)
+    except msgspec.DecodeError as exc:
+        raise InputError(str(path), "", f"not a kept plan request ({exc})") from None
