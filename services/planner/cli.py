@@ -168,13 +168,16 @@ def cmd_validate(args: argparse.Namespace) -> int:
 def cmd_replay_plan(args: argparse.Namespace) -> int:
     """Plan a kept request again (`services/planner/failed_requests.py`): what it asked, and the
     planner's answer now; exit 0 if it planned, 1 if not."""
-    from services.planner.failed_requests import read_request
+    from services.planner.failed_requests import read_request, warm_up
     from services.planner.registry import solve
 
     req = read_request(Path(args.request))
     what = (f"replan of {len(req.replan.base.paths)} vehicles from {req.replan.at:.1f} s around "
             f"{', '.join(req.replan.left) or 'none'}" if req.replan is not None else f"plan of {len(req.tasks)} vehicles")
     print(f"{args.request}: {what} on {req.map}, {req.planner}, time limit {req.time_limit:.2f} s")
+    t0 = time.perf_counter()
+    warm_up(req)
+    print(f"warmed up in {time.perf_counter() - t0:.2f} s (the map's graph and tables, as a running planner has them)")
     t0 = time.perf_counter()
     reply = solve(req)
     took = time.perf_counter() - t0
