@@ -25,6 +25,7 @@ import asyncio
 import json
 import os
 import random
+import shutil
 import subprocess
 import sys
 import time
@@ -390,6 +391,7 @@ def run_soak(minutes: float, vehicles: int = 80, executors: int = 2, per_radio: 
     starts = {f"cf{i + 1:02d}": s for i, s in enumerate(rng.sample(spots, vehicles))}
     tasks = draw_tasks(graph, starts, rng)
     probe = cpu_probe()
+    shutil.rmtree(run_dir / FAILED_PLANS, ignore_errors=True)  # (a run directory is reused: this run's only)
     with soak_fleet(MAP, tasks, run_dir, executors, per_radio, truth_hz, thrust_spread=thrust_spread,
                     sim_priority=sim_priority, plan_clock=plan_clock, control=control,
                     radios_each=radios_each) as fleet, recording(fleet, trace):

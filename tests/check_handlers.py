@@ -356,8 +356,8 @@ HANDLINGS: tuple[Handling, ...] = (
     Handling(
         "a fault landing keeps off another vehicle's column",
         "executor: a fault landing comes down on the nearest landing node, whoever stands there",
-        (Edit("services/executor/faults.py", "    free = [s for s in ground if clear(",
-              "    free = ground or [s for s in ground if clear("),),
+        (Edit("services/executor/faults.py", "    free = [s for s in nodes if clear(",
+              "    free = nodes or [s for s in nodes if clear("),),
         "tests/test_closed_loop.py::test_an_abort_lands_on_the_nearest_landing_node_clear_of_the_vehicles_standing_there"),
     Handling(
         "a fault landing flies round a body hovering in its way",
@@ -393,14 +393,14 @@ HANDLINGS: tuple[Handling, ...] = (
     Handling(
         "a fault landing with nowhere clear goes straight down or hovers",
         "executor: with a body below every node of its plan, a fault landing takes the nearest all the same",
-        (Edit("services/executor/faults.py", "    if free:\n", "    if free or ground:\n"),
-         Edit("services/executor/faults.py", "        target = min(free, key=", "        target = min(free or ground, key=")),
+        (Edit("services/executor/faults.py", "    if free:\n", "    if free or nodes:\n"),
+         Edit("services/executor/faults.py", "        target = min(free, key=", "        target = min(free or nodes, key=")),
         "tests/test_fault_landing.py::test_a_fault_landing_with_nowhere_clear_hovers_until_the_vehicle_below_drives_off"),
     Handling(
         "a fault landing with a body below it comes down beside it",
         "executor: with every node of its plan taken and a body below it, a fault landing hovers",
         (Edit("services/executor/faults.py",
-              "            aside = next((xy for xy in spots_under_flights(pos, plan) if clear(xy)), None)\n",
+              "            aside = next((xy for xy in spots if clear(xy)), None)\n",
               "            aside = None\n"),),
         "tests/test_fault_landing.py::"
         "test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_straight_down_or_beside[False]"),

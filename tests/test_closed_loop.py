@@ -332,6 +332,12 @@ def test_abort_lands_a_flying_vehicle_and_stops_a_driving_one() -> None:
     assert records[-1].truth.x == pytest.approx(records[-60].truth.x, abs=0.002)  # stopped
 
 
+def landing_node(ctrl: VehicleController) -> str | None:
+    """Where a fault landing of `ctrl`'s vehicle is heading (None: none under way)."""
+    step = ctrl.landing_step
+    return step.node if step is not None else None
+
+
 def test_an_abort_lands_on_the_nearest_landing_node_clear_of_the_vehicles_standing_there() -> None:
     """Aborted while it hovers above its landing node: it lands there; with another vehicle parked
     on that node, it flies back to the node it took off from instead (executor: `_bodies_besides`)."""
@@ -363,7 +369,7 @@ def test_an_aborted_vehicle_whose_flight_to_its_node_heads_into_a_body_hovers_an
     def hook(ctrl: VehicleController, now: float) -> None:
         if now >= hovering + 0.5:
             ctrl.abort("abort")
-        if not stop and ctrl.landing_node == "l1" and now >= hovering + 2.0:
+        if not stop and landing_node(ctrl) == "l1" and now >= hovering + 2.0:
             assert ctrl.motion() is not None
             assert ctrl.stop_short("stops short of cf9")
             est = ctrl.estimator.estimate(now)
@@ -371,7 +377,7 @@ def test_an_aborted_vehicle_whose_flight_to_its_node_heads_into_a_body_hovers_an
             if way == "crossed":
                 bodies.append((1.2, l1[1], 0.52))
         elif stop and now < stop[0][0] + 0.45:
-            seen.append((ctrl.mode, ctrl.landing_node, ctrl.held, ctrl.landing_wait))
+            seen.append((ctrl.mode, landing_node(ctrl), ctrl.held, ctrl.landing_wait))
 
     ctrl, sim, records = fly_plan(until=hovering + 14.0, hook=hook, bodies=bodies)
     at, where = stop[0]

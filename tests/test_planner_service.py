@@ -144,7 +144,8 @@ def test_a_request_it_could_not_plan_is_kept_and_replays_to_the_same_answer(
         zenoh_router: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """`fleet planner --keep-failed DIR`: a replan that finds no plan (cf2 came down on cf1's goal,
     without stranding) is written to DIR; `fleet replay-plan` plans it again to the same error (exit
-    1). A plan and an expired request are not kept; a file that is no request is a clear error (2)."""
+    1). A plan and a refused rejoin are not kept, a planner restarted on the folder numbers on, and a
+    file that is no request is a clear error (2)."""
     base = solve(PlanRequest(map="town", tasks=TASKS, time_limit=20)).plan
     assert base is not None
     goal = base.graph.nodes["EP4"].pos
@@ -170,6 +171,7 @@ def test_a_request_it_could_not_plan_is_kept_and_replays_to_the_same_answer(
     bad.write_bytes(b"not msgpack")
     assert fleet_main(["replay-plan", str(bad)]) == 2
     assert f"{bad}: not a kept plan request" in capsys.readouterr().err
-    expired = FailedRequests(tmp_path / "none")
-    assert expired.keep(replan, PlanReply(ok=False, error="expired: waited 2.00 s behind other plans")) is None
-    assert not (tmp_path / "none").exists()
+    refused = PlanReply(ok=False, error="replan: cf1 cannot rejoin yet", refused={"cf1": "its way is closed"})
+    assert FailedRequests(kept).keep(replan, refused) is None
+    again = FailedRequests(kept)  # a planner restarted on the folder numbers on
+    assert again.keep(replan, failed) == kept / "002-replan.msgpack"

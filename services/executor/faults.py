@@ -23,7 +23,10 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from itertools import pairwise
 
+import numpy as np
+
 from common.bus.messages import PlanStep, Telemetry
+from common.domain.mapfile import MapSpec, touches_keep_out
 from common.domain.vehicle_model import VehicleModel
 from common.flight.landing import LandInPlace
 
@@ -206,10 +209,11 @@ def in_way(pos: tuple[float, float, float], node: tuple[float, float, float], bo
 
 def spots_under_flights(pos: tuple[float, float, float], plan: Sequence[PlanStep],
                         reach: float = ASIDE_REACH, step: float = ASIDE_STEP) -> list[tuple[float, float]]:
-    """Points every `step` m along the plan's flights (its `fly` edges, in the horizontal) within
-    `reach` of `pos`, nearest first: under the airspace the plan flies in, which the planner keeps
-    a body's radius clear of the map's no-fly zones and obstacles (any other spot nearby may be in
-    one)."""
+    """Points at most `step` m apart along the plan's flights (its `fly` edges, ends included, in
+    the horizontal) within `reach` of `pos`, nearest first: under the airspace the plan flies in,
+    which the planner keeps a body's radius clear of the map's no-fly zones and obstacles at the
+    flight's height (any other spot nearby may be in one; below the flight there may still be an
+    obstacle: `off_the_graph`)."""
     spots: list[tuple[float, tuple[float, float]]] = []
     for a, b in pairwise(plan):
         if b.edge != "fly":
@@ -218,9 +222,9 @@ def spots_under_flights(pos: tuple[float, float, float], plan: Sequence[PlanStep
         length = math.hypot(bx - ax, by - ay)
         if _segment_distance(pos, a.pos, b.pos) > reach:
             continue  # (most of a plan's flights pass far from where it is)
-        for k in range(int(length / step) + 1):
-            f = k * step / length if length > 0.0 else 0.0
-            x, y = ax + f * (bx - ax), ay + f * (by - ay)
+        n = max(1, math.ceil(length / step))
+        for k in range(n + 1):  # (both ends: `step` apart at most)
+            x, y = ax + k / n * (bx - ax), ay + k / n * (by - ay)
             d = math.hypot(x - pos[0], y - pos[1])
             if d <= reach:
                 spots.append((d, (x, y)))
@@ -237,9 +241,22 @@ def _segment_distance(p: tuple[float, float, float], a: tuple[float, float, floa
     return math.hypot(p[0] - a[0] - f * dx, p[1] - a[1] - f * dy)
 
 
+def off_the_graph(pos: tuple[float, float, float], spots: list[tuple[float, float]], floor: float,
+                  model: VehicleModel, ground: MapSpec | None) -> list[tuple[float, float]]:
+    """The `spots` a descent from `pos`'s height to `floor` may come down on: its column (the body
+    from the floor up to that height) clear of the map's no-fly zones and obstacles (`ground`: the
+    map; None: unknown, every spot)."""
+    if ground is None or not spots:
+        return spots
+    top = pos[2] + model.height
+    pts = np.array([(x, y, 0.5 * (floor + top)) for x, y in spots])
+    blocked = touches_keep_out(ground, pts, model.radius, top - floor)
+    return [xy for xy, no in zip(spots, blocked.tolist(), strict=True) if not no]
+
+
 def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence[PlanStep],
-                       model: VehicleModel, bodies: Iterable[tuple[float, float, float]] = ()
-                       ) -> list[PlanStep] | None:
+                       model: VehicleModel, bodies: Iterable[tuple[float, float, float]] = (),
+                       ground: MapSpec | None = None) -> list[PlanStep] | None:
     """Path entries from `pos` at time `t`: level flight to above the plan's ground node nearest
     in the horizontal, then a descent onto it, at the model's fly and land speeds. The nodes where
     the plan takes off or lands come first: they are under the airspace it flies in (other ground
@@ -254,8 +271,10 @@ def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence
     flights (`spots_under_flights`, node `ASIDE`) whose column is clear and whose way is (held
     vehicles hovering in a cluster, each with one lower beside it: in an 80-vehicle soak's abort
     five hovered on for 40 s); else None: there is nowhere to land without landing on a body (the
-    nearest node all the same would come down onto the vehicle parked there)."""
-    ground = landing_nodes(plan) or [s for s in plan if s.kind != "air"]
+    nearest node all the same would come down onto the vehicle parked there). A spot off the graph
+    (straight down, beside it) whose column touches one of `ground`'s no-fly zones or obstacles is
+    never chosen (`off_the_graph`: a building under a flight)."""
+    nodes = landing_nodes(plan) or [s for s in plan if s.kind != "air"]
     bodies = list(bodies)
     below = [b for b in bodies if b[2] < pos[2]]
 
@@ -264,15 +283,16 @@ def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence
         return (all(not in_column(spot, b, model) for b in below)
                 and not any(in_way(pos, spot, b, model) for b in bodies))
 
-    free = [s for s in ground if clear(s.pos[:2])]
+    free = [s for s in nodes if clear(s.pos[:2])]
     if free:
         target = min(free, key=lambda s: math.hypot(s.pos[0] - pos[0], s.pos[1] - pos[1]))
     else:
-        floor = min((s.pos[2] for s in ground), default=0.0)
-        if clear(pos[:2]):
+        floor = min((s.pos[2] for s in nodes), default=0.0)
+        if off_the_graph(pos, [pos[:2]], floor, model, ground) and clear(pos[:2]):
             target = PlanStep(node=STRAIGHT_DOWN, t=0.0, pos=(pos[0], pos[1], floor), kind="land")
         else:
-            aside = next((xy for xy in spots_under_flights(pos, plan) if clear(xy)), None)
+            spots = off_the_graph(pos, spots_under_flights(pos, plan), floor, model, ground)
+            aside = next((xy for xy in spots if clear(xy)), None)
             if aside is None:
                 return None
             target = PlanStep(node=ASIDE, t=0.0, pos=(aside[0], aside[1], floor), kind="land")

@@ -38,8 +38,10 @@ import argparse
 import asyncio
 import itertools
 import logging
+import threading
 import time
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 
@@ -63,6 +65,8 @@ from common.bus.messages import (
 from common.bus.pubsub import Subscription
 from common.bus.service import Service
 from common.bus.stats import percentile_figures, publish_stats
+from common.domain.mapfile import MapSpec, load_map
+from common.errors import InputError
 from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
 from common.flight.modes import Mode
 from common.flight.plan_clock import ClockParams, PlanClock, latency_pace
@@ -173,6 +177,8 @@ class ExecutorService(Service):
         """Other executors' fault landings: vid -> (when heard, where it comes down)."""
         self.gateway_of: dict[str, str] = {}
         """Each vehicle's gateway, from its telemetry: where its commands go."""
+        self._maps: dict[str, MapSpec | None] = {}
+        """The plans' maps by name (None: not readable here), for fault landings off the graph."""
         self.controllers: dict[str, VehicleController] = {}
         self.bank = KalmanBank(EstimatorParams())
         """Every owned vehicle's pose filter, for fusing a frame in one step."""
@@ -275,7 +281,7 @@ class ExecutorService(Service):
         if (vid, plan.mission) in self._failed:
             return
         ctl = VehicleController(vid, plan.model, owner=self.instance, params=self.control, bank=self.bank,
-                                bodies=lambda: self._bodies_besides(vid))
+                                bodies=lambda: self._bodies_besides(vid), ground=self._map(plan.map))
         ctl.load(plan)
         t0 = plan.t0 or self.starts.get(plan.mission)
         if t0:
@@ -363,6 +369,24 @@ class ExecutorService(Service):
                 estimators.append(ctl.estimator)
                 poses.append(frame.pose(p))
         fuse_poses(estimators, poses)
+
+    def _map(self, name: str) -> Callable[[], MapSpec | None]:
+        """The map a plan names, as it is known (`safe_landing_steps` keeps a landing off the graph out
+        of its no-fly zones and obstacles): read once, off the event loop (city934 takes 80 ms, a
+        stall a take-over in flight must not have); None until read, and for good, with a warning,
+        if it cannot be read here (a map file only the planner's machine has): such landings then
+        go by the plan's airspace alone."""
+        if name not in self._maps:
+            self._maps[name] = None
+            threading.Thread(target=self._read_map, args=(name,), name=f"map {name}", daemon=True).start()
+        return lambda: self._maps[name]
+
+    def _read_map(self, name: str) -> None:
+        try:
+            self._maps[name] = load_map(name)
+        except InputError as exc:
+            log.warning("%s: cannot read the plans' map here (%s): a fault landing off the graph will not "
+                        "know its no-fly zones and obstacles", self.instance, exc)
 
     def _bodies_besides(self, vid: str) -> list[tuple[float, float, float]]:
         """Where every vehicle but `vid` is (its pose in a frame of the last `BODIES_FRESH_S`), and

@@ -28,6 +28,7 @@ from common.bus.messages import (
     WheelSetpoint,
 )
 from common.crazyflie.thrust import WheelBase, thrust_command, to_flight_setpoint
+from common.domain.mapfile import MapSpec
 from common.domain.vehicle_model import G, VehicleModel
 from common.flight.estimator import Estimate, EstimatorParams, KalmanBank, PoseEstimator
 from common.flight.landing import REST_SPEED, LandInPlace
@@ -142,12 +143,15 @@ class VehicleController:
 
     def __init__(self, vid: str, model: VehicleModel | None = None, owner: str = "",
                  params: ControlParams | None = None, bank: KalmanBank | None = None,
-                 bodies: Callable[[], Iterable[tuple[float, float, float]]] | None = None) -> None:
+                 bodies: Callable[[], Iterable[tuple[float, float, float]]] | None = None,
+                 ground: Callable[[], MapSpec | None] | None = None) -> None:
         """`bank`: the executor's, shared by its vehicles' estimators (`fuse_poses` a frame at once);
         `bodies`: where the other vehicles are, or land in a fault landing (a fault landing keeps
-        off their columns: `safe_landing_steps`)."""
+        off their columns: `safe_landing_steps`); `ground`: the plan's map as it is known, whose
+        no-fly zones and obstacles a fault landing off the graph keeps off (None: not known)."""
         self.vid = vid
         self._bodies = bodies or (lambda: ())
+        self._ground = ground or (lambda: None)
         self.owner = owner
         self.params = params or ControlParams()
         self.model = model or VehicleModel()
@@ -388,15 +392,10 @@ class VehicleController:
         return self.machine.mode
 
     @property
-    def landing_node(self) -> str | None:
-        """The ground node a fault landing (low battery, lost link, abort) is heading for; None
-        while the vehicle follows its plan (or a planned landing ends the mission)."""
-        step = self.landing_step
-        return step.node if step is not None else None
-
-    @property
     def landing_step(self) -> PlanStep | None:
-        """The last entry of a fault landing's path (`landing_node`'s, with its position)."""
+        """The last entry of a fault landing's path (low battery, lost link, abort): the ground node
+        it is heading for, or a spot off the graph, with its position; None while the vehicle
+        follows its plan (or a planned landing ends the mission)."""
         if not self._fault_landing or self._active is None or self._active is self.trajectory:
             return None
         return self._active.steps[-1]
@@ -776,15 +775,16 @@ class VehicleController:
         or not (a controlled landing onto a body rather than a fall)."""
         assert self.trajectory is not None
         here = (est.x, est.y, est.z)
-        steps = safe_landing_steps(here, rel, self.trajectory.steps, self.model, self._bodies())
+        steps = safe_landing_steps(here, rel, self.trajectory.steps, self.model, self._bodies(), self._ground())
         if steps is None and self.faults.reserve_spent(self.charge_used_ah, now):
             log.warning("%s: its battery's reserve is spent with every node it may land on taken: "
                         "lands on the nearest", self.vid)
             steps = safe_landing_steps(here, rel, self.trajectory.steps, self.model)
         if steps is None:
             if self._landing_retry is None:
-                log.warning("%s: %s, with a body below every node it may land on and below itself: "
-                            "hovers where it is until one is clear", self.vid, self._landing_reason)
+                log.warning("%s: %s, with a body below every node it may land on, below itself and below "
+                            "every spot beside it: hovers where it is until one is clear", self.vid,
+                            self._landing_reason)
             self._hover_to_choose_again(now, rel, est, "nowhere clear to land")
             return
         self._landing_retry = self._hover_ref = None

@@ -404,7 +404,8 @@ class MissionRunner(MissionClient[MissionResult]):
                 self.left[vid] += f"; {text}"
             if node and kind in REPLAN_KINDS and self.t0 is not None:  # it now lands there: plan around that too
                 self.sweeps += self._sweeps(vid, node, kind, at)
-                self.events.append(f"{vid} ({kind}) lands at {node}: replanning the others")
+                where = f" ({at[0]:.2f}, {at[1]:.2f})" if at is not None else ""
+                self.events.append(f"{vid} ({kind}) lands at {node}{where}: replanning the others")
                 self._queue_replan()
             return True
         if (self.spec.on_fault != "replan" or kind not in REPLAN_KINDS or self.plan is None or self.t0 is None
@@ -432,15 +433,15 @@ class MissionRunner(MissionClient[MissionResult]):
         self._replanning = asyncio.get_running_loop().create_task(self._replan(self._replanning, self._fault_replans))
 
     def _sweeps(self, vid: str, node: str, kind: str, at: Point | None) -> list[Sweep]:
-        """Where `vid` may be from its latest state on (`sweeps.left_vehicle`); `node`: where its
-        fault landing goes, if its event named one, and `at` where that is (a spot beside it that is
-        no node of the graph: `VehicleEvent.at`)."""
+        """Where `vid` may be from its latest state on (`sweeps.left_vehicle`); where its fault
+        landing goes, if its event said: `at` (`VehicleEvent.at`; the only word of a spot that is no
+        node of the graph), else `node`'s position."""
         assert self.plan is not None and self.t0 is not None
         state = self.states[vid]
         nodes = self.plan.graph.nodes
         ground = ground_height(self.plan)
         return left_vehicle(vid, kind, (state.x, state.y, state.z), self.plan_time(), ground,
-                            nodes[node].pos if node in nodes else at)
+                            at if at is not None else nodes[node].pos if node in nodes else None)
 
     async def _replan(self, previous: asyncio.Task | None, ticket: int) -> None:
         """After `previous`, plan the remaining vehicles on around those that left and hand the new

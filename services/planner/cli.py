@@ -1,5 +1,5 @@
-"""`fleet map ...`, `fleet plan`, `fleet validate`, `fleet planner` (the service): the planner's
-command-line face."""
+"""`fleet map ...`, `fleet plan`, `fleet validate`, `fleet replay-plan`, `fleet planner` (the
+service): the planner's command-line face."""
 
 from __future__ import annotations
 

@@ -4,12 +4,15 @@
 A replan of a running fleet is asked from a moment that does not come again: the vehicles' states,
 the bodies that left, the previous plan. When one fails (no plan, or a plan the validator refused:
 a planner bug), its request is what it takes to see why, and it is gone once the mission moves on.
-The service writes each such request, as the bus carried it (msgpack), to DIR/NNN-KIND.msgpack, up
-to `KEEP_MAX` a run; `fleet replay-plan` plans it again on any machine with the same maps. (In an
+The service writes each such request (msgpack, with the time limit it was planned with: what was
+left of its requester's wait) to DIR/NNN-KIND.msgpack, numbered on from the files already there, up
+to `KEEP_MAX` a run; a rejoin refused (`PlanReply.refused`: its mission asks again every few
+seconds, as planned) is not kept. `fleet replay-plan` plans it again on any machine with the same
+maps. (In an
 80-vehicle soak a replan's plan failed validation, two vehicles 0 m apart on a road, once in four
 runs; nothing of it was left to look at.) A time-limited plan depends on the CPU it gets: a replan
 that failed on a loaded machine may plan on an idle one (replayed, one of an 80-vehicle soak's
-0.6 s replans planned in 0.52 s), and a cold planner spends its limit building what a running one
+0.6 s replans planned in 0.47 s), and a cold planner spends its limit building what a running one
 has cached (`warm_up`).
 """
 
@@ -31,26 +34,31 @@ KEEP_MAX = 50
 
 
 class FailedRequests:
-    """Writes failed requests to `folder` (made on the first), numbered, at most `keep_max`."""
+    """Writes failed requests to `folder` (made on the first), numbered after the files already
+    there (a planner restarted on the same folder overwrites none), at most `keep_max`."""
 
     def __init__(self, folder: Path, keep_max: int = KEEP_MAX) -> None:
         self.folder = folder
         self.keep_max = keep_max
         self.kept = 0
+        self._last: int | None = None  # the highest number in the folder, once looked at
 
     def keep(self, req: PlanRequest, reply: PlanReply) -> Path | None:
-        """Write `req` if `reply` is a failure worth replaying (not an expired wait); its path, or
-        None (not kept: a success, expired, the limit reached, or the folder not writable)."""
-        if reply.ok or reply.error.startswith("expired") or self.kept >= self.keep_max:
+        """Write `req` if `reply` is a failure worth replaying (not a refused rejoin); its path, or
+        None (not kept: a success, a refused rejoin, the limit reached, or the folder not writable)."""
+        if reply.ok or reply.refused or self.kept >= self.keep_max:
             return None
         kind = "replan" if req.replan is not None else "plan"
-        path = self.folder / f"{self.kept + 1:03d}-{kind}.msgpack"
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
+            if self._last is None:
+                self._last = max((int(f.name[:3]) for f in self.folder.glob("[0-9][0-9][0-9]-*.msgpack")), default=0)
+            path = self.folder / f"{self._last + 1:03d}-{kind}.msgpack"
             path.write_bytes(msgspec.msgpack.encode(req))
         except OSError as exc:
             log.warning("could not keep a failed plan request in %s: %s", self.folder, exc)
             return None
+        self._last += 1
         self.kept += 1
         return path
 

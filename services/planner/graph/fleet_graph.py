@@ -36,8 +36,8 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
-from common.domain.geometry import bodies_touch, distance_to_polygon, point_in_polygon, segment_hits_body
-from common.domain.mapfile import MapSpec
+from common.domain.geometry import bodies_touch, segment_hits_body
+from common.domain.mapfile import MapSpec, touches_keep_out
 from common.domain.planfile import GraphNode, PlanGraph, PlanModel
 from common.domain.vehicle_model import (
     CAPABLE_EDGES,
@@ -238,19 +238,7 @@ class _GraphBuilder:
     # -- the air ----------------------------------------------------------------------------------
     def blocked(self, pts: np.ndarray) -> np.ndarray:
         """Body centred at each point (N, 3) would touch a no-fly zone or an obstacle."""
-        pts = np.atleast_2d(pts)
-        r, h = self.model.radius, self.model.height
-        out = np.zeros(len(pts), dtype=bool)
-        for zone in self.spec.no_fly:
-            poly = np.asarray(zone.polygon, dtype=float)
-            in_z = (pts[:, 2] + h / 2 > zone.z[0]) & (pts[:, 2] - h / 2 < zone.z[1])
-            near = distance_to_polygon(pts[:, :2], poly) < r
-            out |= in_z & (near | point_in_polygon(pts[:, :2], poly))
-        for box in self.spec.obstacles:
-            lo = np.asarray(box.min) - (r, r, h / 2)
-            hi = np.asarray(box.max) + (r, r, h / 2)
-            out |= np.all((pts > lo) & (pts < hi), axis=1)
-        return out
+        return touches_keep_out(self.spec, pts, self.model.radius, self.model.height)
 
     def segments_blocked(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Whether a body moving along each segment a[k] -> b[k] would touch a zone or obstacle."""
