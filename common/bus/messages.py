@@ -270,8 +270,9 @@ class VehicleEvent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     hovers with nowhere clear to land), not another service's word on its health (a gateway's
     `link_lost`): a mission plans the others around the former (`MissionRunner.on_fault`)."""
     at: tuple[float, float, float] | None = None
-    """Where the fault landing it reports comes down (`node`'s position; the only word of it for a
-    spot that is no node of the graph: `STRAIGHT_DOWN`, `ASIDE` in `services/executor/faults.py`)."""
+    """Where the fault landing it reports comes down, unless straight down from where the vehicle
+    is (`node`'s position; the only word of it for a spot beside the vehicle, no node of the graph:
+    `ASIDE` in `services/executor/faults.py`)."""
 
 
 class MocapBody(msgspec.Struct, frozen=True, forbid_unknown_fields=True, array_like=True):

@@ -594,7 +594,8 @@ class ExecutorService(Service):
             elif ctl.faults.link_lost(now):
                 kind = "link_lost"
             step = ctl.landing_step
-            node, at = (step.node, step.pos) if step is not None else ("", None)
+            node = step.node if step is not None else ""
+            at = step.pos if step is not None and node != STRAIGHT_DOWN else None  # (down from where it is)
             where = ("landing straight down" if node == STRAIGHT_DOWN
                      else f"landing beside it at ({at[0]:.2f}, {at[1]:.2f})" if node == ASIDE and at is not None
                      else f"landing at {node}" if node
