@@ -397,6 +397,11 @@ HANDLINGS: tuple[Handling, ...] = (
          Edit("services/executor/faults.py", "        target = min(free, key=", "        target = min(free or nodes, key=")),
         "tests/test_fault_landing.py::test_a_fault_landing_with_nowhere_clear_hovers_until_the_vehicle_below_drives_off"),
     Handling(
+        "a fault landing off the graph keeps out of the map's obstacles",
+        "executor: a fault landing comes down straight or beside it whatever the map has there",
+        (Edit("services/executor/faults.py", "    if ground is None or not spots:\n", "    if True:\n"),),
+        "tests/test_fault_landing.py::test_a_landing_off_the_graph_keeps_out_of_the_maps_obstacles_and_no_fly_zones"),
+    Handling(
         "a fault landing with a body below it comes down beside it",
         "executor: with every node of its plan taken and a body below it, a fault landing hovers",
         (Edit("services/executor/faults.py",
