@@ -397,6 +397,13 @@ HANDLINGS: tuple[Handling, ...] = (
          Edit("services/executor/faults.py", "        target = min(free, key=", "        target = min(free or nodes, key=")),
         "tests/test_fault_landing.py::test_a_fault_landing_with_nowhere_clear_hovers_until_the_vehicle_below_drives_off"),
     Handling(
+        "vehicles whose prefixes end at one node placed the last to arrive first",
+        "planner: a replan's first order places the vehicles by their switch times alone",
+        (Edit("services/planner/sipp/replan.py",
+              "(ahead.get(leg.vid, len(ahead)), together[leg.start], -leg.depart, leg.vid)",
+              "(ahead.get(leg.vid, len(ahead)), leg.depart, leg.vid)"),),
+        "tests/test_replan.py::test_a_soaks_replan_whose_first_order_met_head_on_is_valid_on_its_first_order"),
+    Handling(
         "a fault landing off the graph keeps out of the map's obstacles",
         "executor: a fault landing comes down straight or beside it whatever the map has there",
         (Edit("services/executor/faults.py", "    if ground is None or not spots:\n", "    if True:\n"),),

@@ -17,9 +17,11 @@ import pytest
 from common.bus.messages import PlanRequest, Replan, Sweep
 from common.domain.planfile import Plan, Task
 from services.mission.sweeps import DESCENT_S_PER_M, REST_S, descent
+from services.planner.failed_requests import read_request
 from services.planner.maps.loading import load_graph
-from services.planner.registry import solve
-from services.planner.replanning import touched_by_segment
+from services.planner.registry import _replan_with, solve
+from services.planner.replanning import Leg, split, touched_by_segment
+from services.planner.sipp.replan import priority
 from services.planner.validate import validate_plan
 
 TASKS = {
@@ -272,7 +274,9 @@ one flight came down, hit the crossing of a prefix's last step."""
 def test_a_replan_whose_vehicles_cross_a_prefix_is_planned_again_in_another_order(tmp_path: Path) -> None:
     """SIPP reserves a prefix's last step only once its vehicle is placed, so one placed earlier
     may cross it; the validator finds the contact and SIPP plans again with the later of the two
-    first (a 32-vehicle soak's replan failed this way)."""
+    first (a 32-vehicle soak's replan failed this way). In the last replan cf21's and cf25's
+    prefixes end at g4_4 (8.9 s, 12.4 s): the first order now places cf25 first (`priority`) and is
+    valid; cf21 first, as that order did, it crossed cf25's last step."""
     from services.mission.sweeps import left_vehicle
     from services.planner.maps.generate import VEHICLE, city934, to_yaml
     from services.planner.maps.loading import load_graph
@@ -290,11 +294,13 @@ def test_a_replan_whose_vehicles_cross_a_prefix_is_planned_again_in_another_orde
         sweeps += left_vehicle(vid, kind, plan.position(vid, t), t, 0.0, None)
         req = PlanRequest(map=str(city), tasks={}, time_limit=1.0,
                           replan=Replan(base=plan, at=t + 1.0, left=[vid], sweeps=sweeps, strand=True))
-        once, later = _replan_with(load_graph(city), req, "sipp", 1.0)
+        first, _ = _replan_with(load_graph(city), req, "sipp", 1.0)
+        once, later = _replan_with(load_graph(city), req, "sipp", 1.0, ["cf21"])
         reply = solve(req)
         assert reply.ok and reply.plan is not None, reply.error
         assert validate_plan(reply.plan).ok
         plan = reply.plan
+    assert first.ok, first.error
     assert not once.ok and "contact" in once.error and later == "cf25", once.error
 
 
@@ -312,3 +318,36 @@ def test_a_columns_nodes_and_edges_are_those_its_samples_touch() -> None:
             sampled_nodes, sampled_edges = touched_by_segment(graph, top, leaning, extra)
             assert len(nodes) and len(edges)
             assert nodes.tolist() == sampled_nodes.tolist() and edges.tolist() == sampled_edges.tolist()
+
+
+DATA = Path(__file__).parent / "data"
+
+
+def test_vehicles_whose_prefixes_end_at_one_node_are_placed_the_last_to_arrive_first() -> None:
+    """The first priority order: earliest switch first, but the vehicles whose prefixes end at one
+    node together, at the earliest one's place, the one arriving last first."""
+    task = Task(start="s", goal="g")
+
+    def leg(vid: str, start: int, depart: float) -> Leg:
+        return Leg(vid, [], start, depart, 0, 1.0, task)
+
+    legs = [leg("a", 1, 10.0), leg("b", 2, 11.0), leg("c", 1, 12.6), leg("d", 3, 13.0), leg("e", 1, 11.5)]
+    assert [x.vid for x in priority(legs)] == ["c", "e", "a", "b", "d"]
+    assert [x.vid for x in priority(legs, first=["d"])] == ["d", "c", "e", "a", "b"]
+
+
+@pytest.mark.compute
+def test_a_soaks_replan_whose_first_order_met_head_on_is_valid_on_its_first_order() -> None:
+    """An 80-vehicle soak's replan, kept by its planner (`fleet planner --keep-failed`; 80 vehicles
+    on city934 around cf71, from 8.7 s): cf73's and cf21's prefixes end at g4_7 (10.07 s, 12.67 s),
+    cf38's and cf04's at a0_8_10 (8.93 s, 9.62 s). In the order of their switches cf73 left g4_7
+    down the road cf21 was coming up (0 m apart at 11.37 s) and cf38 met cf04 in the air; the
+    validation refused the plan, and on the loaded machine no time was left for another order.
+    Placed the last to arrive first, the first order's plan is valid."""
+    req = read_request(DATA / "replan_head_on.msgpack")
+    assert req.replan is not None
+    graph = load_graph(req.map)
+    reply, later = _replan_with(graph, msgspec.structs.replace(req, time_limit=60.0), "sipp", 60.0)
+    assert reply.ok and later is None, reply.error
+    order = [leg.vid for leg in priority(split(graph, req.replan)[1])]
+    assert order.index("cf21") < order.index("cf73") and order.index("cf04") < order.index("cf38")
