@@ -7,7 +7,12 @@ here works on that difference, vectorised over many pairs with numpy.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from common.domain.mapfile import MapSpec
 
 EPS = 1e-9
 
@@ -121,3 +126,20 @@ def distance_to_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     closest = p[None, :, :] + t[:, :, None] * seg[None, :, :]
     dist = np.min(np.linalg.norm(points[:, None, :] - closest, axis=2), axis=1)
     return np.where(point_in_polygon(points, polygon), 0.0, dist)
+
+
+def touches_keep_out(spec: MapSpec, pts: np.ndarray, radius: float, height: float) -> np.ndarray:
+    """Whether a body (a cylinder of `radius` x `height`) centred at each point (N, 3) would touch
+    one of the map's no-fly zones or obstacles."""
+    pts = np.atleast_2d(pts)
+    out = np.zeros(len(pts), dtype=bool)
+    for zone in spec.no_fly:
+        poly = np.asarray(zone.polygon, dtype=float)
+        in_z = (pts[:, 2] + height / 2 > zone.z[0]) & (pts[:, 2] - height / 2 < zone.z[1])
+        near = distance_to_polygon(pts[:, :2], poly) < radius
+        out |= in_z & (near | point_in_polygon(pts[:, :2], poly))
+    for box in spec.obstacles:
+        lo = np.asarray(box.min) - (radius, radius, height / 2)
+        hi = np.asarray(box.max) + (radius, radius, height / 2)
+        out |= np.all((pts > lo) & (pts < hi), axis=1)
+    return out

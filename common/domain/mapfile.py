@@ -12,10 +12,8 @@ import re
 from pathlib import Path
 
 import msgspec
-import numpy as np
 import yaml
 
-from common.domain.geometry import distance_to_polygon, point_in_polygon
 from common.domain.vehicle_model import VehicleModel
 from common.errors import InputError
 
@@ -142,23 +140,6 @@ def read_text(path: Path) -> str:
         raise InputError(str(path), "", f"cannot read ({exc.strerror})") from None
     except UnicodeDecodeError as exc:
         raise InputError(str(path), f"byte {exc.start}", "not UTF-8 text") from None
-
-
-def touches_keep_out(spec: MapSpec, pts: np.ndarray, radius: float, height: float) -> np.ndarray:
-    """Whether a body (a cylinder of `radius` x `height`) centred at each point (N, 3) would touch
-    one of the map's no-fly zones or obstacles."""
-    pts = np.atleast_2d(pts)
-    out = np.zeros(len(pts), dtype=bool)
-    for zone in spec.no_fly:
-        poly = np.asarray(zone.polygon, dtype=float)
-        in_z = (pts[:, 2] + height / 2 > zone.z[0]) & (pts[:, 2] - height / 2 < zone.z[1])
-        near = distance_to_polygon(pts[:, :2], poly) < radius
-        out |= in_z & (near | point_in_polygon(pts[:, :2], poly))
-    for box in spec.obstacles:
-        lo = np.asarray(box.min) - (radius, radius, height / 2)
-        hi = np.asarray(box.max) + (radius, radius, height / 2)
-        out |= np.all((pts > lo) & (pts < hi), axis=1)
-    return out
 
 
 def load_map(name_or_path: str | Path) -> MapSpec:

@@ -26,7 +26,8 @@ from itertools import pairwise
 import numpy as np
 
 from common.bus.messages import PlanStep, Telemetry
-from common.domain.mapfile import MapSpec, touches_keep_out
+from common.domain.geometry import touches_keep_out
+from common.domain.mapfile import MapSpec
 from common.domain.vehicle_model import VehicleModel
 from common.flight.landing import LandInPlace
 

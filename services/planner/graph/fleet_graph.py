@@ -36,8 +36,8 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
-from common.domain.geometry import bodies_touch, segment_hits_body
-from common.domain.mapfile import MapSpec, touches_keep_out
+from common.domain.geometry import bodies_touch, segment_hits_body, touches_keep_out
+from common.domain.mapfile import MapSpec
 from common.domain.planfile import GraphNode, PlanGraph, PlanModel
 from common.domain.vehicle_model import (
     CAPABLE_EDGES,
