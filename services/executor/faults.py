@@ -198,14 +198,20 @@ def in_way(pos: tuple[float, float, float], node: tuple[float, float, float], bo
     horizontal, ahead of it (a body the flight only moves away from is not in its way)."""
     if abs(body[2] - pos[2]) >= model.height + model.margin:
         return False
-    dx, dy = node[0] - pos[0], node[1] - pos[1]
-    bx, by = body[0] - pos[0], body[1] - pos[1]
+    along, off = _projection(body, pos, node)
+    return along > 0.0 and off < 2.0 * model.radius + model.margin
+
+
+def _projection(p: tuple[float, float, float], a: tuple[float, float, float],
+                b: tuple[float, float, float]) -> tuple[float, float]:
+    """In the horizontal: where `p` projects onto the line a-b (0 at a, 1 at b; 0 if a is b), and
+    how far `p` is from the segment a-b."""
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    px, py = p[0] - a[0], p[1] - a[1]
     length2 = dx * dx + dy * dy
-    along = (bx * dx + by * dy) / length2 if length2 > 0.0 else 0.0
-    if along <= 0.0:
-        return False
-    along = min(along, 1.0)
-    return math.hypot(bx - along * dx, by - along * dy) < 2.0 * model.radius + model.margin
+    along = (px * dx + py * dy) / length2 if length2 > 0.0 else 0.0
+    f = min(max(along, 0.0), 1.0)
+    return along, math.hypot(px - f * dx, py - f * dy)
 
 
 def spots_under_flights(pos: tuple[float, float, float], plan: Sequence[PlanStep],
@@ -221,7 +227,7 @@ def spots_under_flights(pos: tuple[float, float, float], plan: Sequence[PlanStep
             continue
         (ax, ay, _), (bx, by, _) = a.pos, b.pos
         length = math.hypot(bx - ax, by - ay)
-        if _segment_distance(pos, a.pos, b.pos) > reach:
+        if _projection(pos, a.pos, b.pos)[1] > reach:
             continue  # (most of a plan's flights pass far from where it is)
         n = max(1, math.ceil(length / step))
         for k in range(n + 1):  # (both ends: `step` apart at most)
@@ -231,15 +237,6 @@ def spots_under_flights(pos: tuple[float, float, float], plan: Sequence[PlanStep
                 spots.append((d, (x, y)))
     spots.sort()
     return [xy for _, xy in spots]
-
-
-def _segment_distance(p: tuple[float, float, float], a: tuple[float, float, float],
-                      b: tuple[float, float, float]) -> float:
-    """Horizontal distance from `p` to the segment a-b."""
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    length2 = dx * dx + dy * dy
-    f = min(max(((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / length2, 0.0), 1.0) if length2 > 0.0 else 0.0
-    return math.hypot(p[0] - a[0] - f * dx, p[1] - a[1] - f * dy)
 
 
 def off_the_graph(pos: tuple[float, float, float], spots: list[tuple[float, float]], floor: float,
