@@ -372,6 +372,11 @@ HANDLINGS: tuple[Handling, ...] = (
               "        if self._landing_flight():\n            self._landing_paused = why\n            return True\n", ""),),
         "tests/test_closed_loop.py::test_an_aborted_vehicle_whose_flight_to_its_node_heads_into_a_body_hovers_and_chooses_again"),
     Handling(
+        "a landing's descent nothing stops counted as coming closer",
+        "executor: a body coming closer is counted as standing, a fault landing's descent too",
+        (Edit("services/executor/proximity.py", "            counted |= unstopped[j]\n", ""),),
+        "tests/test_proximity.py::test_a_vehicle_driving_in_under_a_fault_landings_descent_stops_short"),
+    Handling(
         "a replan that ran out of its time asked again",
         "mission runner: a replan whose planner ran out of its time limit fails the mission",
         (Edit("services/mission/runner.py", "            if not reply.ok and reply.timed_out and k + 1 < len(REPLAN_TIME_LIMITS_S):",

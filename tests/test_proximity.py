@@ -5,15 +5,22 @@ away, keeping its distance or standing still does not."""
 from __future__ import annotations
 
 import asyncio
+import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
+import zenoh
 
-from common.bus.messages import FramePose, PoseFrame
+from common.bus.keys import Keys
+from common.bus.messages import FramePose, PoseFrame, VehicleState, VehicleStates
+from common.bus.pubsub import Publisher
+from common.bus.session import ZenohConfig
 from common.domain.planfile import Task
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
 from services.executor.proximity import Bodies
+from services.executor.service import BODIES_FRESH_S, ExecutorService
 from services.executor.vehicle_controller import VehicleController
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
@@ -86,6 +93,61 @@ def test_while_the_frames_stall_a_vehicle_driving_on_into_a_body_stops_short() -
     assert react == pytest.approx(0.31)
     [hit] = closing(bodies, {"follower": v}, now + 0.3, react)
     assert (hit.mover, hit.other) == ("follower", "leader") and hit.gap == pytest.approx(gap, abs=1e-6)
+
+
+def test_a_vehicle_driving_in_under_a_fault_landings_descent_stops_short() -> None:
+    """An 80-vehicle soak's contact under a lost link's landing (docs/reliability.md): a driver
+    went on towards the spot a vehicle was coming down on, that vehicle counted as standing (a
+    body coming closer is its own executor's to stop, but no proximity stop stops a fault
+    landing's descent), and it came down on the driver, 12 cm deep. Counted as going on (its
+    executor's state says it is in a fault landing), its descent stops the driver short."""
+    bodies = Bodies()
+    down, v = (0.0, 0.0, -0.25), (0.0, -0.07, 0.0)
+    now = frames(bodies, {"lander": ((0.0, 0.0, 0.06), down), "driver": ((0.0, 2 * RADIUS + 0.02, 0.0), v)})
+    assert closing(bodies, {"driver": v}, now, react_s=0.19) == []  # standing 6 cm above the driver's level
+    [hit] = bodies.closing(["driver"], np.array([[v, v]]), RADIUS, HEIGHT, now, 0.19, going_on={"lander"})
+    assert (hit.mover, hit.other) == ("driver", "lander") and hit.v_other == pytest.approx(down, abs=1e-6)
+    # one the driver moves away from, or comes down clear of its way, does not stop it
+    assert bodies.closing(["driver"], np.array([[(0.0, 0.07, 0.0)] * 2]), RADIUS, HEIGHT, now, 0.19,
+                          going_on={"lander"}) == []
+    away = Bodies()
+    now = frames(away, {"lander": ((0.0, 0.0, 0.06), down), "driver": ((0.0, 2 * RADIUS + 0.2, 0.0), v)})
+    assert away.closing(["driver"], np.array([[v, v]]), RADIUS, HEIGHT, now, 0.19, going_on={"lander"}) == []
+
+
+@pytest.mark.timeout(30)
+def test_the_executor_counts_other_executors_fault_and_emergency_landings_as_going_on(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
+    """Heard in another executor's states: cf2 in a fault landing (its `landing` spot), cf3 in an
+    emergency landing, cf4 flying on its plan. The first two go on (`_going_on`), until a state
+    says otherwise (cf2 landed) or none comes for `BODIES_FRESH_S`."""
+    keys = Keys("proximity")
+
+    def state(vid: str, mode: str, landing: tuple[float, float, float] | None = None) -> VehicleState:
+        return VehicleState(vid=vid, t=0.0, owner="e2", mode=mode, x=1.0, y=1.0, z=0.5, yaw=0.0, landing=landing)
+
+    async def scenario() -> list[set[str]]:
+        svc = ExecutorService("e1", ZenohConfig.client(zenoh_router), keys)
+        run_svc = asyncio.create_task(svc.run())
+        theirs = Publisher(zsession(), keys.executor_states("e2"), VehicleStates)
+        heard: list[set[str]] = []
+        try:
+            for states in ([state("cf2", "landing", (1.0, 1.5, 0.0)), state("cf3", "emergency_landing"),
+                            state("cf4", "flying")],
+                           [state("cf2", "done"), state("cf3", "emergency_landing"), state("cf4", "flying")]):
+                for _ in range(100):  # until the executor has heard it (the first may go before it subscribed)
+                    theirs.put(VehicleStates(owner="e2", t=0.0, states=states))
+                    await asyncio.sleep(0.02)
+                    if svc._unstopped and ("cf2" in svc._unstopped) == (states[0].landing is not None):
+                        break
+                heard.append(svc._going_on(time.time()))
+            heard.append(svc._going_on(time.time() + BODIES_FRESH_S + 0.1))
+        finally:
+            svc.stop()
+            assert await run_svc == 0
+        return heard
+
+    assert asyncio.run(scenario()) == [{"cf2", "cf3"}, {"cf3"}, set()]
 
 
 @pytest.mark.parametrize(("what", "follower", "leader", "v_follower"), [

@@ -175,6 +175,9 @@ class ExecutorService(Service):
         """Every vehicle's position and velocity in the frames: the proximity stop's view."""
         self._landings: dict[str, tuple[float, tuple[float, float, float]]] = {}
         """Other executors' fault landings: vid -> (when heard, where it comes down)."""
+        self._unstopped: dict[str, float] = {}
+        """Other executors' vehicles in a fault or an emergency landing, which no proximity stop
+        stops (`_going_on`): vid -> when heard."""
         self.gateway_of: dict[str, str] = {}
         """Each vehicle's gateway, from its telemetry: where its commands go."""
         self._maps: dict[str, MapSpec | None] = {}
@@ -414,6 +417,10 @@ class ExecutorService(Service):
         self.team.on_state(state)
         self.ownership.on_state(state)
         if state.owner != self.instance:  # another executor's fault landing, announced
+            if state.landing is not None or state.mode == Mode.EMERGENCY_LANDING:
+                self._unstopped[state.vid] = time.time()
+            else:
+                self._unstopped.pop(state.vid, None)
             if state.landing is not None:
                 self._landings[state.vid] = (time.time(), state.landing)
                 for ctl in self.controllers.values():
@@ -499,8 +506,16 @@ class ExecutorService(Service):
             return
         react = self.bodies.reaction(now, self.stats.recent_latency(), self.period)
         v_self = np.array(velocities).reshape(len(movers), 2, 3)
-        for closing in self.bodies.closing(movers, v_self, radius, height, now, react):
+        for closing in self.bodies.closing(movers, v_self, radius, height, now, react, self._going_on(now)):
             self.controllers[closing.mover].stop_short(closing.why())
+
+    def _going_on(self, now: float) -> set[str]:
+        """The vehicles whose approach counts in the proximity stop, since nothing stops them: in a
+        fault landing (its descent goes on) or an emergency landing, this executor's and, by their
+        states of the last `BODIES_FRESH_S`, the others'."""
+        mine = {vid for vid, ctl in self.controllers.items()
+                if ctl.mode == Mode.EMERGENCY_LANDING or ctl.landing_step is not None}
+        return mine | {vid for vid, t in self._unstopped.items() if now - t < BODIES_FRESH_S}
 
     def _run_clocks(self, now: float) -> None:
         """Move every running mission's plan clock on at the pace its vehicles here allowed at
