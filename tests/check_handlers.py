@@ -374,7 +374,7 @@ HANDLINGS: tuple[Handling, ...] = (
     Handling(
         "a landing's descent nothing stops counted as coming closer",
         "executor: a body coming closer is counted as standing, a fault landing's descent too",
-        (Edit("services/executor/proximity.py", "            counted |= unstopped[j]\n", ""),),
+        (Edit("services/executor/proximity.py", "            counted |= np.isin(j, unstopped)\n", "            pass\n"),),
         "tests/test_proximity.py::test_a_vehicle_driving_in_under_a_fault_landings_descent_stops_short"),
     Handling(
         "a replan that ran out of its time asked again",

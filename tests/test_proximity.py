@@ -105,14 +105,14 @@ def test_a_vehicle_driving_in_under_a_fault_landings_descent_stops_short() -> No
     down, v = (0.0, 0.0, -0.25), (0.0, -0.07, 0.0)
     now = frames(bodies, {"lander": ((0.0, 0.0, 0.06), down), "driver": ((0.0, 2 * RADIUS + 0.02, 0.0), v)})
     assert closing(bodies, {"driver": v}, now, react_s=0.19) == []  # standing 6 cm above the driver's level
-    [hit] = bodies.closing(["driver"], np.array([[v, v]]), RADIUS, HEIGHT, now, 0.19, going_on={"lander"})
+    [hit] = bodies.closing(["driver"], np.array([[v, v]]), RADIUS, HEIGHT, now, 0.19, going_on=lambda: {"lander"})
     assert (hit.mover, hit.other) == ("driver", "lander") and hit.v_other == pytest.approx(down, abs=1e-6)
     # one the driver moves away from, or comes down clear of its way, does not stop it
     assert bodies.closing(["driver"], np.array([[(0.0, 0.07, 0.0)] * 2]), RADIUS, HEIGHT, now, 0.19,
-                          going_on={"lander"}) == []
+                          going_on=lambda: {"lander"}) == []
     away = Bodies()
     now = frames(away, {"lander": ((0.0, 0.0, 0.06), down), "driver": ((0.0, 2 * RADIUS + 0.2, 0.0), v)})
-    assert away.closing(["driver"], np.array([[v, v]]), RADIUS, HEIGHT, now, 0.19, going_on={"lander"}) == []
+    assert away.closing(["driver"], np.array([[v, v]]), RADIUS, HEIGHT, now, 0.19, going_on=lambda: {"lander"}) == []
 
 
 @pytest.mark.timeout(30)

@@ -27,7 +27,7 @@ timing stays the planner's to repair."""
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -96,6 +96,8 @@ class Bodies:
         self.newest = NEVER
         """The capture time of the newest frame settled (s)."""
         self._history: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+        self._steps = np.linspace(0.0, 1.0, params.samples)
+        """The points of a look-ahead at which two bodies are judged, as shares of it."""
 
     def _row(self, vid: str) -> int:
         row = self.rows.get(vid)
@@ -143,57 +145,62 @@ class Bodies:
         return max(latency, age) + period
 
     def closing(self, movers: list[str], v_self: np.ndarray, radius: float, height: float,
-                now: float, react_s: float = 0.0, going_on: Collection[str] = ()) -> list[Closing]:
+                now: float, react_s: float = 0.0,
+                going_on: Callable[[], Collection[str]] = tuple) -> list[Closing]:
         """Which of `movers` (vehicles seen in the frames) head into another body before they could
         have stopped: `v_self` (len(movers) x K x 3) are the velocities each may move at (estimated,
         planned); bodies of `radius` x `height` touch when nearer than 2 radius across and height
         up (DESIGN.md); `react_s`: how late the mover's commands take effect (s); `going_on`: the
-        bodies no proximity stop stops (their approach counts, module docstring). One `Closing` per
-        such pair, nearest first."""
+        bodies no proximity stop stops (their approach counts, module docstring), asked for only
+        when a pair is near. One `Closing` per such pair, nearest first."""
         p = self.params
         react = max(react_s, p.react_s)
         n = len(self.vids)
-        fastest = np.linalg.norm(v_self, axis=2).max(axis=1)
+        fastest = np.sqrt(np.einsum("mkx,mkx->mk", v_self, v_self)).max(axis=1)
         moving = fastest > p.closing_speed  # (slower heads into nothing)
         if n < 2 or not moving.any():
             return []
         index = np.nonzero(moving)[0]
         movers, v_self, fastest = [movers[k] for k in index.tolist()], v_self[index], fastest[index]
-        own = np.array([self.rows[v] for v in movers])
-        fresh = now - self.seen[:n] < p.fresh_s
+        own = np.fromiter((self.rows[v] for v in movers), np.intp, len(movers))
         pos, vel = self.pos[:n], self.vel[:n]
-        d = pos[None, :, :] - pos[own][:, None, :]  # movers x bodies x 3: to the other body
-        across = np.hypot(d[..., 0], d[..., 1])
-        speed = np.linalg.norm(vel, axis=1)[None, :] + fastest[:, None]
-        ahead = speed * (react + speed / (2.0 * p.brake))  # the farthest the pair closes in before stopping
+        body_speed = np.sqrt(np.einsum("bx,bx->b", vel, vel))
         reach_xy, reach_z = 2.0 * radius + p.near_gap, height + p.near_gap
-        near = ((across - ahead < reach_xy) & (np.abs(d[..., 2]) - ahead < reach_z)
-                & fresh[None, :] & fresh[own][:, None])
-        near[np.arange(len(own)), own] = False
-        i, j = np.nonzero(near)
-        if not len(i):
+        # the pairs that may be near: within the farthest any pair closes in before stopping along
+        # x (every mover x body at once: the one pass over all pairs), then each pair's own reach
+        top = float(body_speed.max()) + float(fastest.max())
+        most = top * (react + top / (2.0 * p.brake))
+        x = pos[:, 0]
+        i, j = np.nonzero(np.abs(x[None, :] - x[own, None]) < reach_xy + most)
+        fresh = now - self.seen[:n] < p.fresh_s
+        mine = own[i]
+        keep = np.nonzero((j != mine) & fresh[j] & fresh[mine])[0]
+        i, j, mine = i[keep], j[keep], mine[keep]
+        dij = pos[j] - pos[mine]  # pairs x 3: to the other body
+        across = np.hypot(dij[:, 0], dij[:, 1])
+        speed = body_speed[j] + fastest[i]
+        ahead = speed * (react + speed / (2.0 * p.brake))  # the farthest the pair closes in before stopping
+        near = np.nonzero((across - ahead < reach_xy) & (np.abs(dij[:, 2]) - ahead < reach_z))[0]
+        if not len(near):
             return []
-        dij = d[i, j]  # pairs x 3
+        i, j, dij, across = i[near], j[near], dij[near], across[near]
         vo = vel[j]
         counted = np.einsum("ij,ij->i", vo, dij) > 0.0  # its approach is its own to stop ...
-        if going_on:  # ... unless nothing stops it
-            unstopped = np.zeros(n, dtype=bool)
-            unstopped[[self.rows[v] for v in going_on if v in self.rows]] = True
-            counted |= unstopped[j]
+        if unstopped := [self.rows[v] for v in going_on() if v in self.rows]:  # ... unless nothing stops it
+            counted |= np.isin(j, unstopped)
         vo = np.where(counted[:, None], vo, 0.0)
-        dist = np.linalg.norm(dij, axis=1)
-        steps = np.linspace(0.0, 1.0, p.samples)
+        dist = np.sqrt(np.einsum("ij,ij->i", dij, dij))
         hits: dict[tuple[str, str], Closing] = {}
         for k in range(v_self.shape[1]):
             vs = v_self[i, k]  # pairs x 3
             w = vo - vs  # the other's motion relative to the mover
-            horizon = react + np.linalg.norm(w, axis=1) / (2.0 * p.brake)  # until the mover could have stopped
-            taus = horizon[:, None] * steps[None, :]
+            horizon = react + np.sqrt(np.einsum("ij,ij->i", w, w)) / (2.0 * p.brake)  # until the mover could have stopped
+            taus = horizon[:, None] * self._steps[None, :]
             q = dij[:, None, :] + w[:, None, :] * taus[..., None]  # pairs x samples x 3
             touch = ((np.hypot(q[..., 0], q[..., 1]) < reach_xy) & (np.abs(q[..., 2]) < reach_z)).any(axis=1)
             towards = np.einsum("ij,ij->i", vs, dij) / np.maximum(dist, 1e-9)
             for m in np.nonzero(touch & (towards > p.closing_speed))[0].tolist():
-                gap = max(float(across[i[m], j[m]]) - 2.0 * radius, float(abs(dij[m, 2])) - height)
+                gap = max(float(across[m]) - 2.0 * radius, float(abs(dij[m, 2])) - height)
                 pair = (movers[i[m]], self.vids[j[m]])
                 if pair not in hits or hits[pair].speed < towards[m]:
                     hits[pair] = Closing(*pair, gap, float(towards[m]), tuple(vs[m].tolist()), tuple(vo[m].tolist()),

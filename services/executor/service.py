@@ -506,7 +506,8 @@ class ExecutorService(Service):
             return
         react = self.bodies.reaction(now, self.stats.recent_latency(), self.period)
         v_self = np.array(velocities).reshape(len(movers), 2, 3)
-        for closing in self.bodies.closing(movers, v_self, radius, height, now, react, self._going_on(now)):
+        for closing in self.bodies.closing(movers, v_self, radius, height, now, react,
+                                           lambda: self._going_on(now)):
             self.controllers[closing.mover].stop_short(closing.why())
 
     def _going_on(self, now: float) -> set[str]:
