@@ -166,12 +166,13 @@ class Bodies:
         pos, vel = self.pos[:n], self.vel[:n]
         body_speed = np.sqrt(np.einsum("bx,bx->b", vel, vel))
         reach_xy, reach_z = 2.0 * radius + p.near_gap, height + p.near_gap
-        # the pairs that may be near: within the farthest any pair closes in before stopping along
-        # x (every mover x body at once: the one pass over all pairs), then each pair's own reach
+        # the pairs that may be near: within the farthest any pair closes in before stopping, across
+        # (every mover x body at once: the one pass over all pairs), then each pair's own reach
         top = float(body_speed.max()) + float(fastest.max())
         most = top * (react + top / (2.0 * p.brake))
-        x = pos[:, 0]
-        i, j = np.nonzero(np.abs(x[None, :] - x[own, None]) < reach_xy + most)
+        x, y = pos[:, 0], pos[:, 1]
+        dx, dy = x[None, :] - x[own, None], y[None, :] - y[own, None]
+        i, j = np.nonzero(dx * dx + dy * dy < (reach_xy + most) ** 2)
         fresh = now - self.seen[:n] < p.fresh_s
         mine = own[i]
         keep = np.nonzero((j != mine) & fresh[j] & fresh[mine])[0]
