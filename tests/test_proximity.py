@@ -120,7 +120,8 @@ def test_the_executor_counts_other_executors_fault_and_emergency_landings_as_goi
         zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
     """Heard in another executor's states: cf2 in a fault landing (its `landing` spot), cf3 in an
     emergency landing, cf4 flying on its plan. The first two go on (`_going_on`), until a state
-    says otherwise (cf2 landed) or none comes for `BODIES_FRESH_S`."""
+    says otherwise (cf2 landed) or none comes for `BODIES_FRESH_S`; and so does its own cf1 once
+    it comes down in an emergency landing."""
     keys = Keys("proximity")
 
     def state(vid: str, mode: str, landing: tuple[float, float, float] | None = None) -> VehicleState:
@@ -145,9 +146,13 @@ def test_the_executor_counts_other_executors_fault_and_emergency_landings_as_goi
         finally:
             svc.stop()
             assert await run_svc == 0
+        own = svc.controllers["cf1"] = VehicleController("cf1", VehicleModel(), owner="e1")  # (its loop stopped)
+        heard.append(svc._going_on(time.time()))
+        own.machine.resume(Mode.EMERGENCY_LANDING, 0.0, "pose stale in the air")
+        heard.append(svc._going_on(time.time()))
         return heard
 
-    assert asyncio.run(scenario()) == [{"cf2", "cf3"}, {"cf3"}, set()]
+    assert asyncio.run(scenario()) == [{"cf2", "cf3"}, {"cf3"}, set(), {"cf3"}, {"cf1", "cf3"}]
 
 
 @pytest.mark.parametrize(("what", "follower", "leader", "v_follower"), [

@@ -12,8 +12,8 @@ plan, whether that vehicle, at its estimated or planned velocity, is heading int
 moves away and standing where it is if it comes closer (its approach is its own executor's to
 stop: each of two vehicles heading into each other stops for its own motion, unless nothing
 stops it: a fault landing's or an emergency landing's descent goes on, and its approach counts:
-in an 80-vehicle soak two drivers went on under the descent of a lost link's landing, counted as
-standing, and were come down on, 12 cm deep); if so, the vehicle
+in an 80-vehicle soak a driver went on in under a lost link's landing, which it counted as
+standing, and the landing came down on it, 12 cm deep); if so, the vehicle
 stops short (`VehicleController.stop_short`: it holds like a vehicle the guard holds, is reported
 and the fleet's reflex and the mission's replan follow). A vehicle at rest, or moving away, does
 not stop: its stopping would not help, and the one closing in stops instead.
