@@ -128,7 +128,8 @@ HANDLINGS: tuple[Handling, ...] = (
     Handling(
         "a blind descent with its poses back landing over its column's foot",
         "executor: it lands where it is when its poses are back (no `over`)",
-        (Edit("services/executor/vehicle_controller.py", "over=self._back_over(est))", "over=None)"),),
+        (Edit("services/executor/vehicle_controller.py", "                over = self._back_over(est)\n",
+              "                over = None\n"),),
         "tests/test_rejoin.py::test_a_vehicle_that_came_down_blind_in_its_take_off_or_landing_is_held_there_and_taken_back"),
     Handling(
         "the executor's low-battery landing",
@@ -362,7 +363,7 @@ HANDLINGS: tuple[Handling, ...] = (
     Handling(
         "a fault landing flies round a body hovering in its way",
         "executor: a fault landing flies level to its node whatever hovers in between",
-        (Edit("services/executor/faults.py", "                and not any(in_way(pos, spot, b, model) for b in bodies))",
+        (Edit("services/executor/faults.py", "            and not any(in_way(pos, spot, b, model) for b in bodies))",
               ")"),),
         "tests/test_fault_landing.py::test_a_fault_landing_flies_round_no_body_hovering_in_its_way"),
     Handling(
@@ -376,6 +377,14 @@ HANDLINGS: tuple[Handling, ...] = (
         "executor: a body coming closer is counted as standing, a fault landing's descent too",
         (Edit("services/executor/proximity.py", "            counted |= np.isin(j, unstopped)\n", "            pass\n"),),
         "tests/test_proximity.py::test_a_vehicle_driving_in_under_a_fault_landings_descent_stops_short"),
+    Handling(
+        "an emergency descent with its poses back comes down beside a body below it",
+        "executor: an emergency descent with its poses back lands where it is, whatever is below",
+        (Edit("services/executor/vehicle_controller.py",
+              "                if over is None and (beside := self._beside_a_body(est)) is not None:\n",
+              "                if False:\n"),),
+        "tests/test_fault_landing.py::"
+        "test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_below_it[True]"),
     Handling(
         "a replan that ran out of its time asked again",
         "mission runner: a replan whose planner ran out of its time limit fails the mission",
@@ -417,8 +426,8 @@ HANDLINGS: tuple[Handling, ...] = (
         "a fault landing with a body below it comes down beside it",
         "executor: with every node of its plan taken and a body below it, a fault landing hovers",
         (Edit("services/executor/faults.py",
-              "            aside = next((xy for xy in spots if clear(xy)), None)\n",
-              "            aside = None\n"),),
+              "    return next((xy for xy in spots if clear_spot(pos, xy, model, bodies)), None)\n",
+              "    return None\n"),),
         "tests/test_fault_landing.py::"
         "test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_straight_down_or_beside[False]"),
     Handling(

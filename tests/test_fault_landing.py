@@ -29,7 +29,7 @@ from services.executor.faults import (
 from services.executor.service import ExecutorService
 from services.executor.vehicle_controller import VehicleController
 from services.sim.crazyflie.physics import SimFlyingCar
-from tests.support.closed_loop import Mocap, plan_for, reference_steps, run
+from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
 
 KEYS = Keys("landing")
 MODEL = VehicleModel()
@@ -342,3 +342,39 @@ def test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_strai
     assert spot is not None and spot[1] == pytest.approx(0.45) and spot[2] == 0.0  # under its flight
     assert math.dist((sim.x, sim.y), spot[:2]) < 0.03
     assert lowest and min(lowest) >= COLUMN - 0.02  # never came down onto the body below
+
+
+@pytest.mark.parametrize("parked_below", [True, False])
+def test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_below_it(parked_below: bool) -> None:
+    """An 80-vehicle soak's motion capture stalled; every vehicle held in the air came down in an
+    emergency landing where it was, and four onto vehicles parked below (0.5-6 cm deep). Here cf2
+    loses its poses for 0.6 s in its flight from l1 to l2 (stale after 0.4 s: an emergency
+    landing); as they come back a vehicle is parked right below it. It holds its height, moves to
+    the nearest clear spot under its flight and comes down there, clear of the parked one's column
+    (ground truth). With nothing below, it comes down where it is, as before."""
+    t0 = 0.5
+    lost = t0 + next(s.t for s in STEPS if s.node == "a1") + 1.0
+    sim = SimFlyingCar("cf2", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    below: list[tuple[float, float, float]] = []
+    ctrl = VehicleController("cf2", MODEL, owner="e1", bodies=lambda: below)
+    ctrl.load(plan_for("cf2", STEPS, MODEL, t0=t0))
+    at: list[tuple[float, float]] = []
+
+    def hook(now: float) -> None:
+        if now >= lost + 0.6 and not at:  # (the poses are back)
+            at.append((sim.x, sim.y))
+            if parked_below:
+                below.append((sim.x, sim.y, 0.0))
+
+    records = run(ctrl, sim, lost + 8.0, Mocap(MocapNoise(pos_std=0.001, dropouts=((lost, lost + 0.6),))),
+                  on_tick=hook)
+    assert ctrl.machine.sequence()[-2:] == [Mode.EMERGENCY_LANDING, Mode.DONE], ctrl.machine.sequence()
+    assert not sim.airborne and sim.last_impact_speed < 0.7
+    down = math.dist((sim.x, sim.y), at[0])
+    if not parked_below:
+        assert down < 0.06, down  # where it was
+        return
+    low = [r for r in records if r.t > lost and r.truth.z < 0.3]
+    assert low and min(math.dist((r.truth.x, r.truth.y), at[0]) for r in low) >= COLUMN - 0.01
+    assert COLUMN <= down <= ASIDE_REACH, down
+    assert sim.y == pytest.approx(0.45, abs=0.03)  # under its flight

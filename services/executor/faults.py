@@ -191,6 +191,26 @@ def in_column(node: tuple[float, float, float], body: tuple[float, float, float]
     return math.hypot(node[0] - body[0], node[1] - body[1]) < 2.0 * model.radius + model.margin
 
 
+def clear_spot(pos: tuple[float, float, float], xy: tuple[float, float], model: VehicleModel,
+               bodies: Sequence[tuple[float, float, float]]) -> bool:
+    """Whether a landing from `pos` may come down on the ground at `xy`: none of the `bodies`
+    below `pos` in the column there (`in_column`), none in the way of the level flight there
+    (`in_way`)."""
+    spot = (xy[0], xy[1], 0.0)
+    return (all(not in_column(spot, b, model) for b in bodies if b[2] < pos[2])
+            and not any(in_way(pos, spot, b, model) for b in bodies))
+
+
+def spot_beside(pos: tuple[float, float, float], plan: Sequence[PlanStep], model: VehicleModel,
+                bodies: Sequence[tuple[float, float, float]], ground: MapSpec | None,
+                floor: float) -> tuple[float, float] | None:
+    """The nearest spot beside `pos` under the plan's flights (`spots_under_flights`) that a
+    landing may come down on, down to `floor`: off the map's no-fly zones and obstacles
+    (`off_the_graph`) and clear of the `bodies` (`clear_spot`); None if there is none."""
+    spots = off_the_graph(pos, spots_under_flights(pos, plan), floor, model, ground)
+    return next((xy for xy in spots if clear_spot(pos, xy, model, bodies)), None)
+
+
 def in_way(pos: tuple[float, float, float], node: tuple[float, float, float], body: tuple[float, float, float],
            model: VehicleModel) -> bool:
     """Whether `body` is in the way of a fault landing's level flight from `pos` to above `node`:
@@ -274,12 +294,9 @@ def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence
     never chosen (`off_the_graph`: a building under a flight)."""
     nodes = landing_nodes(plan) or [s for s in plan if s.kind != "air"]
     bodies = list(bodies)
-    below = [b for b in bodies if b[2] < pos[2]]
 
     def clear(xy: tuple[float, float]) -> bool:
-        spot = (xy[0], xy[1], 0.0)
-        return (all(not in_column(spot, b, model) for b in below)
-                and not any(in_way(pos, spot, b, model) for b in bodies))
+        return clear_spot(pos, xy, model, bodies)
 
     free = [s for s in nodes if clear(s.pos[:2])]
     if free:
@@ -289,8 +306,7 @@ def safe_landing_steps(pos: tuple[float, float, float], t: float, plan: Sequence
         if off_the_graph(pos, [pos[:2]], floor, model, ground) and clear(pos[:2]):
             target = PlanStep(node=STRAIGHT_DOWN, t=0.0, pos=(pos[0], pos[1], floor), kind="land")
         else:
-            spots = off_the_graph(pos, spots_under_flights(pos, plan), floor, model, ground)
-            aside = next((xy for xy in spots if clear(xy)), None)
+            aside = spot_beside(pos, plan, model, bodies, ground, floor)
             if aside is None:
                 return None
             target = PlanStep(node=ASIDE, t=0.0, pos=(aside[0], aside[1], floor), kind="land")

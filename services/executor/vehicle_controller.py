@@ -42,6 +42,7 @@ from services.executor.faults import (
     FaultParams,
     in_column,
     safe_landing_steps,
+    spot_beside,
 )
 from services.executor.pure_pursuit import PurePursuit, PursuitParams
 from services.executor.trajectory import RefSample, Trajectory, TrajectoryParams
@@ -115,6 +116,10 @@ the switch node; `TrajectoryParams.max_deviation` is 5 mm)."""
 LANDING_RETRY_S = 0.5
 """s between the choices of a fault landing that found every node it may land on taken (it hovers
 where it is meanwhile: `VehicleController._choose_landing`)."""
+ASIDE_HOLD_S = 1.0
+"""s an emergency descent with its poses back that comes down beside a body below it holds its
+height, besides the time its move there takes at flight speed (`_beside_a_body`): it comes down
+once over the spot (a step of its reference in the horizontal settles in about a second)."""
 BLIND_RETURNS = 1
 """How often in one mission a vehicle that came down blind in its take-off or landing may be held
 for the mission to bring it back (`VehicleController._descent_complete`): one that loses its poses
@@ -927,13 +932,21 @@ class VehicleController:
         after the predicted descent time again plus a margin (see `FaultParams`). With poses back
         the flight controller lands it where it is (`LandInPlace`): the prediction assumed every
         command arrived, which a lost router or radio makes false (the gateway may have been
-        landing it its own way), and a stalled loop's wound-up integrators made it climb blind."""
+        landing it its own way), and a stalled loop's wound-up integrators made it climb blind.
+        Where it is, unless over the foot of its column (`_back_over`) or beside a body below it
+        (`_beside_a_body`)."""
         faults, descent = self.params.faults, self._descent
         assert descent is not None
         on_board = onboard.onboard(self.faults.last_telemetry)
         if not est.stale and not on_board:  # (a blind prediction of the touchdown is void: it is here)
             descent.cut = None
-            sp = descent.landing.step(now, est, ground=self._ground_z, over=self._back_over(est))
+            over, not_before = None, now
+            if descent.landing.anchor is None:  # (where it comes down is chosen as its landing begins)
+                over = self._back_over(est)
+                if over is None and (beside := self._beside_a_body(est)) is not None:
+                    over = beside  # level first, then down: its way there is clear, its descent near a body may not be
+                    not_before = now + ASIDE_HOLD_S + math.hypot(beside[0] - est.x, beside[1] - est.y) / self.model.speed.fly
+            sp = descent.landing.step(now, est, ground=self._ground_z, not_before=not_before, over=over)
             if sp is None:
                 self._descent_complete(now, est)
                 return StopSetpoint()
@@ -998,6 +1011,19 @@ class VehicleController:
         if math.hypot(est.x - x, est.y - y) > self.params.faults.guard_factor * self.model.margin:
             return None
         return descent.column
+
+    def _beside_a_body(self, est: Estimate) -> tuple[float, float] | None:
+        """Where an emergency descent with its poses back comes down if another body is below it in
+        its column: the nearest clear spot beside it under its plan's flights, as a fault landing
+        chooses (`spot_beside`); None: where it is (no body below, or no spot clear). (An
+        80-vehicle soak's motion capture stalled, every vehicle held in the air came down where it
+        was, and four landed on vehicles parked below, 0.5-6 cm deep.)"""
+        bodies = list(self._bodies())
+        here = (est.x, est.y, est.z)
+        if self.trajectory is None or not any(in_column((est.x, est.y, 0.0), b, self.model)
+                                              for b in bodies if b[2] < est.z):
+            return None
+        return spot_beside(here, self.trajectory.steps, self.model, bodies, self._ground(), self._ground_z)
 
     def _descent_complete(self, now: float, est: Estimate) -> None:
         """Motors off after an emergency descent. One that lost its poses in a take-off or landing
