@@ -40,6 +40,7 @@ from services.executor.faults import (
     EmergencyDescent,
     FaultMonitor,
     FaultParams,
+    clear_spot,
     in_column,
     safe_landing_steps,
     spot_beside,
@@ -1020,8 +1021,7 @@ class VehicleController:
         was, and four landed on vehicles parked below, 0.5-6 cm deep.)"""
         bodies = list(self._bodies())
         here = (est.x, est.y, est.z)
-        if self.trajectory is None or not any(in_column((est.x, est.y, 0.0), b, self.model)
-                                              for b in bodies if b[2] < est.z):
+        if self.trajectory is None or clear_spot(here, (est.x, est.y), self.model, bodies):  # (straight down)
             return None
         return spot_beside(here, self.trajectory.steps, self.model, bodies, self._ground(), self._ground_z)
 
