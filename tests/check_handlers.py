@@ -384,7 +384,13 @@ HANDLINGS: tuple[Handling, ...] = (
               "                if over is None and (beside := self._beside_a_body(est)) is not None:\n",
               "                if False:\n"),),
         "tests/test_fault_landing.py::"
-        "test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_below_it[True]"),
+        "test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_below_it_and_says_where[True]"),
+    Handling(
+        "an emergency descent coming down beside a body says where",
+        "executor: an emergency descent that comes down beside a body below it reports nothing of it",
+        (Edit("services/executor/service.py", "            if aside is not None:\n", "            if False:\n"),),
+        "tests/test_fault_landing.py::"
+        "test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_below_it_and_says_where[True]"),
     Handling(
         "a replan that ran out of its time asked again",
         "mission runner: a replan whose planner ran out of its time limit fails the mission",

@@ -29,7 +29,7 @@ from services.executor.faults import (
 from services.executor.service import ExecutorService
 from services.executor.vehicle_controller import VehicleController
 from services.sim.crazyflie.physics import SimFlyingCar
-from tests.support.closed_loop import Mocap, MocapNoise, plan_for, reference_steps, run
+from tests.support.closed_loop import Mocap, MocapNoise, Record, plan_for, reference_steps, run
 
 KEYS = Keys("landing")
 MODEL = VehicleModel()
@@ -267,6 +267,37 @@ def test_a_fault_landing_with_its_reserve_spent_takes_the_nearest_node_all_the_s
     assert math.dist((sim.x, sim.y, sim.z), PADS["l1"]) < 0.03
 
 
+def flown_with_reports(ctrl: VehicleController, sim: SimFlyingCar, until: float, mocap: Mocap,
+                       hook: Callable[[float], None], zenoh_router: str, zsession: Callable[..., zenoh.Session],
+                       **run_kw) -> tuple[list[Record], list[VehicleEvent]]:
+    """`run` the closed loop with executor e1 reporting its vehicle's modes (`_report_mode`) every
+    tick after `hook`; its records and the events heard on the bus."""
+    heard: list[VehicleEvent] = []
+
+    async def scenario() -> list[Record]:
+        svc = ExecutorService("e1", ZenohConfig.client(zenoh_router), KEYS)
+        run_svc = asyncio.create_task(svc.run())
+        events = subscribe(zsession(), KEYS.vehicle(ctrl.vid, "event"), VehicleEvent,
+                           lambda event, _key: heard.append(event))
+        await asyncio.sleep(0.5)
+
+        def tick(now: float) -> None:
+            hook(now)
+            if ctrl._seen is not None:
+                svc._report_mode(ctrl.vid, ctrl, now)
+
+        try:
+            records = run(ctrl, sim, until, mocap, on_tick=tick, **run_kw)
+            await asyncio.sleep(0.5)
+        finally:
+            events.close()
+            svc.stop()
+            assert await run_svc == 0
+        return records
+
+    return asyncio.run(scenario()), heard
+
+
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("boxed_in", [True, False])
 def test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_straight_down_or_beside(
@@ -282,54 +313,31 @@ def test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_strai
     down onto a spot under its flight, clear of the body below (ground truth)."""
     nodes = [(*PADS["l1"][:2], 0.0), (*PADS["l2"][:2], 0.0)]
     below: list[tuple[float, float, float]] = []
-    heard: list[tuple[str, str, bool]] = []
-    where: list[tuple[float, float, float] | None] = []
     t0 = 0.5
     lost = t0 + next(s.t for s in STEPS if s.node == "a1") + 1.0
     sim = SimFlyingCar("cf2", MODEL, pos=STEPS[0].pos, yaw=0.0)
     lowest: list[float] = []  # how near the body below cf2 came, horizontally, within 0.45 m of the ground
+    ctrl = VehicleController("cf2", MODEL, owner="e1", bodies=lambda: nodes + below)
+    ctrl.on_pose(Pose(vid="cf2", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=sim.yaw))
+    ctrl.load(plan_for("cf2", STEPS, MODEL, t0=t0))
 
-    async def scenario() -> VehicleController:
-        svc = ExecutorService("e1", ZenohConfig.client(zenoh_router), KEYS)
-        run_svc = asyncio.create_task(svc.run())
-        session = zsession()
+    def hook(now: float) -> None:
+        link_ok = now < lost
+        if round(now / 0.01) % 10 == 0:
+            ctrl.on_telemetry(Telemetry(vid="cf2", t=now, gateway="sim", vbat=4.0, link_quality=1.0, sent=0,
+                                        dropped=0, cmd_rate_hz=100.0, link_ok=link_ok), now)
+        if now >= lost and not below and not ctrl._fault_landing:
+            below.append((sim.x, sim.y, 0.0))
+            if boxed_in:
+                nodes.extend(either_side(sim.x, sim.y, sim.z))
+        if below and sim.z < 0.45:
+            lowest.append(math.dist((sim.x, sim.y), below[0][:2]))
+        if boxed_in and below and now >= lost + 2.0:
+            below.clear()
 
-        def on_event(event: VehicleEvent, _key: str) -> None:
-            heard.append((event.kind, f"{event.detail} ({event.node})", event.acted))
-            where.append(event.at)
-
-        events = subscribe(session, KEYS.vehicle("cf2", "event"), VehicleEvent, on_event)
-        await asyncio.sleep(0.5)
-        ctrl = VehicleController("cf2", MODEL, owner="e1", bodies=lambda: nodes + below)
-        ctrl.on_pose(Pose(vid="cf2", t=0.0, x=sim.x, y=sim.y, z=sim.z, yaw=sim.yaw))
-        ctrl.load(plan_for("cf2", STEPS, MODEL, t0=t0))
-
-        def hook(now: float) -> None:
-            link_ok = now < lost
-            if round(now / 0.01) % 10 == 0:
-                ctrl.on_telemetry(Telemetry(vid="cf2", t=now, gateway="sim", vbat=4.0, link_quality=1.0, sent=0,
-                                            dropped=0, cmd_rate_hz=100.0, link_ok=link_ok), now)
-            if now >= lost and not below and not ctrl._fault_landing:
-                below.append((sim.x, sim.y, 0.0))
-                if boxed_in:
-                    nodes.extend(either_side(sim.x, sim.y, sim.z))
-            if below and sim.z < 0.45:
-                lowest.append(math.dist((sim.x, sim.y), below[0][:2]))
-            if boxed_in and below and now >= lost + 2.0:
-                below.clear()
-            if ctrl._seen is not None:
-                svc._report_mode("cf2", ctrl, now)
-
-        try:
-            run(ctrl, sim, lost + 6.0, Mocap(), telemetry_every=0, on_tick=hook)
-            await asyncio.sleep(0.5)
-        finally:
-            events.close()
-            svc.stop()
-            assert await run_svc == 0
-        return ctrl
-
-    ctrl = asyncio.run(scenario())
+    _, events = flown_with_reports(ctrl, sim, lost + 6.0, Mocap(), hook, zenoh_router, zsession, telemetry_every=0)
+    heard = [(e.kind, f"{e.detail} ({e.node})", e.acted) for e in events]
+    where = [e.at for e in events]
     assert ctrl.mode == Mode.DONE and sim.z < 0.01
     if boxed_in:
         assert heard == [("link_lost", "from flying: hovering here, nowhere clear to land ()", True),
@@ -344,14 +352,18 @@ def test_a_lost_links_landing_with_nowhere_clear_is_reported_hovering_then_strai
     assert lowest and min(lowest) >= COLUMN - 0.02  # never came down onto the body below
 
 
+@pytest.mark.timeout(60)
 @pytest.mark.parametrize("parked_below", [True, False])
-def test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_below_it(parked_below: bool) -> None:
+def test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_below_it_and_says_where(
+        parked_below: bool, zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
     """An 80-vehicle soak's motion capture stalled; every vehicle held in the air came down in an
     emergency landing where it was, and four onto vehicles parked below (0.5-6 cm deep). Here cf2
     loses its poses for 0.6 s in its flight from l1 to l2 (stale after 0.4 s: an emergency
     landing); as they come back a vehicle is parked right below it. It holds its height, moves to
     the nearest clear spot under its flight and comes down there, clear of the parked one's column
-    (ground truth). With nothing below, it comes down where it is, as before."""
+    (ground truth), and its executor says where (an "emergency_landing" event naming `ASIDE` and
+    the spot, after the one of the landing itself: the mission plans the others around it). With
+    nothing below, it comes down where it is, as before, and says no more."""
     t0 = 0.5
     lost = t0 + next(s.t for s in STEPS if s.node == "a1") + 1.0
     sim = SimFlyingCar("cf2", MODEL, pos=STEPS[0].pos, yaw=0.0)
@@ -366,15 +378,23 @@ def test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_below
             if parked_below:
                 below.append((sim.x, sim.y, 0.0))
 
-    records = run(ctrl, sim, lost + 8.0, Mocap(MocapNoise(pos_std=0.001, dropouts=((lost, lost + 0.6),))),
-                  on_tick=hook)
+    records, events = flown_with_reports(ctrl, sim, lost + 8.0,
+                                         Mocap(MocapNoise(pos_std=0.001, dropouts=((lost, lost + 0.6),))),
+                                         hook, zenoh_router, zsession)
     assert ctrl.machine.sequence()[-2:] == [Mode.EMERGENCY_LANDING, Mode.DONE], ctrl.machine.sequence()
     assert not sim.airborne and sim.last_impact_speed < 0.7
+    heard = [(e.kind, e.detail, e.node) for e in events]
+    assert heard[0] == ("emergency_landing", "from flying", ""), heard
     down = math.dist((sim.x, sim.y), at[0])
     if not parked_below:
         assert down < 0.06, down  # where it was
+        assert len(heard) == 1, heard
         return
     low = [r for r in records if r.t > lost and r.truth.z < 0.3]
     assert low and min(math.dist((r.truth.x, r.truth.y), at[0]) for r in low) >= COLUMN - 0.01
     assert COLUMN <= down <= ASIDE_REACH, down
     assert sim.y == pytest.approx(0.45, abs=0.03)  # under its flight
+    assert len(heard) == 2 and heard[1][0] == "emergency_landing" and heard[1][2] == ASIDE, heard
+    assert heard[1][1].startswith("poses back: landing beside a body below it at ("), heard
+    spot = events[1].at
+    assert spot is not None and spot[2] == 0.0 and math.dist((sim.x, sim.y), spot[:2]) < 0.03, spot

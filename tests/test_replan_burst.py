@@ -229,9 +229,32 @@ class LandsAside(Burst):
             self.stop()
 
 
+class EmergencyAside(LandsAside):
+    """`FIRST`, hovering half a metre above its start, goes into an emergency landing (the others
+    are replanned around its descent straight down); its poses back, its executor says it comes
+    down beside a body below it (`ASIDE`, `at`): the others are replanned around that too."""
+
+    async def main(self) -> None:
+        try:
+            await self.start_parked()
+            state = self.states[FIRST]
+            self.hover, self.spot = (state.x, state.y, 0.5), (state.x + 0.3, state.y, 0.0)
+            self.states[FIRST] = msgspec.structs.replace(state, mode="emergency_landing", z=0.5)
+            assert self.on_fault(FIRST, "emergency_landing", f"{FIRST}: emergency_landing from flying", "", acted=True)
+            await self._replanning
+            assert not any(s.rest and s.p0 == self.spot for s in self.sweeps)
+            assert self.on_fault(FIRST, "emergency_landing", f"{FIRST}: emergency_landing poses back: landing beside "
+                                 "a body below it", ASIDE, acted=True, at=self.spot)
+            await self._replanning
+        finally:
+            self.stop()
+
+
 @pytest.mark.timeout(60)
-def test_a_fault_landing_beside_the_vehicle_is_planned_around_where_it_comes_down(zenoh_router: str) -> None:
-    runner = LandsAside(zenoh_router)
+@pytest.mark.parametrize("runner_type", [LandsAside, EmergencyAside])
+def test_a_fault_landing_beside_the_vehicle_is_planned_around_where_it_comes_down(
+        zenoh_router: str, runner_type: type[LandsAside]) -> None:
+    runner = runner_type(zenoh_router)
     with_planner(zenoh_router, runner)
     mine = [s for s in runner.sweeps if s.vid == FIRST]
     above = (runner.spot[0], runner.spot[1], runner.hover[2])

@@ -115,13 +115,15 @@ class EmergencyDescent:
     place (`common.flight.landing.LandInPlace`); `column`: where (x, y) the take-off or landing of
     its plan it lost its poses in stands on the ground, its foot (None: it was not in one), and
     `beneath` where (x, y) its reference was then; with poses back within the guard's reach of
-    `beneath` it lands over the foot (`VehicleController._back_over`)."""
+    `beneath` it lands over the foot (`VehicleController._back_over`); `aside`: where on the ground
+    it comes down beside a body below it (`VehicleController._beside_a_body`), once chosen."""
 
     start: float
     landing: LandInPlace
     cut: float | None = None
     column: tuple[float, float] | None = None
     beneath: tuple[float, float] | None = None
+    aside: tuple[float, float, float] | None = None
 
 
 def _since(since: float | None, holds: bool, now: float) -> float | None:

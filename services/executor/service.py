@@ -188,6 +188,7 @@ class ExecutorService(Service):
         self.stats = LoopStats()
         self._last_mode: dict[str, Mode] = {}
         self._told_held: dict[str, int] = {}
+        self._told_aside: dict[str, tuple[float, float, float] | None] = {}
         """Each vehicle's last hold reported (`VehicleController.holds`)."""
         self._told_aborted: list[str] = []
         """Vehicles whose mission this executor aborted while the router was lost: told once it is
@@ -591,7 +592,9 @@ class ExecutorService(Service):
         """Tell everyone (`vehicle/<vid>/event`) when a vehicle enters a fault mode, or leaves its
         plan for a battery or link fault: "low_battery" / "link_lost", with the node it lands at and
         where that is (none: it lands where it is, stopped, or hovers to choose its node again: nowhere clear to
-        land, or its flight there stopped short of a body)."""
+        land, or its flight there stopped short of a body); and when an emergency descent, its poses
+        back, comes down beside a body below it instead of where it is (node `ASIDE`, `at` the spot):
+        the mission plans the others around that too."""
         prev, mode = self._last_mode.get(vid), ctl.mode
         self._last_mode[vid] = mode
         if ctl.held and self._told_held.get(vid) != ctl.holds and mode in (Mode.HOVERING, Mode.HOLDING):
@@ -599,8 +602,17 @@ class ExecutorService(Service):
             self._event.put(vid, VehicleEvent(vid=vid, t=now, kind="tracking_hold", detail=ctl.held,
                                               rejoinable=ctl.rejoinable, acted=True))
             return
-        if prev == mode:
-            return
+        if prev != mode:
+            self._report_change(vid, ctl, prev, mode, now)
+        if mode == Mode.EMERGENCY_LANDING and (aside := ctl.emergency_aside) is not self._told_aside.get(vid):
+            self._told_aside[vid] = aside
+            if aside is not None:
+                self._event.put(vid, VehicleEvent(
+                    vid=vid, t=now, kind="emergency_landing", node=ASIDE, acted=True, at=aside,
+                    detail=f"poses back: landing beside a body below it at ({aside[0]:.2f}, {aside[1]:.2f})"))
+
+    def _report_change(self, vid: str, ctl: VehicleController, prev: Mode | None, mode: Mode, now: float) -> None:
+        """The event of a vehicle's change of mode from `prev` to `mode`, if it is a fault's (`_report_mode`)."""
         kind, detail, node, at = FAULT_MODES.get(mode), f"from {prev}", "", None
         leaves_plan = (mode == Mode.LANDING or (mode == Mode.DONE and prev != Mode.LANDING)
                        or (mode == Mode.HOVERING and not ctl.held))  # (a fault landing with nowhere clear)

@@ -398,6 +398,13 @@ class VehicleController:
         return self.machine.mode
 
     @property
+    def emergency_aside(self) -> tuple[float, float, float] | None:
+        """Where on the ground an emergency descent comes down beside a body below it
+        (`_beside_a_body`), once chosen; None: where it is, or over its column's foot."""
+        descent = self._descent
+        return descent.aside if descent is not None and self.mode == Mode.EMERGENCY_LANDING else None
+
+    @property
     def landing_step(self) -> PlanStep | None:
         """The last entry of a fault landing's path (low battery, lost link, abort): the ground node
         it is heading for, or a spot off the graph, with its position; None while the vehicle
@@ -946,6 +953,7 @@ class VehicleController:
                 over = self._back_over(est)
                 if over is None and (beside := self._beside_a_body(est)) is not None:
                     over = beside  # level first, then down: its way there is clear, its descent near a body may not be
+                    descent.aside = (*beside, self._ground_z)
                     not_before = now + ASIDE_HOLD_S + math.hypot(beside[0] - est.x, beside[1] - est.y) / self.model.speed.fly
             sp = descent.landing.step(now, est, ground=self._ground_z, not_before=not_before, over=over)
             if sp is None:
