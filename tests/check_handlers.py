@@ -381,16 +381,25 @@ HANDLINGS: tuple[Handling, ...] = (
         "an emergency descent with its poses back comes down beside a body below it",
         "executor: an emergency descent with its poses back lands where it is, whatever is below",
         (Edit("services/executor/vehicle_controller.py",
-              "                if over is None and (beside := self._beside_a_body(est)) is not None:\n",
+              "                if (beside := self._beside_a_body(est, over)) is not None:\n",
               "                if False:\n"),),
         "tests/test_fault_landing.py::"
-        "test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_below_it_and_says_where[True]"),
+        "test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_in_its_column_and_says_where[parked_below]"),
+    Handling(
+        "an emergency descent back over its take-off's foot comes down beside a body there",
+        "executor: an emergency descent with its poses back lands over its take-off's foot, whatever is there",
+        (Edit("services/executor/vehicle_controller.py",
+              "                if (beside := self._beside_a_body(est, over)) is not None:\n",
+              "                if over is None and (beside := self._beside_a_body(est, over)) is not None:\n"),),
+        "tests/test_fault_landing.py::"
+        "test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_in_its_column_and_says_where"
+        "[parked_on_its_take_off_foot]"),
     Handling(
         "an emergency descent coming down beside a body says where",
-        "executor: an emergency descent that comes down beside a body below it reports nothing of it",
+        "executor: an emergency descent that comes down beside a body in its column reports nothing of it",
         (Edit("services/executor/service.py", "            if aside is not None:\n", "            if False:\n"),),
         "tests/test_fault_landing.py::"
-        "test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_below_it_and_says_where[True]"),
+        "test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_in_its_column_and_says_where[parked_below]"),
     Handling(
         "a replan that ran out of its time asked again",
         "mission runner: a replan whose planner ran out of its time limit fails the mission",

@@ -232,7 +232,7 @@ class LandsAside(Burst):
 class EmergencyAside(LandsAside):
     """`FIRST`, hovering half a metre above its start, goes into an emergency landing (the others
     are replanned around its descent straight down); its poses back, its executor says it comes
-    down beside a body below it (`ASIDE`, `at`): the others are replanned around that too."""
+    down beside a body in its column (`ASIDE`, `at`): the others are replanned around that too."""
 
     async def main(self) -> None:
         try:
@@ -244,7 +244,7 @@ class EmergencyAside(LandsAside):
             await self._replanning
             assert not any(s.rest and s.p0 == self.spot for s in self.sweeps)
             assert self.on_fault(FIRST, "emergency_landing", f"{FIRST}: emergency_landing poses back: landing beside "
-                                 "a body below it", ASIDE, acted=True, at=self.spot)
+                                 "a body in its column", ASIDE, acted=True, at=self.spot)
             await self._replanning
         finally:
             self.stop()

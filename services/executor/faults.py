@@ -116,7 +116,7 @@ class EmergencyDescent:
     its plan it lost its poses in stands on the ground, its foot (None: it was not in one), and
     `beneath` where (x, y) its reference was then; with poses back within the guard's reach of
     `beneath` it lands over the foot (`VehicleController._back_over`); `aside`: where on the ground
-    it comes down beside a body below it (`VehicleController._beside_a_body`), once chosen."""
+    it comes down beside a body in its column (`VehicleController._beside_a_body`), once chosen."""
 
     start: float
     landing: LandInPlace

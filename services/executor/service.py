@@ -593,7 +593,7 @@ class ExecutorService(Service):
         plan for a battery or link fault: "low_battery" / "link_lost", with the node it lands at and
         where that is (none: it lands where it is, stopped, or hovers to choose its node again: nowhere clear to
         land, or its flight there stopped short of a body); and when an emergency descent, its poses
-        back, comes down beside a body below it instead of where it is (node `ASIDE`, `at` the spot):
+        back, comes down beside a body in its column instead of where it is (node `ASIDE`, `at` the spot):
         the mission plans the others around that too."""
         prev, mode = self._last_mode.get(vid), ctl.mode
         self._last_mode[vid] = mode
@@ -609,7 +609,7 @@ class ExecutorService(Service):
             if aside is not None:
                 self._event.put(vid, VehicleEvent(
                     vid=vid, t=now, kind="emergency_landing", node=ASIDE, acted=True, at=aside,
-                    detail=f"poses back: landing beside a body below it at ({aside[0]:.2f}, {aside[1]:.2f})"))
+                    detail=f"poses back: landing beside a body in its column at ({aside[0]:.2f}, {aside[1]:.2f})"))
 
     def _report_change(self, vid: str, ctl: VehicleController, prev: Mode | None, mode: Mode, now: float) -> None:
         """The event of a vehicle's change of mode from `prev` to `mode`, if it is a fault's (`_report_mode`)."""

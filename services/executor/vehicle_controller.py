@@ -118,7 +118,7 @@ LANDING_RETRY_S = 0.5
 """s between the choices of a fault landing that found every node it may land on taken (it hovers
 where it is meanwhile: `VehicleController._choose_landing`)."""
 ASIDE_HOLD_S = 1.0
-"""s an emergency descent with its poses back that comes down beside a body below it holds its
+"""s an emergency descent with its poses back that comes down beside a body in its column holds its
 height, besides the time its move there takes at flight speed (`_beside_a_body`): it comes down
 once over the spot (a step of its reference in the horizontal settles in about a second)."""
 BLIND_RETURNS = 1
@@ -399,7 +399,7 @@ class VehicleController:
 
     @property
     def emergency_aside(self) -> tuple[float, float, float] | None:
-        """Where on the ground an emergency descent comes down beside a body below it
+        """Where on the ground an emergency descent comes down beside a body in its column
         (`_beside_a_body`), once chosen; None: where it is, or over its column's foot."""
         descent = self._descent
         return descent.aside if descent is not None and self.mode == Mode.EMERGENCY_LANDING else None
@@ -941,8 +941,8 @@ class VehicleController:
         the flight controller lands it where it is (`LandInPlace`): the prediction assumed every
         command arrived, which a lost router or radio makes false (the gateway may have been
         landing it its own way), and a stalled loop's wound-up integrators made it climb blind.
-        Where it is, unless over the foot of its column (`_back_over`) or beside a body below it
-        (`_beside_a_body`)."""
+        Where it is, or over the foot of its column (`_back_over`), unless another body is in the
+        column there: then beside it (`_beside_a_body`)."""
         faults, descent = self.params.faults, self._descent
         assert descent is not None
         on_board = onboard.onboard(self.faults.last_telemetry)
@@ -951,7 +951,7 @@ class VehicleController:
             over, not_before = None, now
             if descent.landing.anchor is None:  # (where it comes down is chosen as its landing begins)
                 over = self._back_over(est)
-                if over is None and (beside := self._beside_a_body(est)) is not None:
+                if (beside := self._beside_a_body(est, over)) is not None:
                     over = beside  # level first, then down: its way there is clear, its descent near a body may not be
                     descent.aside = (*beside, self._ground_z)
                     not_before = now + ASIDE_HOLD_S + math.hypot(beside[0] - est.x, beside[1] - est.y) / self.model.speed.fly
@@ -1021,15 +1021,17 @@ class VehicleController:
             return None
         return descent.column
 
-    def _beside_a_body(self, est: Estimate) -> tuple[float, float] | None:
-        """Where an emergency descent with its poses back comes down if another body is below it in
-        its column: the nearest clear spot beside it under its plan's flights, as a fault landing
-        chooses (`spot_beside`); None: where it is (no body below, or no spot clear). (An
-        80-vehicle soak's motion capture stalled, every vehicle held in the air came down where it
-        was, and four landed on vehicles parked below, 0.5-6 cm deep.)"""
+    def _beside_a_body(self, est: Estimate, over: tuple[float, float] | None) -> tuple[float, float] | None:
+        """Where an emergency descent with its poses back comes down if another body is in the
+        column it would come down in (`over`: the foot of its take-off's or landing's column,
+        `_back_over`; None: straight down from where it is): the nearest clear spot beside it under
+        its plan's flights, as a fault landing chooses (`spot_beside`); None: there after all (no
+        body in that column, or no spot clear). (An 80-vehicle soak's motion capture stalled, every
+        vehicle held in the air came down where it was, and four landed on vehicles parked below,
+        0.5-6 cm deep.)"""
         bodies = list(self._bodies())
         here = (est.x, est.y, est.z)
-        if self.trajectory is None or clear_spot(here, (est.x, est.y), self.model, bodies):  # (straight down)
+        if self.trajectory is None or clear_spot(here, over or (est.x, est.y), self.model, bodies):
             return None
         return spot_beside(here, self.trajectory.steps, self.model, bodies, self._ground(), self._ground_z)
 
