@@ -395,6 +395,12 @@ HANDLINGS: tuple[Handling, ...] = (
         "test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_in_its_column_and_says_where"
         "[parked_on_its_take_off_foot]"),
     Handling(
+        "a planned landing a fault let go on lands elsewhere with a body below it",
+        "executor: a planned landing under way at an abort comes down on its node, whatever stands there",
+        (Edit("services/executor/vehicle_controller.py", "                    and self._planned_landing_blocked(est, ref)):\n",
+              "                    and False):\n"),),
+        "tests/test_closed_loop.py::test_an_abort_in_a_planned_landing_lands_elsewhere_with_a_body_below_it[rolls_in_later]"),
+    Handling(
         "an emergency descent coming down beside a body says where",
         "executor: an emergency descent that comes down beside a body in its column reports nothing of it",
         (Edit("services/executor/service.py", "            if aside is not None:\n", "            if False:\n"),),

@@ -353,6 +353,38 @@ def test_an_abort_lands_on_the_nearest_landing_node_clear_of_the_vehicles_standi
             assert low and min(math.dist((r.truth.x, r.truth.y), parked[:2]) for r in low) > 0.5
 
 
+@pytest.mark.parametrize("parked", [None, 0.0, 0.5], ids=["nothing_below", "stopped_there", "rolls_in_later"])
+def test_an_abort_in_a_planned_landing_lands_elsewhere_with_a_body_below_it(parked: float | None) -> None:
+    """Aborted in its plan's landing onto l2, the vehicle lands there, the mission ending at its
+    touchdown; but with a vehicle on l2 (an abort stops every driver where it is: an 80-vehicle
+    soak's abort had a landing come down 11 cm deep onto a vehicle standing below it), at
+    the abort or rolling in half a second later, it stops its descent and lands on the nearest
+    clear node instead (l1), never lower than a few centimetres under where it was over the body."""
+    landing = T0 + [s.t for s in STEPS if s.node == "a2"][-1]  # (its plan's landing begins)
+    abort = landing + 0.5
+    l1, l2 = (next(s.pos for s in STEPS if s.node == node) for node in ("l1", "l2"))
+    bodies: list[tuple[float, float, float]] = []
+
+    def hook(ctrl: VehicleController, now: float) -> None:
+        if now >= abort:
+            assert ctrl.mode in (Mode.LANDING, Mode.DONE), ctrl.mode
+            ctrl.abort("abort")
+        if parked is not None and now >= abort + parked and not bodies:
+            bodies.append((l2[0], l2[1], 0.0))
+
+    ctrl, sim, records = fly_plan(until=abort + 10.0, hook=hook, bodies=bodies)
+    assert ctrl.mode == Mode.DONE and sim.z < 0.01
+    if parked is None:
+        assert math.dist((sim.x, sim.y, sim.z), l2) < 0.03
+        return
+    assert math.dist((sim.x, sim.y, sim.z), l1) < 0.03, (sim.x, sim.y, sim.z)
+    column = 2.0 * MODEL.radius + MODEL.margin
+    seen = abort + parked
+    over = [r.truth.z for r in records if r.t >= seen and math.dist((r.truth.x, r.truth.y), l2[:2]) < column]
+    there = next(r.truth.z for r in records if r.t >= seen)
+    assert min(over) > there - 0.05, (min(over), there)
+
+
 @pytest.mark.parametrize("way", ["clear again", "crossed"])
 def test_an_aborted_vehicle_whose_flight_to_its_node_heads_into_a_body_hovers_and_chooses_again(way: str) -> None:
     """The proximity stop on an abort's flight to its landing node (in an 80-vehicle soak two

@@ -488,6 +488,11 @@ class VehicleController:
                 self._choose_landing(now, rel, est)
             if self.held and self._rejoin is not None and rel >= self._rejoin[2]:
                 self._resume(now)
+            if (self._fault_landing and m.mode == Mode.LANDING and self.landing_step is None
+                    and self._planned_landing_blocked(est, ref)):
+                log.warning("%s: %s while landing, a body below it: lands elsewhere", self.vid, self._landing_reason)
+                self._choose_landing(now, rel, est)
+                return
             if self._fault_landing or self.held or (m.mode == Mode.LANDING and rel >= self._landing_end):
                 return  # a landing lasts until touchdown (see `_control`), even past its plan time
             if self._yield is not None and ref is not None:
@@ -774,11 +779,20 @@ class VehicleController:
         """Leave the plan for the nearest ground node; a planned landing already under way just
         ends the mission at its touchdown."""
         self._fault_landing = True
+        self._landing_reason = reason
         if self.machine.mode == Mode.LANDING:
             log.info("%s: %s while landing: the mission ends at touchdown", self.vid, reason)
             return
-        self._landing_reason = reason
         self._choose_landing(now, rel, est)
+
+    def _planned_landing_blocked(self, est: Estimate, ref: RefSample | None) -> bool:
+        """Whether a body stands in the column of the planned landing a fault let go on
+        (`_begin_safe_landing`): the plan kept it clear, but an abort stops every driver where it
+        is, and such a landing came down onto one stopped on its node (an 80-vehicle soak's abort
+        had a landing come down 11 cm deep onto a vehicle standing below it). Asked at every tick
+        of such a landing: a driver may still roll in."""
+        foot = self._column_foot(ref, Mode.LANDING)
+        return foot is not None and not clear_spot((est.x, est.y, est.z), foot, self.model, list(self._bodies()))
 
     def _choose_landing(self, now: float, rel: float, est: Estimate) -> None:
         """The fault landing's path from where the vehicle is, clear of the other bodies
