@@ -401,6 +401,16 @@ HANDLINGS: tuple[Handling, ...] = (
               "                    and False):\n"),),
         "tests/test_closed_loop.py::test_an_abort_in_a_planned_landing_lands_elsewhere_with_a_body_below_it[rolls_in_later]"),
     Handling(
+        "a vehicle in the air a replan cannot place held where it is",
+        "mission runner: only a vehicle on the ground the replan cannot place is stopped alone; one in the air fails the mission",
+        (Edit("services/mission/runner.py", "state.mode not in GROUND_MODES | AIR_MODES", "state.mode not in GROUND_MODES"),),
+        "tests/test_replan_burst.py::test_a_vehicle_in_the_air_a_replan_cannot_place_is_held_where_it_is_and_the_others_go_on"),
+    Handling(
+        "a vehicle its mission holds hovers where it is",
+        "executor: a mission's hold (`MissionAbort.hold`) aborts the vehicle: it lands",
+        (Edit("services/executor/service.py", "        if abort.hold:", "        if False:"),),
+        "tests/test_tracking_guard.py::test_a_vehicle_its_mission_holds_in_the_air_hovers_where_it_is_and_may_come_back[guard]"),
+    Handling(
         "an emergency descent coming down beside a body says where",
         "executor: an emergency descent that comes down beside a body in its column reports nothing of it",
         (Edit("services/executor/service.py", "            if aside is not None:\n", "            if False:\n"),),

@@ -13,8 +13,8 @@ import msgspec
 import pytest
 
 from common.bus.keys import Keys
-from common.bus.messages import PlanReply, VehicleState
-from common.bus.pubsub import query
+from common.bus.messages import MissionAbort, PlanReply, VehicleState
+from common.bus.pubsub import query, subscribe
 from common.bus.session import ZenohConfig
 from common.domain.scenario import read_scenario
 from services.executor.faults import ASIDE
@@ -260,3 +260,53 @@ def test_a_fault_landing_beside_the_vehicle_is_planned_around_where_it_comes_dow
     above = (runner.spot[0], runner.spot[1], runner.hover[2])
     assert any(s.p0 == runner.hover and s.p1 == above for s in mine), mine  # level to above the spot
     assert any(s.rest and s.p0 == runner.spot for s in mine), mine  # then resting on it
+
+
+class PlacesNoneInTheAir(Burst):
+    """`FIRST` held at its start spot; the replan around it cannot place `ALOFT`, in flight half a
+    metre above its start (the planner's answer stood in for: an 80-vehicle soak's replan could
+    not place a vehicle flying into the column of one held hovering, and the mission ended for all
+    80). The mission holds `ALOFT` where it is instead (`MissionAbort.hold`, heard on the bus) and
+    plans the others on around both."""
+
+    held_during = ()
+    ALOFT = "cf4"
+    heard: list[MissionAbort]
+
+    async def _ask_replan(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        self.asked += 1
+        if self.asked == 1:
+            self._blocked = self.ALOFT
+            return f"replanning failed: no plan (could not place {self.ALOFT})"
+        return await MissionRunner._ask_replan(self, *args, **kwargs)
+
+    async def main(self) -> None:
+        self.heard = []
+        aborts = subscribe(self.session, self.keys.mission(self.mission, "abort"), MissionAbort,
+                           lambda msg, _key: self.heard.append(msg))
+        try:
+            await self.start_parked(holding=FIRST)
+            state = self.states[self.ALOFT]
+            self.states[self.ALOFT] = msgspec.structs.replace(state, mode="flying", z=0.5)
+            assert self.on_fault(FIRST, "tracking_hold", f"{FIRST}: held", "")
+            await self._replanning
+            await asyncio.sleep(0.3)
+        finally:
+            aborts.close()
+            self.stop()
+
+
+@pytest.mark.timeout(60)
+def test_a_vehicle_in_the_air_a_replan_cannot_place_is_held_where_it_is_and_the_others_go_on(
+        zenoh_router: str) -> None:
+    runner = PlacesNoneInTheAir(zenoh_router)
+    with_planner(zenoh_router, runner)
+    aloft = runner.ALOFT
+    assert runner.asked == 2 and runner.plan is not None
+    assert set(runner.plan.paths) == set(TASKS) - {FIRST, aloft}, sorted(runner.plan.paths)
+    assert [(m.vehicles, m.hold) for m in runner.heard] == [([aloft], True)], runner.heard
+    assert runner.left[aloft].startswith(f"{aloft}: held where it is, no plan around the vehicles that left")
+    assert aloft in runner._left_with  # (it may come back: `rejoin.py`)
+    state = runner.states[aloft]
+    mine = [s for s in runner.sweeps if s.vid == aloft]
+    assert len(mine) == 1 and mine[0].rest and mine[0].p0 == (state.x, state.y, 0.5), mine  # its column

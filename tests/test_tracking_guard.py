@@ -20,11 +20,14 @@ from collections import deque
 import msgspec
 import pytest
 
-from common.bus.messages import Pose, Telemetry
+from common.bus.keys import Keys
+from common.bus.messages import MissionAbort, Pose, Telemetry
+from common.bus.session import ZenohConfig
 from common.deploy.launcher import status
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
 from services.executor.faults import FaultParams
+from services.executor.service import ExecutorService
 from services.executor.vehicle_controller import ControlParams, VehicleController
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
@@ -162,6 +165,31 @@ def test_a_vehicle_held_in_the_air_hovers_and_lands_safely_on_abort() -> None:
     ctrl.abort("operator")
     ctrl.tick(off.t + 0.5)
     assert ctrl.mode == Mode.LANDING or ctrl.reference(off.t + 0.6).mode != Mode.HOVERING
+
+
+@pytest.mark.parametrize("guard", [True, False], ids=["guard", "guard_off"])
+def test_a_vehicle_its_mission_holds_in_the_air_hovers_where_it_is_and_may_come_back(guard: bool) -> None:
+    """`MissionAbort.hold` for a vehicle in flight (its mission's replan could not place it): its
+    executor holds it where it is, hovering, for the mission's sake (rejoinable: the mission may
+    bring it back), as the proximity stop holds one; it does not land. With the tracking guard off
+    nothing holds a vehicle: it lands, as on an abort."""
+    svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("hold"))  # never run: no session
+    sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    ctrl = svc.controllers["cf1"] = VehicleController("cf1", MODEL, owner="e1",
+                                                      params=ControlParams(faults=FaultParams(guard=guard)))
+    plan = svc.plans["cf1"] = plan_for("cf1", STEPS, MODEL, t0=T0)
+    ctrl.load(plan)
+    cruise = T0 + next(s.t for s in STEPS if s.node == "a1") + 1.0
+    run(ctrl, sim, cruise, Mocap())
+    reason = "cf1: held where it is, no plan around the vehicles that left"
+    svc._on_abort(MissionAbort(mission=plan.mission, reason=reason, vehicles=["cf1"], hold=True), "")
+    at = (sim.x, sim.y, sim.z)
+    run(ctrl, sim, cruise + 3.0, Mocap())
+    if not guard:
+        assert ctrl.mode in (Mode.LANDING, Mode.DONE) and not ctrl.held, ctrl.mode
+        return
+    assert ctrl.mode == Mode.HOVERING and ctrl.held == reason and ctrl.rejoinable, (ctrl.mode, ctrl.held)
+    assert math.dist((sim.x, sim.y, sim.z), at) < 0.1, ((sim.x, sim.y, sim.z), at)
 
 
 @pytest.mark.parametrize(("where", "rejoinable"), [("behind", True), ("beside", False)])

@@ -544,11 +544,14 @@ class TaskAddReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 class MissionAbort(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """`mission/<id>/abort`: every vehicle lands (flying) or stops (driving); with `vehicles`, only
-    those (a replan could not place a driving vehicle: it stops where it is, the others fly on)."""
+    those (a replan could not place a driving vehicle: it stops where it is, the others fly on);
+    with `hold` too, those are held where they are instead, hovering or stopped, for the mission's
+    sake (a replan could not place a vehicle in the air: the mission may bring it back)."""
 
     mission: str
     reason: str
     vehicles: list[str] = []
+    hold: bool = False
 
 
 T = TypeVar("T")

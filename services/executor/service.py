@@ -336,6 +336,13 @@ class ExecutorService(Service):
             return
         if not abort.vehicles:  # the whole mission: a plan of it that comes later is aborted too
             self.aborts[abort.mission] = abort.reason
+        if abort.hold:  # (only `vehicles`: held for the mission's sake, `VehicleController.stop_short`)
+            for vid in abort.vehicles:
+                ctl = self.controllers.get(vid)
+                if (ctl is not None and self.plans[vid].mission == abort.mission
+                        and not ctl.stop_short(abort.reason)):  # (it may not be held: the guard is off)
+                    ctl.abort(abort.reason)
+            return
         self.team.on_abort(abort)
         for vid, ctl in self.controllers.items():
             if self.plans[vid].mission == abort.mission and (not abort.vehicles or vid in abort.vehicles):

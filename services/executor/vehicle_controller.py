@@ -733,8 +733,10 @@ class VehicleController:
         return est.vx, est.vy, est.vz, ref.vx, ref.vy, ref.vz
 
     def stop_short(self, why: str) -> bool:
-        """The proximity stop: this vehicle heads into another body (`why`); it holds at its next
-        tick, like a vehicle the tracking guard holds (reported as `tracking_hold`). On a fault
+        """The proximity stop: this vehicle heads into another body (`why`), or its mission holds
+        it (`MissionAbort.hold`: a replan could not place it); it holds at its next tick, like a
+        vehicle the tracking guard holds, for another's sake (reported as `tracking_hold`,
+        rejoinable: the mission may bring it back). On a fault
         landing's flight to its node (an abort's, a low battery's, a lost link's), which must go on,
         it hovers where it is instead and chooses its node again (`_pause_landing`). Whether it will."""
         if self._landing_flight():

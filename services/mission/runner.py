@@ -135,6 +135,8 @@ GONE_KINDS = frozenset({"emergency_landing", "low_battery", "crash"})
 """Faults after which a vehicle that left does not come back (nor after a fault landing to a node)."""
 GROUND_MODES = frozenset({"driving", "parked", "holding"})
 """Modes of a vehicle on the ground that can stop where it is."""
+AIR_MODES = frozenset({"taking_off", "flying", "landing"})
+"""Modes of a vehicle in the air, on its plan, that can hold where it is (hovering)."""
 REPLAN_TIME_LIMITS_S = (0.6, 1.2)
 """s: the planner's time limit for a replan (SIPP, paper 000 §V-D), try by try: a replan is asked
 for again when the planner's answer does not come before its switch time, or says its time limit
@@ -449,9 +451,9 @@ class MissionRunner(MissionClient[MissionResult]):
         plans around every vehicle that left by its start, this one's included. (Faults come in
         bursts: in a 32-vehicle soak, 18 holds in a few seconds queued 18 replans of half a second
         each, one after another, the last handed out ten seconds late, while the planner took 30-47 %
-        of a core from the control loops.) A vehicle on the ground the planner could not place (it drives into
-        the space a vehicle that left closed) is stopped where it is, alone, and leaves too
-        (`STOP_MAX` of them at most); any other failure is the mission's fault (it ends, landing
+        of a core from the control loops.) A vehicle the planner could not place (it drives or flies
+        into the space a vehicle that left closed) is stopped where it is, alone (on the ground for
+        good, in the air held hovering), and leaves too (`STOP_MAX` of them at most); any other failure is the mission's fault (it ends, landing
         everyone), unless a later fault's replan was queued meanwhile: that one plans around more
         (the vehicle this one could not place has often left by then: held in the same burst)."""
         if previous is not None:
@@ -470,16 +472,22 @@ class MissionRunner(MissionClient[MissionResult]):
             self.fault = self.fault or f"{', '.join(self.left)} left the mission; {error}"
 
     def _stop_blocked(self, error: str) -> bool:
-        """Stop the vehicle the last replan could not place, if it is on the ground (module doc of
-        `_replan`); whether it did."""
+        """Stop the vehicle the last replan could not place where it is (module doc of `_replan`):
+        on the ground for good; in the air held hovering, for the mission's sake
+        (`MissionAbort.hold`): it may come back (`rejoin.py`). Whether it did. (An 80-vehicle
+        soak's replan could not place a vehicle flying into the column of one held hovering, its
+        next node 27 cm from it, and the mission ended for all 80.)"""
         vid, self._blocked = self._blocked, ""
         state = self.states.get(vid)
-        if (not vid or state is None or state.mode not in GROUND_MODES or self.plan is None or self.t0 is None
-                or vid not in self.plan.paths or vid in self.left or self._abort_pub is None):
+        if (not vid or state is None or state.mode not in GROUND_MODES | AIR_MODES or self.plan is None
+                or self.t0 is None or vid not in self.plan.paths or vid in self.left or self._abort_pub is None):
             return False
-        reason = f"{vid}: stopped where it is, no plan around the vehicles that left ({error})"
-        self._abort_pub.put(MissionAbort(mission=self.mission, reason=reason, vehicles=[vid]))
+        aloft = state.mode in AIR_MODES
+        reason = f"{vid}: {'held' if aloft else 'stopped'} where it is, no plan around the vehicles that left ({error})"
+        self._abort_pub.put(MissionAbort(mission=self.mission, reason=reason, vehicles=[vid], hold=aloft))
         self.left[vid] = reason
+        if aloft:
+            self._left_with[vid] = (self.plan.paths[vid], self.plan.tasks[vid])
         ground = ground_height(self.plan)
         self.sweeps += left_vehicle(vid, "tracking_hold", (state.x, state.y, state.z), self.plan_time(),
                                     ground, None)
