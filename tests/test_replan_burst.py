@@ -215,15 +215,20 @@ class LandsAside(Burst):
     held_during = ()
     spot: tuple[float, float, float] = (0.0, 0.0, 0.0)
     hover: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mode = "landing"
+
+    async def reports(self) -> None:
+        """What `FIRST`'s executor tells the mission."""
+        assert self.on_fault(FIRST, "low_battery", f"{FIRST}: low_battery from hovering: landing beside it",
+                             ASIDE, acted=True, at=self.spot)
 
     async def main(self) -> None:
         try:
             await self.start_parked()
             state = self.states[FIRST]
             self.hover, self.spot = (state.x, state.y, 0.5), (state.x + 0.3, state.y, 0.0)
-            self.states[FIRST] = msgspec.structs.replace(state, mode="landing", z=0.5)
-            assert self.on_fault(FIRST, "low_battery", f"{FIRST}: low_battery from hovering: landing beside it",
-                                 ASIDE, acted=True, at=self.spot)
+            self.states[FIRST] = msgspec.structs.replace(state, mode=self.mode, z=0.5)
+            await self.reports()
             await self._replanning
         finally:
             self.stop()
@@ -234,20 +239,14 @@ class EmergencyAside(LandsAside):
     are replanned around its descent straight down); its poses back, its executor says it comes
     down beside a body in its column (`ASIDE`, `at`): the others are replanned around that too."""
 
-    async def main(self) -> None:
-        try:
-            await self.start_parked()
-            state = self.states[FIRST]
-            self.hover, self.spot = (state.x, state.y, 0.5), (state.x + 0.3, state.y, 0.0)
-            self.states[FIRST] = msgspec.structs.replace(state, mode="emergency_landing", z=0.5)
-            assert self.on_fault(FIRST, "emergency_landing", f"{FIRST}: emergency_landing from flying", "", acted=True)
-            await self._replanning
-            assert not any(s.rest and s.p0 == self.spot for s in self.sweeps)
-            assert self.on_fault(FIRST, "emergency_landing", f"{FIRST}: emergency_landing poses back: landing beside "
-                                 "a body in its column", ASIDE, acted=True, at=self.spot)
-            await self._replanning
-        finally:
-            self.stop()
+    mode = "emergency_landing"
+
+    async def reports(self) -> None:
+        assert self.on_fault(FIRST, "emergency_landing", f"{FIRST}: emergency_landing from flying", "", acted=True)
+        await self._replanning
+        assert not any(s.rest and s.p0 == self.spot for s in self.sweeps)
+        assert self.on_fault(FIRST, "emergency_landing", f"{FIRST}: emergency_landing poses back: landing beside "
+                             "a body in its column", ASIDE, acted=True, at=self.spot)
 
 
 @pytest.mark.timeout(60)

@@ -188,8 +188,9 @@ class ExecutorService(Service):
         self.stats = LoopStats()
         self._last_mode: dict[str, Mode] = {}
         self._told_held: dict[str, int] = {}
-        self._told_aside: dict[str, tuple[float, float, float] | None] = {}
         """Each vehicle's last hold reported (`VehicleController.holds`)."""
+        self._told_aside: dict[str, tuple[float, float, float] | None] = {}
+        """Each vehicle's emergency descent's spot beside a body last reported (`emergency_aside`)."""
         self._told_aborted: list[str] = []
         """Vehicles whose mission this executor aborted while the router was lost: told once it is
         back, and again `ROUTER_SETTLE_S` later (clients reconnect one by one: a mission that came
