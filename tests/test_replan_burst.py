@@ -217,7 +217,7 @@ class LandsAside(Burst):
     hover: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mode = "landing"
 
-    async def reports(self) -> None:
+    async def tell_faults(self) -> None:
         """What `FIRST`'s executor tells the mission."""
         assert self.on_fault(FIRST, "low_battery", f"{FIRST}: low_battery from hovering: landing beside it",
                              ASIDE, acted=True, at=self.spot)
@@ -228,7 +228,7 @@ class LandsAside(Burst):
             state = self.states[FIRST]
             self.hover, self.spot = (state.x, state.y, 0.5), (state.x + 0.3, state.y, 0.0)
             self.states[FIRST] = msgspec.structs.replace(state, mode=self.mode, z=0.5)
-            await self.reports()
+            await self.tell_faults()
             await self._replanning
         finally:
             self.stop()
@@ -241,7 +241,7 @@ class EmergencyAside(LandsAside):
 
     mode = "emergency_landing"
 
-    async def reports(self) -> None:
+    async def tell_faults(self) -> None:
         assert self.on_fault(FIRST, "emergency_landing", f"{FIRST}: emergency_landing from flying", "", acted=True)
         await self._replanning
         assert not any(s.rest and s.p0 == self.spot for s in self.sweeps)
