@@ -411,6 +411,13 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/service.py", "        if abort.hold:", "        if False:"),),
         "tests/test_tracking_guard.py::test_a_vehicle_its_mission_holds_in_the_air_hovers_where_it_is_and_may_come_back[guard]"),
     Handling(
+        "a planned landing sent elsewhere says where",
+        "executor: a landing chosen again while the vehicle stays in its landing is not reported",
+        (Edit("services/executor/service.py",
+              "        if prev != mode or (mode == Mode.LANDING and self._landing_moved(vid, ctl)):",
+              "        if prev != mode:"),),
+        "tests/test_fault_landing.py::test_a_planned_landing_a_lost_link_sends_elsewhere_is_reported_where_it_goes"),
+    Handling(
         "an emergency descent coming down beside a body says where",
         "executor: an emergency descent that comes down beside a body in its column reports nothing of it",
         (Edit("services/executor/service.py", "            if aside is not None:\n", "            if False:\n"),),

@@ -409,3 +409,31 @@ def test_an_emergency_descent_with_its_poses_back_comes_down_beside_a_body_in_it
     assert heard[1][1].startswith("poses back: landing beside a body in its column at ("), heard
     spot = events[1].at
     assert spot is not None and spot[2] == 0.0 and math.dist((sim.x, sim.y), spot[:2]) < 0.03, spot
+
+
+@pytest.mark.timeout(60)
+def test_a_planned_landing_a_lost_link_sends_elsewhere_is_reported_where_it_goes(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
+    """cf2's link is lost in its plan's landing onto l2: that landing goes on, no event (its
+    mode stays `landing`). With a vehicle parked on l2 it lands on l1 instead
+    (`_planned_landing_blocked`), and its executor says so, as for any fault landing: "link_lost
+    from landing: landing at l1", naming the node and where it is (what the mission plans the
+    others around)."""
+    t0 = 0.5
+    lost = t0 + [s.t for s in STEPS if s.node == "a2"][-1] + 0.5  # (half a second into its landing)
+    sim = SimFlyingCar("cf2", MODEL, pos=STEPS[0].pos, yaw=0.0)
+    below: list[tuple[float, float, float]] = []
+    ctrl = VehicleController("cf2", MODEL, owner="e1", bodies=lambda: below)
+    ctrl.load(plan_for("cf2", STEPS, MODEL, t0=t0))
+
+    def hook(now: float) -> None:
+        if round(now / 0.01) % 10 == 0:
+            ctrl.on_telemetry(Telemetry(vid="cf2", t=now, gateway="sim", vbat=4.0, link_quality=1.0, sent=0,
+                                        dropped=0, cmd_rate_hz=100.0, link_ok=now < lost), now)
+        if now >= lost + 1.0 and not below:  # (the link judged lost: its landing goes on, then the body)
+            below.append((*PADS["l2"][:2], 0.0))
+
+    _, events = flown_with_reports(ctrl, sim, lost + 10.0, Mocap(), hook, zenoh_router, zsession, telemetry_every=0)
+    assert ctrl.mode == Mode.DONE and math.dist((sim.x, sim.y, sim.z), PADS["l1"]) < 0.03, (sim.x, sim.y, sim.z)
+    heard = [(e.kind, e.detail, e.node, e.at) for e in events]
+    assert heard == [("link_lost", "from landing: landing at l1", "l1", PADS["l1"])], heard

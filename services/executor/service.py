@@ -54,6 +54,7 @@ from common.bus.messages import (
     MissionAbort,
     MissionStart,
     PlanDelay,
+    PlanStep,
     Pose,
     PoseFrame,
     Telemetry,
@@ -191,6 +192,8 @@ class ExecutorService(Service):
         """Each vehicle's last hold reported (`VehicleController.holds`)."""
         self._told_aside: dict[str, tuple[float, float, float] | None] = {}
         """Each vehicle's emergency descent's spot beside a body last reported (`emergency_aside`)."""
+        self._told_landing: dict[str, PlanStep | None] = {}
+        """Where each vehicle's landing was heading at its last report (`VehicleController.landing_step`)."""
         self._told_aborted: list[str] = []
         """Vehicles whose mission this executor aborted while the router was lost: told once it is
         back, and again `ROUTER_SETTLE_S` later (clients reconnect one by one: a mission that came
@@ -610,7 +613,7 @@ class ExecutorService(Service):
             self._event.put(vid, VehicleEvent(vid=vid, t=now, kind="tracking_hold", detail=ctl.held,
                                               rejoinable=ctl.rejoinable, acted=True))
             return
-        if prev != mode:
+        if prev != mode or (mode == Mode.LANDING and self._landing_moved(vid, ctl)):  # (or chosen again)
             self._report_change(vid, ctl, prev, mode, now)
         if mode == Mode.EMERGENCY_LANDING and (aside := ctl.emergency_aside) is not self._told_aside.get(vid):
             self._told_aside[vid] = aside
@@ -619,8 +622,18 @@ class ExecutorService(Service):
                     vid=vid, t=now, kind="emergency_landing", node=ASIDE, acted=True, at=aside,
                     detail=f"poses back: landing beside a body in its column at ({aside[0]:.2f}, {aside[1]:.2f})"))
 
+    def _landing_moved(self, vid: str, ctl: VehicleController) -> bool:
+        """Whether a vehicle landing heads for another node or spot than its last report said (a
+        planned landing that a fault let go on and a body below sent elsewhere: `_planned_landing_blocked`)."""
+        step = ctl.landing_step
+        told = self._told_landing.get(vid)
+        return step is not None and (told is None or (step.node, step.pos) != (told.node, told.pos))
+
     def _report_change(self, vid: str, ctl: VehicleController, prev: Mode | None, mode: Mode, now: float) -> None:
-        """The event of a vehicle's change of mode from `prev` to `mode`, if it is a fault's (`_report_mode`)."""
+        """The event of a vehicle's change of mode from `prev` to `mode`, or of where it lands, if it is
+        a fault's (`_report_mode`)."""
+        if mode == Mode.LANDING:
+            self._told_landing[vid] = ctl.landing_step
         kind, detail, node, at = FAULT_MODES.get(mode), f"from {prev}", "", None
         leaves_plan = (mode == Mode.LANDING or (mode == Mode.DONE and prev != Mode.LANDING)
                        or (mode == Mode.HOVERING and not ctl.held))  # (a fault landing with nowhere clear)
