@@ -111,6 +111,12 @@ class Mission:
             self._emit("started", detail=f"t0 {start.t0:.2f}")
 
     def _on_abort(self, abort: MissionAbort, _key: str) -> None:
+        if abort.vehicles:  # stopped or held alone (a replan could not place them): the others go on
+            for vid in abort.vehicles:
+                if vid in self._outcome and self._result is None:
+                    self._notes.append(abort.reason)
+                    self._emit("vehicle_event", vid=vid, detail=abort.reason)
+            return
         if not any(e.kind == "aborted" for e in self._events):
             self._emit("aborted", detail=abort.reason)
 

@@ -36,7 +36,8 @@ class MissionEvent(msgspec.Struct, frozen=True):
     again for each new goal or replan), "started" (the common start time is set), "progress" (a
     vehicle reached path entry `step` of `steps`), "mode" (a vehicle's mode changed), "arrived" (at
     its goal: again at each new goal), "vehicle_event" (a fault or other event
-    of the vehicle: `detail`), "aborted" (an abort was published: `detail` is why), "ended" (the
+    of the vehicle: `detail`; one its mission stopped or held alone too), "aborted" (the mission's
+    abort was published: `detail` is why), "ended" (the
     mission is over: `detail` is its reason)."""
 
     kind: EventKind
