@@ -18,8 +18,9 @@ if TYPE_CHECKING:
 
 
 def pyplot() -> ModuleType:
-    """matplotlib's pyplot on its headless backend, imported on first use: it takes 0.7 s, and a
-    benchmark's own worker processes (`bench.router_hop`'s publisher and subscribers) draw nothing."""
+    """matplotlib's pyplot on its headless backend, imported on first use: it takes about 0.3 s
+    (0.7 s on a loaded machine), and a benchmark's own worker processes (`bench.router_hop`'s
+    publisher and subscribers) draw nothing."""
     import matplotlib
 
     matplotlib.use("Agg")
