@@ -17,7 +17,12 @@ command batches (`gateway/<g>/cmd`). Measured after a warm-up:
   spent on those), and as vehicles one core runs at 100 Hz.
 
     python -m bench.fleet_latency [--vehicles 8,32,80,200] [--executors 1] [--seconds 10] [--fly]
-                                  [--no-plan-clock]
+                                  [--no-plan-clock] [--repeat 1]
+
+`--repeat K`: K runs of each fleet size, one after another, each with its own executors; the table
+gives the run of median cost and the range over the runs. On this 2-core virtual machine the
+same run's executor cost varies by +-10 % from run to run (the host's load), so one run alone
+says little about a change of a few per cent.
 
 `--no-plan-clock`: the executors run the plans on the wall clock (`fleet executor --no-plan-clock`),
 to weigh what the plan's clock costs.
@@ -153,20 +158,27 @@ def main() -> None:
     parser.add_argument("--fly", action="store_true", help="hover instead of driving")
     parser.add_argument("--no-plan-clock", dest="plan_clock", action="store_false",
                         help="the executors run plans on the wall clock")
+    parser.add_argument("--repeat", type=int, default=1, help="runs of each fleet size (the median's is shown)")
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as run_dir, router_process(Path(run_dir)) as endpoint:
         for n in (int(v) for v in args.vehicles.split(",")):
-            r = asyncio.run(measure(endpoint, n, args.executors, args.seconds, args.fly, args.plan_clock))
-            rows.append(r)
-            print(f"{n} vehicles: {r}", flush=True)
+            runs = []
+            for _ in range(max(args.repeat, 1)):
+                r = asyncio.run(measure(endpoint, n, args.executors, args.seconds, args.fly, args.plan_clock))
+                runs.append(r)
+                print(f"{n} vehicles: {r}", flush=True)
+            runs.sort(key=lambda r: r["per_core"])
+            rows.append(runs[len(runs) // 2] | {"range": (runs[0]["per_core"], runs[-1]["per_core"])})
     print(format_table(["vehicles", "executors", "cmd Hz/vehicle", "latency p50 ms", "p99 ms", "max ms",
-                        "executor CPU %", "us/vehicle-cycle", "vehicles/core @100 Hz"],
+                        "executor CPU %", "us/vehicle-cycle", "vehicles/core @100 Hz", "range"],
                        [[r["n"], r["executors"], f"{r['rate_hz']:.1f}", f"{r['p50_ms']:.1f}", f"{r['p99_ms']:.1f}",
                          f"{r['max_ms']:.1f}", f"{r['cpu_pct']:.0f}", f"{r['us_per_cycle']:.0f}",
-                         f"{r['per_core']:.0f}"] for r in rows]))
+                         f"{r['per_core']:.0f}", "{:.0f}-{:.0f}".format(*r["range"])] for r in rows]))
     print("latency: frame capture -> the executor's command batch received by a gateway's subscriber "
-          "(this process), the radio excluded; CPU: the executor processes' user + system time")
+          "(this process), the radio excluded; CPU: the executor processes' user + system time"
+          + (f"; each row the run of median cost of {args.repeat}, range: vehicles/core over them"
+             if args.repeat > 1 else ""))
     fig, (ax1, ax2) = new_figure(2)
     ns = [r["n"] for r in rows]
     ax1.plot(ns, [r["per_core"] for r in rows], "o-")

@@ -222,6 +222,7 @@ class PoseEstimator:
         self._dr = [0.0] * 6
         self._seen_yaw_rate = 0.0  # the filter's yaw rate at the last pose
         self._pos_cov: Sequence[float] = ()  # per axis x, y, z: P_pp, P_pv, P_vv at the last pose
+        self._noise_dt4 = params.accel_std**2 / 4.0  # `pos_std`: the process noise adds (accel_std dt^2 / 2)^2 = this x dt^4
         self.lift_error = 0.0
         """The fraction of its thrust a thrust command gives beyond what its controller expects
         (`command`): the thrust model's error (battery, propellers, payload), learned aloft from the
@@ -362,7 +363,7 @@ class PoseEstimator:
         c, dt2 = self._pos_cov, dt * dt
         var = max(c[0] + 2.0 * dt * c[1] + dt2 * c[2], c[3] + 2.0 * dt * c[4] + dt2 * c[5],
                   c[6] + 2.0 * dt * c[7] + dt2 * c[8])
-        return math.sqrt(var + self.params.accel_std**2 * dt**4 / 4.0)
+        return math.sqrt(var + self._noise_dt4 * dt2 * dt2)
 
     def estimate(self, now: float) -> Estimate:
         """The state predicted to `now` (dead reckoning since the last pose), without changing the filter."""

@@ -64,6 +64,12 @@ def lowest_ground(plan: VehiclePlan | None) -> float:
 
 MOVING = frozenset({Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING})
 """Modes in which a vehicle moves on its plan (`VehicleController.motion`)."""
+IN_ITS_COLUMN = frozenset({Mode.TAKING_OFF, Mode.LANDING})
+"""Modes in which a vehicle on its plan moves up or down its spot's column."""
+PAST_PLAN = frozenset({Mode.DONE, Mode.EMERGENCY_LANDING})
+"""Modes after which no plan is followed: at its end, or coming down blind. (These frozensets
+also serve the control tick's speed: a `Mode.X` costs a tenth of a microsecond, through the enum
+type's `__getattr__` hook, and a tick looked 25 of them up.)"""
 YIELD_STEP_S = 0.05
 """s between the plan positions `VehicleController.yield_to` looks at (0.05 s is at most 1.5 cm of flight)."""
 YIELD_UNSEEN_MAX = 0.5
@@ -461,7 +467,7 @@ class VehicleController:
 
     def _supervise(self, now: float, rel: float, est: Estimate, ref: RefSample | None) -> None:
         m = self.machine
-        if m.mode in (Mode.DONE, Mode.EMERGENCY_LANDING):
+        if m.mode in PAST_PLAN:
             return
         low = self.faults.low_battery(self.charge_used_ah, now)
         link = self.faults.link_lost(now)
@@ -542,7 +548,7 @@ class VehicleController:
             if mode == Mode.HOLDING:
                 error = None if self._stopped_at is None else math.dist(self._stopped_at, (ref.x, ref.y, ref.z))
             elif mode in MOVING and not est.stale:
-                error = (math.hypot(est.x - ref.x, est.y - ref.y) if mode in (Mode.TAKING_OFF, Mode.LANDING)
+                error = (math.hypot(est.x - ref.x, est.y - ref.y) if mode in IN_ITS_COLUMN
                          else self._behind(est, ref))
         pace = 1.0 if error is None else pace_for(error, self.model.margin, c)
         self.clock_pace = pace
@@ -712,7 +718,7 @@ class VehicleController:
         `stop_short`): a fault landing, an emergency descent or an aborted mission goes on."""
         return (self.params.faults.guard and self._active is not None and self.t0 is not None and not self.held
                 and not self._yield and not self._fault_landing and not self._abort
-                and self.machine.mode not in (Mode.DONE, Mode.EMERGENCY_LANDING))
+                and self.machine.mode not in PAST_PLAN)
 
     def _landing_flight(self) -> bool:
         """Whether the vehicle is on a fault landing's level flight to above its node (its
