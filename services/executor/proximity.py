@@ -96,6 +96,8 @@ class Bodies:
         self.newest = NEVER
         """The capture time of the newest frame settled (s)."""
         self._history: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+        self._frame_vids: list[str] = []  # the bodies of the last frame taken, and their rows
+        self._frame_rows: list[int] = []
         self._steps = np.linspace(0.0, 1.0, params.samples)
         """The points of a look-ahead at which two bodies are judged, as shares of it."""
 
@@ -116,7 +118,10 @@ class Bodies:
         """Take the positions of `frame`."""
         if not frame.poses:
             return
-        rows = [self._row(p.vid) for p in frame.poses]
+        vids = [p.vid for p in frame.poses]
+        if vids != self._frame_vids:  # (the motion capture's frames name the same bodies in turn)
+            self._frame_vids, self._frame_rows = vids, [self._row(vid) for vid in vids]
+        rows = self._frame_rows
         self.pos[rows] = [(p.x, p.y, p.z) for p in frame.poses]
         self.seen[rows] = frame.t
 

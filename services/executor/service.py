@@ -537,12 +537,12 @@ class ExecutorService(Service):
         heard, too)."""
         paces: dict[str, float] = {}
         running: set[str] = set()  # missions with a vehicle here not done yet
-        for vid, ctl in self.controllers.items():
-            if ctl.t0 is not None:
-                mission = self.plans[vid].mission
-                paces[mission] = min(paces.get(mission, 1.0), ctl.clock_pace)
-                if ctl.mode != Mode.DONE:
-                    running.add(mission)
+        started = [(ctl, self.plans[vid].mission) for vid, ctl in self.controllers.items() if ctl.t0 is not None]
+        done = Mode.DONE
+        for ctl, mission in started:
+            paces[mission] = min(paces.get(mission, 1.0), ctl.clock_pace)
+            if ctl.mode != done:
+                running.add(mission)
         loop = self.stats.loop_pace = latency_pace(self.stats.recent_latency(), self.control.clock)
         if loop < 1.0 and running:
             self.stats.slowed += 1
@@ -556,9 +556,8 @@ class ExecutorService(Service):
                 self._delay_sent[mission] = (now, pace)
                 self._delay.put(mission, PlanDelay(mission=mission, source=self.instance, delay=delay, pace=pace, t=now))
         timing = {m: (self.clocks[m].behind(now), min(pace, self.clocks[m].heard_pace(now))) for m, pace in paces.items()}
-        for vid, ctl in self.controllers.items():
-            if ctl.t0 is not None:
-                ctl.delay, ctl.pace = timing[self.plans[vid].mission]
+        for ctl, mission in started:
+            ctl.delay, ctl.pace = timing[mission]
 
     def _cycle(self, now: float, n: int, pose_t: float, pose_arrived: float) -> None:
         """Tick every owned controller; commands out as one batch per gateway. Each vehicle's
