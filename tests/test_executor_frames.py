@@ -6,7 +6,10 @@ clocks (`ExecutorService._run_clocks`)."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from collections import Counter
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -21,6 +24,8 @@ from services.executor.vehicle_controller import VehicleController
 from tests.support.closed_loop import plan_for, reference_steps
 
 pytestmark = pytest.mark.compute
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def service() -> ExecutorService:
@@ -110,3 +115,19 @@ def test_an_executor_whose_commands_come_late_runs_its_missions_clock_slower(lat
     assert svc.stats.loop_pace == pytest.approx(0.6) and svc.stats.slowed == 101
     assert sent.msgs and all(m.pace == pytest.approx(0.6) and m.source == "e1" for m in sent.msgs)
     assert ctl.pace == pytest.approx(0.6) and ctl.delay == pytest.approx(0.4, abs=0.01)  # 1 s at 0.6
+
+
+@pytest.mark.parametrize("fly", [False, True], ids=["driving", "hovering"])
+def test_the_executor_cycle_benchmark_ticks_every_vehicle_on_its_plan(tmp_path: Path, fly: bool) -> None:
+    """`bench.executor_cycle` (bench/ sits above tests/ in the import contracts: run as a user does):
+    the cycle's cost per vehicle, and every vehicle still on its plan at the end (a cycle that
+    stopped ticking them, or held them, would cost less and say nothing)."""
+    run = subprocess.run([sys.executable, "-m", "bench.executor_cycle", "--vehicles", "2,6", "--rounds", "3",
+                          "--cycles", "150", "--out", str(tmp_path), *(["--fly"] if fly else [])],
+                         cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    rows = [line.split() for line in run.stdout.splitlines() if line.split()[:1] in (["2"], ["6"])]
+    assert [row[:2] for row in rows] == [["2", "flying" if fly else "driving"], ["6", "flying" if fly else "driving"]], \
+        run.stdout
+    assert all(0.0 < float(row[2]) <= float(row[3]) for row in rows), run.stdout
+    assert (tmp_path / "executor_cycle.png").stat().st_size > 10_000
