@@ -27,7 +27,7 @@ from typing import Any
 import msgspec
 
 from bench.fleet_latency import bench_plan, where
-from bench.tables import bench_parser, format_table, new_figure, save_figure
+from bench.tables import bench_parser, format_table, new_figure, plot_series, save_figure
 from common.bus.keys import Keys
 from common.bus.messages import FramePose, PoseFrame
 from common.bus.session import ZenohConfig
@@ -106,11 +106,9 @@ def main() -> None:
     print("thread CPU time of the cycle's own code, without the bus: a floor under bench.fleet_latency's "
           "whole-process figure")
     fig, (ax,) = new_figure(1)
-    ns = [r["n"] for r in rows]
-    ax.plot(ns, [r["fastest"] for r in rows], "o-", label="fastest round")
-    ax.plot(ns, [r["median"] for r in rows], "s-", label="median round")
-    ax.set(xlabel="vehicles", ylabel="us per vehicle-cycle", title="executor cycle without the bus")
-    ax.legend()
+    plot_series(ax, [r["n"] for r in rows], {"fastest round": [r["fastest"] for r in rows],
+                                              "median round": [r["median"] for r in rows]},
+                xlabel="vehicles", ylabel="us per vehicle-cycle", title="executor cycle without the bus")
     print(f"saved {save_figure(fig, args.out, 'executor_cycle')}")
 
 

@@ -20,8 +20,9 @@ command batches (`gateway/<g>/cmd`). Measured after a warm-up:
                                   [--no-plan-clock] [--repeat 1]
 
 `--repeat K`: K runs of each fleet size, one after another, each with its own executors; the table
-gives the run of median cost and the range over the runs. On this 2-core virtual machine the
-same run's executor cost varies by +-10 % from run to run (the host's load), so one run alone
+gives the run of median cost (of an even number, the costlier of the middle two) and the range
+over the runs. On this 2-core virtual machine the same run's executor cost varies by +-10-15 %
+from run to run (the host's load), so one run alone
 says little about a change of a few per cent.
 
 `--no-plan-clock`: the executors run the plans on the wall clock (`fleet executor --no-plan-clock`),
@@ -40,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.tables import bench_parser, format_table, new_figure, save_figure
+from bench.tables import bench_parser, format_table, new_figure, plot_series, save_figure
 from common.bus.keys import Keys
 from common.bus.liveliness import watch_alive
 from common.bus.messages import CmdBatch, FramePose, PlanStep, PoseFrame, Telemetry, VehiclePlan
@@ -169,7 +170,7 @@ def main() -> None:
                 runs.append(r)
                 print(f"{n} vehicles: {r}", flush=True)
             runs.sort(key=lambda r: r["per_core"])
-            rows.append(runs[len(runs) // 2] | {"range": (runs[0]["per_core"], runs[-1]["per_core"])})
+            rows.append(runs[(len(runs) - 1) // 2] | {"range": (runs[0]["per_core"], runs[-1]["per_core"])})
     print(format_table(["vehicles", "executors", "cmd Hz/vehicle", "latency p50 ms", "p99 ms", "max ms",
                         "executor CPU %", "us/vehicle-cycle", "vehicles/core @100 Hz", "range"],
                        [[r["n"], r["executors"], f"{r['rate_hz']:.1f}", f"{r['p50_ms']:.1f}", f"{r['p99_ms']:.1f}",
@@ -184,10 +185,8 @@ def main() -> None:
     ax1.plot(ns, [r["per_core"] for r in rows], "o-")
     ax1.axhline(200, ls="--", c="0.5")
     ax1.set(xlabel="vehicles", ylabel="vehicles per core at 100 Hz", title="executor whole-process cost")
-    ax2.plot(ns, [r["p50_ms"] for r in rows], "o-", label="p50")
-    ax2.plot(ns, [r["p99_ms"] for r in rows], "s-", label="p99")
-    ax2.set(xlabel="vehicles", ylabel="ms", title="frame capture -> command batch")
-    ax2.legend()
+    plot_series(ax2, ns, {"p50": [r["p50_ms"] for r in rows], "p99": [r["p99_ms"] for r in rows]},
+                xlabel="vehicles", ylabel="ms", title="frame capture -> command batch")
     print(f"saved {save_figure(fig, args.out, 'fleet_latency')}")
 
 

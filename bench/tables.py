@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import argparse
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
 
@@ -48,6 +49,15 @@ def format_table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> st
 def new_figure(ncols: int = 1, width: float = 5.0, height: float = 3.6) -> tuple[Figure, list]:
     fig, axes = pyplot().subplots(1, ncols, figsize=(width * ncols, height), squeeze=False)
     return fig, list(axes[0])
+
+
+def plot_series(ax: Axes, xs: Sequence[float], series: Mapping[str, Sequence[float]], **labels: str) -> None:
+    """One line per series (its label -> its values over `xs`), markers in turn, with a legend and
+    the axes' `labels` (`xlabel`, `ylabel`, `title`)."""
+    for (label, ys), marker in zip(series.items(), "os^vD*", strict=False):
+        ax.plot(xs, ys, f"{marker}-", label=label)
+    ax.set(**labels)
+    ax.legend()
 
 
 def save_figure(fig: Figure, out_dir: str | Path, name: str) -> Path:
