@@ -22,8 +22,7 @@ command batches (`gateway/<g>/cmd`). Measured after a warm-up:
 `--repeat K`: K runs of each fleet size, one after another, each with its own executors; the table
 gives the run of median cost (of an even number, the costlier of the middle two) and the range
 over the runs. On this 2-core virtual machine the same run's executor cost varies by +-10-15 %
-from run to run (the host's load), so one run alone
-says little about a change of a few per cent.
+from run to run (the host's load), so one run alone says little about a change of a few per cent.
 
 `--no-plan-clock`: the executors run the plans on the wall clock (`fleet executor --no-plan-clock`),
 to weigh what the plan's clock costs.
