@@ -155,6 +155,27 @@ def test_a_vehicle_at_rest_whose_node_a_fault_closed_holds_there_and_one_moving_
         assert validate_plan(reply.plan).ok
 
 
+def test_a_vehicle_waiting_on_the_ground_whose_node_a_fault_closed_holds_there() -> None:
+    """cf4 waits at Wb4, a road node, from 11.2 to 15.2 s: the switch at 12 s falls in that wait,
+    so its prefix ends with it (at 15.2 s). cf1 comes down 15 cm beside Wb4 and rests there: Wb4
+    and every way out of it are closed, and cf4 can go nowhere. With `strand` it is held there, as a
+    vehicle whose path ended there would be, and the others are planned around it. (Its wait
+    counted as moving: in an 80-vehicle soak's replan such a car, 22 cm beside a held flyer, was
+    neither placed nor held, and the replan failed naming it.)"""
+    base = plan_of()
+    wait = [(a.t, b.t) for a, b in itertools.pairwise(base.paths["cf4"]) if a.node == b.node == "Wb4"]
+    assert wait and wait[0][0] < 12.0 < wait[0][1], base.paths["cf4"]
+    x, y, z = base.graph.nodes["Wb4"].pos
+    beside = (x + 0.15, y, z)
+    sweeps = [Sweep("cf1", beside, beside, 12.0, 12.0, rest=True)]
+    replan = Replan(base=base, at=12.0, left=["cf1"], sweeps=sweeps, strand=True)
+    reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, replan=replan))
+    assert reply.ok and reply.plan is not None, reply.error
+    path = reply.plan.paths["cf4"]
+    assert path[-1].node == "Wb4" and reply.plan.tasks["cf4"].goal == "Wb4", path
+    assert validate_plan(reply.plan).ok
+
+
 def test_a_stranded_vehicle_whose_stop_a_body_will_come_down_on_drives_on_to_the_next_nearest() -> None:
     """cf4 comes down on cf1's goal, and cf2 is coming down 3 s after cf1 reaches its switch node
     (Wr5, a road node): cf1 cannot stop there for ever either. It is given the next nearest goal it
