@@ -538,10 +538,9 @@ class ExecutorService(Service):
         paces: dict[str, float] = {}
         running: set[str] = set()  # missions with a vehicle here not done yet
         started = [(ctl, self.plans[vid].mission) for vid, ctl in self.controllers.items() if ctl.t0 is not None]
-        done = Mode.DONE
         for ctl, mission in started:
             paces[mission] = min(paces.get(mission, 1.0), ctl.clock_pace)
-            if ctl.mode != done:
+            if ctl.mode != Mode.DONE:
                 running.add(mission)
         loop = self.stats.loop_pace = latency_pace(self.stats.recent_latency(), self.control.clock)
         if loop < 1.0 and running:
