@@ -4,8 +4,8 @@ An `ExecutorService` that never opens a session is given `--vehicles` plans (`be
 a 100 m drive at 0.1 m/s, or with `--fly` a take-off and a long hover) and runs its cycle on a
 simulated clock, back to back: a motion-capture frame of every vehicle fused (`_fuse`, the
 proximity stop's bodies settled), the proximity stop, the plan clocks, every controller's tick
-and the command batches and states encoded (`_cycle`; each message encoded with msgpack, as a
-publisher does, but not put on the bus). Thread CPU time per round of `--cycles` cycles, per
+and the command batches and states encoded (`_cycle`; each message encoded as a publisher does,
+but not put on the bus). Thread CPU time per round of `--cycles` cycles, per
 vehicle-cycle; the table gives the fastest round and the median of the rounds after a warm-up.
 
 Why beside `bench.fleet_latency` (the whole process, the bus and its threads included, the issue's
@@ -24,12 +24,11 @@ import statistics
 import time
 from typing import Any
 
-import msgspec
-
 from bench.fleet_latency import bench_plan, where
 from bench.tables import bench_parser, format_table, new_figure, plot_series, save_figure
 from common.bus.keys import Keys
-from common.bus.messages import FramePose, PoseFrame
+from common.bus.messages import Codec, FramePose, PoseFrame
+from common.bus.pubsub import encode_message
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
 from services.executor.service import ExecutorService
@@ -43,13 +42,18 @@ T0 = 1000.0
 
 
 class EncodingSink:
-    """Stands in for a publisher or a service's keyed publishers: encodes what it is given, sends nothing."""
+    """Stands in for a publisher or a service's keyed publishers: encodes what it is given as a
+    `Publisher` does (`encode_message`), sends nothing."""
 
     def __init__(self) -> None:
-        self._encoder = msgspec.msgpack.Encoder()
+        self._codecs: dict[type, Codec[Any]] = {}
 
     def put(self, *args: Any) -> None:
-        self._encoder.encode(args[-1])
+        msg = args[-1]
+        codec = self._codecs.get(type(msg))
+        if codec is None:
+            codec = self._codecs[type(msg)] = Codec(type(msg))
+        encode_message(codec, msg)
 
 
 def executor(n: int, fly: bool) -> tuple[ExecutorService, list[str]]:

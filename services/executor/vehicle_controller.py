@@ -69,7 +69,7 @@ IN_ITS_COLUMN = frozenset({Mode.TAKING_OFF, Mode.LANDING})
 PAST_PLAN = frozenset({Mode.DONE, Mode.EMERGENCY_LANDING})
 """Modes after which no plan is followed: at its end, or coming down blind. (These frozensets
 also serve the control tick's speed: a `Mode.X` costs a tenth of a microsecond, through the enum
-type's `__getattr__` hook, and a tick looked 25 of them up.)"""
+type's `__getattr__` hook, and a hovering vehicle's tick had about 25 in the lines it ran.)"""
 YIELD_STEP_S = 0.05
 """s between the plan positions `VehicleController.yield_to` looks at (0.05 s is at most 1.5 cm of flight)."""
 YIELD_UNSEEN_MAX = 0.5
