@@ -404,7 +404,19 @@ HANDLINGS: tuple[Handling, ...] = (
         "a vehicle in the air a replan cannot place held where it is",
         "mission runner: only a vehicle on the ground the replan cannot place is stopped alone; one in the air fails the mission",
         (Edit("services/mission/runner.py", "state.mode not in GROUND_MODES | AIR_MODES", "state.mode not in GROUND_MODES"),),
-        "tests/test_replan_burst.py::test_a_vehicle_in_the_air_a_replan_cannot_place_is_held_where_it_is_and_the_others_go_on"),
+        "tests/test_replan_burst.py::"
+        "test_the_vehicles_a_replan_cannot_place_are_held_or_stopped_where_they_are_at_once_and_the_others_go_on"),
+    Handling(
+        "every vehicle a replan cannot place stopped at once",
+        "mission runner: only the first vehicle a replan names is stopped; the next replan names the next",
+        (Edit("services/mission/runner.py", "vid for vid in blocked if self._stop_where_it_is", "vid for vid in blocked[:1] if self._stop_where_it_is"),),
+        "tests/test_replan_burst.py::"
+        "test_the_vehicles_a_replan_cannot_place_are_held_or_stopped_where_they_are_at_once_and_the_others_go_on"),
+    Handling(
+        "a replan names every vehicle no order can place",
+        "SIPP replan: the priority orders are tried until one fails for good; it names the vehicle that failed last",
+        (Edit("services/planner/sipp/replan.py", "    if shut := [leg for leg in order if", "    if False and [leg for leg in order if"),),
+        "tests/test_replan.py::test_a_replan_names_every_vehicle_whose_switch_node_a_body_claims_at_once"),
     Handling(
         "a vehicle its mission holds hovers where it is",
         "executor: a mission's hold (`MissionAbort.hold`) aborts the vehicle: it lands",

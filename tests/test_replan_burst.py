@@ -263,20 +263,21 @@ def test_a_fault_landing_beside_the_vehicle_is_planned_around_where_it_comes_dow
 
 class PlacesNoneInTheAir(Burst):
     """`FIRST` held at its start spot; the replan around it cannot place `ALOFT`, in flight half a
-    metre above its start (the planner's answer stood in for: an 80-vehicle soak's replan could
-    not place a vehicle flying into the column of one held hovering, and the mission ended for all
-    80). The mission holds `ALOFT` where it is instead (`MissionAbort.hold`, heard on the bus) and
-    plans the others on around both."""
+    metre above its start, nor `PARKED` (the planner's answer stood in for: an 80-vehicle soak's
+    replan could not place a vehicle flying into the column of one held hovering, and the mission
+    ended for all 80). The mission holds `ALOFT` where it is instead (`MissionAbort.hold`, heard on
+    the bus), stops `PARKED` where it is, both at once (`PlanReply.unplaceable`), and plans the
+    others on around all three."""
 
     held_during = ()
-    ALOFT = "cf4"
+    ALOFT, PARKED = "cf4", "cf2"
     heard: list[MissionAbort]
 
     async def _ask_replan(self, *args, **kwargs):  # type: ignore[no-untyped-def]
         self.asked += 1
         if self.asked == 1:
-            self._blocked = self.ALOFT
-            return f"replanning failed: no plan (could not place {self.ALOFT})"
+            return self._replan_failed(PlanReply(ok=False, error=f"no plan (could not place {self.ALOFT})",
+                                                 failed_vehicle=self.ALOFT, unplaceable=[self.ALOFT, self.PARKED]))
         return await MissionRunner._ask_replan(self, *args, **kwargs)
 
     async def main(self) -> None:
@@ -296,15 +297,17 @@ class PlacesNoneInTheAir(Burst):
 
 
 @pytest.mark.timeout(60)
-def test_a_vehicle_in_the_air_a_replan_cannot_place_is_held_where_it_is_and_the_others_go_on(
+def test_the_vehicles_a_replan_cannot_place_are_held_or_stopped_where_they_are_at_once_and_the_others_go_on(
         zenoh_router: str) -> None:
     runner = PlacesNoneInTheAir(zenoh_router)
     with_planner(zenoh_router, runner)
-    aloft = runner.ALOFT
+    aloft, parked = runner.ALOFT, runner.PARKED
     assert runner.asked == 2 and runner.plan is not None
-    assert set(runner.plan.paths) == set(TASKS) - {FIRST, aloft}, sorted(runner.plan.paths)
-    assert [(m.vehicles, m.hold) for m in runner.heard] == [([aloft], True)], runner.heard
+    assert set(runner.plan.paths) == set(TASKS) - {FIRST, aloft, parked}, sorted(runner.plan.paths)
+    assert [(m.vehicles, m.hold) for m in runner.heard] == [([aloft], True), ([parked], False)], runner.heard
     assert runner.left[aloft].startswith(f"{aloft}: held where it is, no plan around the vehicles that left")
+    assert runner.left[parked].startswith(f"{parked}: stopped where it is, no plan around the vehicles that left")
+    assert parked not in runner._left_with
     assert aloft in runner._left_with  # (it may come back: `rejoin.py`)
     state = runner.states[aloft]
     mine = [s for s in runner.sweeps if s.vid == aloft]

@@ -432,7 +432,9 @@ class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     `failed_vehicle`: without a plan, the vehicle prioritized planning could not place, if one;
     `refused`: the vehicles of `Replan.rejoin` that cannot come back yet, each with why (every
     one of them: `failed_vehicle` is the first); `timed_out`: without a plan, a replan's time
-    limit ended it with more left to try (asked again with more time, it may find one)."""
+    limit ended it with more left to try (asked again with more time, it may find one);
+    `unplaceable`: without a plan, every vehicle of a replan that no priority order can place (its
+    switch node claimed when it gets there: `failed_vehicle` is the first)."""
 
     ok: bool
     error: str = ""
@@ -442,6 +444,7 @@ class PlanReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     planner: str = ""
     refused: dict[str, str] = {}
     timed_out: bool = False
+    unplaceable: list[str] = []
 
 
 class GraphRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -128,7 +128,8 @@ a goal before a new goal's plan reached the executor is the old one's)."""
 REPLAN_LEAD_S = 1.0
 """s: the switch time of a replan is this far ahead of the fault (planning + handing the plans out)."""
 STOP_MAX = 3
-"""How many vehicles a replan may stop where they are (`MissionRunner._replan`) before it gives up."""
+"""How many times a replan may stop vehicles where they are (`MissionRunner._replan`: every one the
+planner could not place, each time) before it gives up."""
 BYSTANDERS_EVERY_S = 0.1
 """s: the motion capture's frames are read for the bystanders at most this often."""
 GONE_KINDS = frozenset({"emergency_landing", "low_battery", "crash"})
@@ -227,8 +228,8 @@ class MissionRunner(MissionClient[MissionResult]):
         """Replans asked for by faults so far (`_replan`: only the last one queued plans)."""
         self.replans_skipped = 0
         """Fault replans that a later one queued behind them made unnecessary."""
-        self._blocked = ""
-        """The vehicle the last replan could not place."""
+        self._blocked: list[str] = []
+        """The vehicles the last replan could not place (`PlanReply.failed_vehicle`, `unplaceable`)."""
         self._refused: dict[str, str] = {}
         """The held vehicles the last replan could not bring back yet, and why (`PlanReply.refused`)."""
         self._abort_pub: Publisher | None = None
@@ -370,8 +371,8 @@ class MissionRunner(MissionClient[MissionResult]):
             if any(v not in self._rejoin for v in vids):
                 continue  # one left for good meanwhile (an emergency landing): the others again
             if isinstance(answer, str):
-                vid, self._blocked = self._blocked, ""
-                refused, self._refused = self._refused or {vid: answer}, {}
+                blocked, self._blocked = self._blocked, []
+                refused, self._refused = self._refused or dict.fromkeys(blocked, answer), {}
                 out = [v for v in vids if v in refused]
                 for v in out or vids:
                     if self._rejoin[v].tries == 1:
@@ -453,8 +454,9 @@ class MissionRunner(MissionClient[MissionResult]):
         each, one after another, the last handed out ten seconds late, while the planner took 30-47 %
         of a core from the control loops.) A vehicle the planner could not place (it drives or flies
         into the space a vehicle that left closed) is stopped where it is, alone (on the ground for
-        good, in the air held hovering), and leaves too (`STOP_MAX` of them at most); any other failure is the mission's fault (it ends, landing
-        everyone), unless a later fault's replan was queued meanwhile: that one plans around more
+        good, in the air held hovering), and leaves too, with every other the planner named as
+        placed by no order (`PlanReply.unplaceable`), and the others are planned again (`STOP_MAX`
+        times at most); any other failure is the mission's fault (it ends, landing everyone), unless a later fault's replan was queued meanwhile: that one plans around more
         (the vehicle this one could not place has often left by then: held in the same burst)."""
         if previous is not None:
             await asyncio.gather(previous, return_exceptions=True)
@@ -472,12 +474,18 @@ class MissionRunner(MissionClient[MissionResult]):
             self.fault = self.fault or f"{', '.join(self.left)} left the mission; {error}"
 
     def _stop_blocked(self, error: str) -> bool:
-        """Stop the vehicle the last replan could not place where it is (module doc of `_replan`):
-        on the ground for good; in the air held hovering, for the mission's sake
-        (`MissionAbort.hold`): it may come back (`rejoin.py`). Whether it did. (An 80-vehicle
-        soak's replan could not place a vehicle flying into the column of one held hovering, its
-        next node 27 cm from it, and the mission ended for all 80.)"""
-        vid, self._blocked = self._blocked, ""
+        """Stop the vehicles the last replan could not place where they are (module doc of
+        `_replan`): every one it named at once (`PlanReply.unplaceable`); whether it stopped any."""
+        blocked, self._blocked = self._blocked, []
+        stopped = [vid for vid in blocked if self._stop_where_it_is(vid, error)]  # (each one, not any())
+        return bool(stopped)
+
+    def _stop_where_it_is(self, vid: str, error: str) -> bool:
+        """Stop `vid`, which a replan could not place, where it is: on the ground for good; in the
+        air held hovering, for the mission's sake (`MissionAbort.hold`): it may come back
+        (`rejoin.py`). Whether it did. (An 80-vehicle soak's replan could not place a vehicle
+        flying into the column of one held hovering, its next node 27 cm from it, and the mission
+        ended for all 80.)"""
         state = self.states.get(vid)
         if (not vid or state is None or state.mode not in GROUND_MODES | AIR_MODES or self.plan is None
                 or self.t0 is None or vid not in self.plan.paths or vid in self.left or self._abort_pub is None):
@@ -539,12 +547,18 @@ class MissionRunner(MissionClient[MissionResult]):
                 self.events.append(f"replan: {late}; asked again with more time")
                 continue
             if not reply.ok or reply.plan is None:
-                self._blocked, self._refused = reply.failed_vehicle, dict(reply.refused)
-                return f"replanning failed: {reply.error}"
+                return self._replan_failed(reply)
             if self.plan_time() <= at:
                 return reply, at, took
             late = f"the replan came too late ({took:.2f} s)"
         return f"{late} ({len(REPLAN_TIME_LIMITS_S)} times)"
+
+    def _replan_failed(self, reply: PlanReply) -> str:
+        """Note whom a failed replan names (the vehicles it could not place, those it could not bring
+        back yet); why it failed."""
+        self._blocked = [v for v in dict.fromkeys((reply.failed_vehicle, *reply.unplaceable)) if v]
+        self._refused = dict(reply.refused)
+        return f"replanning failed: {reply.error}"
 
     def _with_rejoining(self, plan: Plan, rejoin: Sequence[str], at: float) -> tuple[Plan, list[Sweep]]:
         """`plan` with the held vehicles `rejoin` back in it (their paths shifted so that each is

@@ -131,7 +131,8 @@ def _replan_with(graph: FleetGraph, req: PlanRequest, planner: str, time_limit: 
     result = _load(REPLANNERS[planner])(graph, rp, base.mu, time_limit, req.seed, **extra)
     if not result.ok:
         return PlanReply(ok=False, error=f"no plan (could not place {result.failed_vehicle}): {result.error}",
-                         failed_vehicle=result.failed_vehicle, timed_out=result.timed_out), None
+                         failed_vehicle=result.failed_vehicle, timed_out=result.timed_out,
+                         unplaceable=result.unplaceable), None
     tasks = {vid: msgspec.structs.replace(base.tasks[vid], goal=result.paths[vid][-1].node
                                           if vid in result.stranded else rp.goals.get(vid, base.tasks[vid].goal))
              for vid in result.paths}

@@ -7,6 +7,7 @@ what their batteries still allow after it, and which nodes and edges a body that
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from itertools import pairwise
 
@@ -148,6 +149,6 @@ def rejoins_blocked(graph: FleetGraph, replan: Replan) -> dict[str, str]:
     return blocked
 
 
-def failed(vid: str, reason: str, t0: float, timed_out: bool = False) -> PlanResult:
+def failed(vid: str, reason: str, t0: float, timed_out: bool = False, unplaceable: Sequence[str] = ()) -> PlanResult:
     return PlanResult(ok=False, error=f"{vid}: {reason}", failed_vehicle=vid, planning_time_s=time.perf_counter() - t0,
-                      timed_out=timed_out)
+                      timed_out=timed_out, unplaceable=list(unplaceable))

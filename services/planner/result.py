@@ -27,6 +27,9 @@ class PlanResult:
     """Replanning: vehicles given a goal short of their own, and why theirs was out of reach."""
     timed_out: bool = False
     """Without a plan: the time limit ended the search with more left to try."""
+    unplaceable: list[str] = field(default_factory=list)
+    """Replanning, without a plan: every vehicle no priority order can place (`failed_vehicle` the
+    first)."""
 
 
 def to_plan(graph: FleetGraph, map_name: str, planner: str, mu: float, tasks: dict[str, Task], result: PlanResult) -> Plan:

@@ -132,6 +132,12 @@ class Reservations:
         other.node_closed, other.edge_closed = self.node_closed[:], self.edge_closed[:]
         return other
 
+    def interval_at(self, node: int, t: float) -> int | None:
+        """The index of `node`'s safe interval that holds time `t`, or None: the node is claimed at
+        `t` (a search cannot start there then, `search.sipp`)."""
+        k = bisect_right(self.node_start[node], t) - 1
+        return k if k >= 0 and self.node_end[node][k] >= t else None
+
     def park(self, node: int, delta: int) -> None:
         """Add (+1) or lift (-1) the all-time closure by a body parked at `node`."""
         fp = self.footprints

@@ -18,7 +18,7 @@ from __future__ import annotations
 import heapq
 import math
 import time
-from bisect import bisect_left, bisect_right
+from bisect import bisect_left
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -106,8 +106,8 @@ def sipp(
     heading, turn_rate = sg.heading, sg.turn_rate
     n_nodes = len(out)
 
-    k0 = bisect_right(node_s[start], t_start) - 1
-    if k0 < 0 or node_e[start][k0] < t_start or h[start] == INF:
+    k0 = res.interval_at(start, t_start)
+    if k0 is None or h[start] == INF:
         return None
     if not node_e[goal] or node_e[goal][-1] != INF or closed_n[goal]:
         return None  # the goal is never free for ever: no search (it would exhaust every interval)
