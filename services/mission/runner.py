@@ -456,8 +456,9 @@ class MissionRunner(MissionClient[MissionResult]):
         into the space a vehicle that left closed) is stopped where it is, alone (on the ground for
         good, in the air held hovering), and leaves too, with every other the planner named as
         placed by no order (`PlanReply.unplaceable`), and the others are planned again (`STOP_MAX`
-        times at most); any other failure is the mission's fault (it ends, landing everyone), unless a later fault's replan was queued meanwhile: that one plans around more
-        (the vehicle this one could not place has often left by then: held in the same burst)."""
+        times at most); any other failure is the mission's fault (it ends, landing everyone),
+        unless a later fault's replan was queued meanwhile: that one plans around more (the
+        vehicle this one could not place has often left by then: held in the same burst)."""
         if previous is not None:
             await asyncio.gather(previous, return_exceptions=True)
         if ticket < self._fault_replans:
