@@ -413,6 +413,12 @@ HANDLINGS: tuple[Handling, ...] = (
         "tests/test_replan_burst.py::"
         "test_the_vehicles_a_replan_cannot_place_are_held_or_stopped_where_they_are_at_once_and_the_others_go_on"),
     Handling(
+        "a jam of cars a replan cannot place stopped car after car",
+        "mission runner: a fault's replan stops three vehicles at most (the limit before), then the mission ends",
+        (Edit("services/mission/runner.py", "        while error and self._stop_blocked(error):",
+              "        while error and len(self.left) < 4 and self._stop_blocked(error):"),),
+        "tests/test_replan_burst.py::test_a_jam_of_cars_a_replan_cannot_place_one_after_another_is_stopped_car_after_car"),
+    Handling(
         "a replan names every vehicle no order can place",
         "SIPP replan: the priority orders are tried until one fails for good; it names the vehicle that failed last",
         (Edit("services/planner/sipp/replan.py", "    if shut := [leg for leg in order if", "    if False and [leg for leg in order if"),),

@@ -312,3 +312,39 @@ def test_the_vehicles_a_replan_cannot_place_are_held_or_stopped_where_they_are_a
     state = runner.states[aloft]
     mine = [s for s in runner.sweeps if s.vid == aloft]
     assert len(mine) == 1 and mine[0].rest and mine[0].p0 == (state.x, state.y, 0.5), mine  # its column
+
+
+class StopsCarAfterCar(Burst):
+    """`FIRST` held; the replans around it cannot place `JAM`'s cars, one a replan (the planner's
+    answers stood in for: a car stopped on a road claims the switch node of the car behind it, and
+    so on down the road; a 10-minute 80-vehicle soak's mission ended on the fourth when three stops
+    were the most). Each is stopped where it is and the others are planned again, until a replan
+    places them."""
+
+    held_during = ()
+    JAM = ("cf2", "cf3", "cf5", "cf6")
+
+    async def _ask_replan(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        self.asked += 1
+        if self.asked <= len(self.JAM):
+            car = self.JAM[self.asked - 1]
+            return self._replan_failed(PlanReply(ok=False, error=f"no plan (could not place {car})",
+                                                 failed_vehicle=car, unplaceable=[car]))
+        return await MissionRunner._ask_replan(self, *args, **kwargs)
+
+    async def main(self) -> None:
+        try:
+            await self.start_parked()
+            assert self.on_fault(FIRST, "tracking_hold", f"{FIRST}: held", "")
+            await self._replanning
+        finally:
+            self.stop()
+
+
+@pytest.mark.timeout(60)
+def test_a_jam_of_cars_a_replan_cannot_place_one_after_another_is_stopped_car_after_car(zenoh_router: str) -> None:
+    runner = StopsCarAfterCar(zenoh_router)
+    with_planner(zenoh_router, runner)
+    assert runner.asked == len(runner.JAM) + 1 and runner.plan is not None and not runner.fault, runner.fault
+    assert set(runner.plan.paths) == set(TASKS) - {FIRST, *runner.JAM}, sorted(runner.plan.paths)
+    assert all(runner.left[car].startswith(f"{car}: stopped where it is") for car in runner.JAM), runner.left

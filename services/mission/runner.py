@@ -127,9 +127,6 @@ ARRIVAL_SLACK_S = 0.5
 a goal before a new goal's plan reached the executor is the old one's)."""
 REPLAN_LEAD_S = 1.0
 """s: the switch time of a replan is this far ahead of the fault (planning + handing the plans out)."""
-STOP_MAX = 3
-"""How many times a replan may stop vehicles where they are (`MissionRunner._replan`: every one the
-planner could not place, each time) before it gives up."""
 BYSTANDERS_EVERY_S = 0.1
 """s: the motion capture's frames are read for the bystanders at most this often."""
 GONE_KINDS = frozenset({"emergency_landing", "low_battery", "crash"})
@@ -455,8 +452,10 @@ class MissionRunner(MissionClient[MissionResult]):
         of a core from the control loops.) A vehicle the planner could not place (it drives or flies
         into the space a vehicle that left closed) is stopped where it is, alone (on the ground for
         good, in the air held hovering), and leaves too, with every other the planner named as
-        placed by no order (`PlanReply.unplaceable`), and the others are planned again (`STOP_MAX`
-        times at most); any other failure is the mission's fault (it ends, landing everyone),
+        placed by no order (`PlanReply.unplaceable`), and the others are planned again, as long as
+        each failed replan names a vehicle still to stop (a jam behind a car stopped on a road
+        stops car after car: an 80-vehicle soak's mission ended on the fourth in a row when three
+        were the most); any other failure is the mission's fault (it ends, landing everyone),
         unless a later fault's replan was queued meanwhile: that one plans around more (the
         vehicle this one could not place has often left by then: held in the same burst)."""
         if previous is not None:
@@ -465,9 +464,7 @@ class MissionRunner(MissionClient[MissionResult]):
             self.replans_skipped += 1
             return
         error = await self._plan_on(None)
-        for _ in range(STOP_MAX):
-            if not error or not self._stop_blocked(error):
-                break
+        while error and self._stop_blocked(error):  # (each time one more left: at most once a vehicle)
             error = await self._plan_on(None)
         if error and ticket < self._fault_replans:
             self.events.append(f"replanning failed ({error}); the replan of a later fault tries again")
