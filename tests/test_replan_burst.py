@@ -332,14 +332,6 @@ class StopsCarAfterCar(Burst):
                                                  failed_vehicle=car, unplaceable=[car]))
         return await MissionRunner._ask_replan(self, *args, **kwargs)
 
-    async def main(self) -> None:
-        try:
-            await self.start_parked()
-            assert self.on_fault(FIRST, "tracking_hold", f"{FIRST}: held", "")
-            await self._replanning
-        finally:
-            self.stop()
-
 
 @pytest.mark.timeout(60)
 def test_a_jam_of_cars_a_replan_cannot_place_one_after_another_is_stopped_car_after_car(zenoh_router: str) -> None:
