@@ -237,6 +237,12 @@ HANDLINGS: tuple[Handling, ...] = (
               "        unseen = 0.0 * min(max(unseen_s, 0.0) *"),),
         "tests/test_tracking_guard.py::test_a_vehicle_held_unseen_for_a_while_is_given_the_way_it_may_have_gone"),
     Handling(
+        "the reflex to an executor's own held vehicle at once",
+        "executor: the reflex waits for the event to come back through the router",
+        (Edit("services/executor/service.py", "        self._reflex(event, event.t)\n", ""),
+         Edit("services/executor/service.py", "        if event.vid not in self.controllers:\n", "        if True:\n")),
+        "tests/test_tracking_guard.py::test_the_reflex_to_a_vehicle_its_own_executor_holds_comes_in_the_same_cycle"),
+    Handling(
         "re-stopping on a status that shows the motors running",
         "gateway: no `motors_restopped`",
         (Edit("services/radio_gateway/vehicle.py",

@@ -21,7 +21,7 @@ import msgspec
 import pytest
 
 from common.bus.keys import Keys
-from common.bus.messages import MissionAbort, Pose, Telemetry
+from common.bus.messages import FramePose, MissionAbort, Pose, PoseFrame, Telemetry
 from common.bus.session import ZenohConfig
 from common.deploy.launcher import status
 from common.domain.vehicle_model import VehicleModel
@@ -357,6 +357,51 @@ def test_a_vehicle_first_seen_shortly_before_the_start_drives_its_plan() -> None
     assert ctrl.held is None, ctrl.held
     assert ctrl.machine.history[0].reason == "pose stale"
     assert ctrl.mode == Mode.DONE and math.dist((sim.x, sim.y, sim.z), steps[-1].pos) < 0.05
+
+
+class Kept:
+    """An executor's publishers where it has no session: what it puts is kept, nothing is sent."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple] = []
+
+    def put(self, *args: object) -> None:
+        self.sent.append(args)
+
+
+def test_the_reflex_to_a_vehicle_its_own_executor_holds_comes_in_the_same_cycle() -> None:
+    """An executor's reflex to one of its own vehicles held does not wait for the event to come
+    back through the router (on a starved machine 0.25 s: an 80-vehicle soak, where cf74 ran into
+    cf12, held by the same executor, before it yielded). This executor has no session at all: its
+    other vehicle, whose plan drives to where the held one stands, holds in the same cycle."""
+    svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("reflex"))  # never run: no session
+    events = svc._event = Kept()
+    for name in ("_cmd", "_batch", "_state", "_states", "_delay"):
+        setattr(svc, name, Kept())
+    shifted = [msgspec.structs.replace(s, pos=(s.pos[0] - 0.15, s.pos[1] - 0.15, s.pos[2])) for s in STEPS]
+    for vid, steps in (("cf1", STEPS), ("cf2", shifted)):  # cf2's first drive ends where cf1 is parked
+        ctrl = svc.controllers[vid] = VehicleController(vid, MODEL, owner="e1", bank=svc.bank)
+        svc.plans[vid] = plan_for(vid, steps, MODEL, t0=T0)
+        ctrl.load(svc.plans[vid])
+        ctrl.start(T0)
+    parked = [FramePose(vid, *steps[0].pos, 0.0) for vid, steps in (("cf1", STEPS), ("cf2", shifted))]
+
+    def cycle(k: int) -> None:
+        now = T0 + 0.01 * k
+        frame = PoseFrame(t=now - 0.004, seq=k, poses=parked)
+        svc._fuse([frame])
+        svc._run_clocks(now)
+        svc._cycle(now, k, frame.t, frame.t)
+
+    for k in range(50):  # both parked, cf2's drive 0.5 s ahead
+        cycle(k)
+    assert not svc.controllers["cf2"].held and not events.sent
+    svc._on_abort(MissionAbort(mission="sim", reason="cf1: held where it is", vehicles=["cf1"], hold=True), "")
+    cycle(50)
+    told = {vid: event.detail for vid, event in events.sent if event.kind == "tracking_hold"}
+    assert told.keys() == {"cf1", "cf2"}, told
+    assert told["cf2"].startswith("yields to cf1, held at (0.00, 0.00, 0.00)"), told
+    assert svc.controllers["cf2"].mode == Mode.HOLDING
 
 
 def starve(pid: int, stop: threading.Event) -> None:
