@@ -8,7 +8,8 @@ starts where the last one left the vehicles, with fresh goals. Collected while i
 
 - every service's `stats/<service>/<instance>` (common/bus/stats.py): dropped messages, refusals,
   the executors' missed control deadlines and pose-to-command latency, the simulator's lag;
-- each process's resident memory and CPU time from /proc, every `--sample-s` seconds.
+- each process's resident memory and CPU time from /proc, every `--sample-s` seconds;
+- the machine's CPU every second: how busy its cores were and what its host took (`bench.machine_cpu`).
 
 Printed as tables at the end; `soak.png` plots memory and latency over time. With `--trace FILE`
 a recorder process keeps every vehicle's ground truth, state, events and telemetry for tracing a
@@ -35,6 +36,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bench.machine_cpu import MachineCpu, sample_machine
 from bench.tables import bench_parser, cpu_probe, format_table, new_figure, save_figure
 from common.bus.messages import ControlMode, ServiceStats, SimTruth
 from common.bus.pubsub import subscribe
@@ -91,6 +93,9 @@ def draw_tasks(graph: FleetGraph, starts: dict[str, str], rng: random.Random) ->
         if all(g != s for g, s in zip(goals, starts.values(), strict=True)):
             return {vid: Task(start=s, goal=g) for (vid, s), g in zip(starts.items(), goals, strict=True)}
 
+
+MACHINE_WINDOW_S = 1.0
+"""s between samples of the machine's CPU (`bench.machine_cpu`): its worst window of steal."""
 
 LOG_PERIOD_S = 0.2
 """s: the soak's gateways have the firmware stream its log block (battery, supervisor, RSSI) at 5 Hz,
@@ -183,6 +188,8 @@ class SoakLog:
     own: list[tuple[float, float, float]] = field(default_factory=list)
     """This process (the mission and the soak's own listening) as `series` has the
     fleet's: (t, RSS MB, CPU s). Not a service: its memory holds what the soak collects."""
+    machine: MachineCpu = field(default_factory=MachineCpu)
+    """The machine's CPU, busy and stolen by its host, every `MACHINE_WINDOW_S` (`bench.machine_cpu`)."""
 
     def sim_figures(self) -> dict[str, float | str]:
         """The simulators' latest figures, summed (hardest touchdown: the largest; `hardest`: the
@@ -232,6 +239,7 @@ async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], sec
     for service in SERVICES:  # one subscription per service: what the router's access control grants
         subscribe(session, fleet.keys.all_stats(service), ServiceStats, lambda m, _k: log.on_stats(m))
     sampler = asyncio.create_task(sample_processes(log, pids, sample_s))
+    machine = asyncio.create_task(sample_machine(log.machine, MACHINE_WINDOW_S))
     rng = random.Random(seed)
     try:
         while time.time() - log.started < seconds:
@@ -265,6 +273,7 @@ async def soak(fleet: LocalFleet, graph: FleetGraph, tasks: dict[str, Task], sec
         truths.close()
     finally:
         sampler.cancel()
+        machine.cancel()
         session.close()
     return log
 
@@ -291,6 +300,8 @@ def report(log: SoakLog, seconds: float) -> str:
              f"{arrived}/{flights} vehicle trips arrived ({log.flights} with flights), contacts {sum(m.contacts for m in log.missions)}, "
              f"closest bodies {100 * gap:.1f} cm; machine load average {min(log.load, default=0):.1f}-"
              f"{max(log.load, default=0):.1f} on {os.cpu_count()} cores, its speed probe {log.probe_ms[0]:.0f} ms ({log.probe_ms[1]:.0f} ms CPU)"]
+    if machine := log.machine.line(MACHINE_WINDOW_S):
+        lines.append(machine)
     sim, aloft = log.sim_figures(), log.not_at_rest()
     lines.append(f"at the end (ground truth, {log.rest_after:.0f} s after the last mission): "
                  f"{len(log.final) - len(aloft)}/{log.vehicles} vehicles at rest "
@@ -361,7 +372,7 @@ def summary(log: SoakLog) -> dict:
                for name in ("pose_to_radio_p50", "pose_to_radio_p99", "frame_to_radio_p50", "frame_to_radio_p99")},
             "growth_mb_per_min": {name: mb_per_min(points) for name, points in log.series.items()},
             "vehicles": log.vehicles, "heard_at_end": sorted(log.final), "not_at_rest": log.not_at_rest(),
-            "rest_after_s": log.rest_after, "probe_ms": list(log.probe_ms),
+            "rest_after_s": log.rest_after, "probe_ms": list(log.probe_ms), "machine": log.machine.figures(),
             "touchdown_max_mps": sim["touchdown_max_mps"], "watchdog_cuts": sim["watchdog_cuts"],
             "drops": {name: st.drops for name, st in log.stats.items()}}
 

@@ -42,6 +42,8 @@ def soak(tmp_path: Path, minutes: str, vehicles: str) -> dict:
     assert summary["watchdog_cuts"] == 0, "a vehicle's motors were cut in the air"
     assert len(summary["heard_at_end"]) == summary["vehicles"] == int(vehicles), summary["heard_at_end"]
     assert not summary["not_at_rest"], f"left in the air or with motors running: {summary['not_at_rest']}"
+    machine = summary["machine"]  # (the machine's CPU: how busy, and what its host took)
+    assert 0.0 < machine["busy_pct"] <= 100.0 and 0.0 <= machine["steal_pct"] <= machine["steal_worst_pct"] <= 100.0, machine
     return summary
 
 
