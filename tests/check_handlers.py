@@ -243,6 +243,11 @@ HANDLINGS: tuple[Handling, ...] = (
          Edit("services/executor/service.py", "        if event.vid not in self.controllers:\n", "        if True:\n")),
         "tests/test_tracking_guard.py::test_the_reflex_to_a_vehicle_its_own_executor_holds_comes_in_the_same_cycle"),
     Handling(
+        "the proximity stop counting the hold's own stop",
+        "proximity stop: a closing counted as braking at 2 m/s^2 alone",
+        (Edit("services/executor/proximity.py", "    hold_s: float = 0.12\n", "    hold_s: float = 0.0\n"),),
+        "tests/test_proximity.py::test_a_vehicle_stopped_short_comes_to_rest_within_the_way_the_stop_counted[fly-0.3]"),
+    Handling(
         "re-stopping on a status that shows the motors running",
         "gateway: no `motors_restopped`",
         (Edit("services/radio_gateway/vehicle.py",

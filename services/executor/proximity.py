@@ -47,7 +47,10 @@ class ProximityParams:
     `Bodies.reaction`: the recent pose-to-command p99, or the newest frame's age while the frames
     stall, and a period; at least `react_s` here) and a stop from
     the pair's relative speed at `brake` m/s^2 (the flight controller's tilt limit; wheels stop
-    faster); closing_speed: m/s towards the other body at which a
+    faster), taking at least `hold_s` at that speed: a vehicle held stops as its controller brings
+    it to rest, within its speed x 0.104-0.119 s flying from 0.15-0.59 m/s and x 0.049 s driving
+    (the flight LQR and pure pursuit in the closed loop, 2026-12-07), so at 0.3 m/s 3.1 cm, where
+    the brake alone counted 2.3 and the stop came a whole `near_gap` late; closing_speed: m/s towards the other body at which a
     vehicle counts as heading into it; velocity_s: the window over which a body's velocity is
     measured from its positions (1 mm motion-capture noise is 1.4 cm/s over 0.1 s); fresh_s: a
     body not seen for longer is not counted (the motion capture lost it); samples: the points of the
@@ -56,6 +59,7 @@ class ProximityParams:
     near_gap: float = 0.01
     react_s: float = 0.03
     brake: float = 2.0
+    hold_s: float = 0.12
     closing_speed: float = 0.02
     velocity_s: float = 0.1
     fresh_s: float = 1.0
@@ -149,6 +153,11 @@ class Bodies:
         age = now - self.newest if self.newest > NEVER else 0.0
         return max(latency, age) + period
 
+    def stop_time(self, speed: np.ndarray | float) -> np.ndarray | float:
+        """How long (s) a closing at `speed` (m/s) goes on at that speed, counted for the stop: the
+        brake's distance, or the hold's at least (`ProximityParams`)."""
+        return np.maximum(speed / (2.0 * self.params.brake), self.params.hold_s)
+
     def closing(self, movers: list[str], v_self: np.ndarray, radius: float, height: float,
                 now: float, react_s: float = 0.0,
                 going_on: Callable[[], Collection[str]] = tuple) -> list[Closing]:
@@ -174,7 +183,7 @@ class Bodies:
         # the pairs that may be near: within the farthest any pair closes in before stopping, across
         # (every mover x body at once: the one pass over all pairs), then each pair's own reach
         top = float(body_speed.max()) + float(fastest.max())
-        most = top * (react + top / (2.0 * p.brake))
+        most = top * (react + self.stop_time(top))
         x, y = pos[:, 0], pos[:, 1]
         dx, dy = x[None, :] - x[own, None], y[None, :] - y[own, None]
         i, j = np.nonzero(dx * dx + dy * dy < (reach_xy + most) ** 2)
@@ -185,7 +194,7 @@ class Bodies:
         dij = pos[j] - pos[mine]  # pairs x 3: to the other body
         across = np.hypot(dij[:, 0], dij[:, 1])
         speed = body_speed[j] + fastest[i]
-        ahead = speed * (react + speed / (2.0 * p.brake))  # the farthest the pair closes in before stopping
+        ahead = speed * (react + self.stop_time(speed))  # the farthest the pair closes in before stopping
         near = np.nonzero((across - ahead < reach_xy) & (np.abs(dij[:, 2]) - ahead < reach_z))[0]
         if not len(near):
             return []
@@ -200,7 +209,7 @@ class Bodies:
         for k in range(v_self.shape[1]):
             vs = v_self[i, k]  # pairs x 3
             w = vo - vs  # the other's motion relative to the mover
-            horizon = react + np.sqrt(np.einsum("ij,ij->i", w, w)) / (2.0 * p.brake)  # until the mover could have stopped
+            horizon = react + self.stop_time(np.sqrt(np.einsum("ij,ij->i", w, w)))  # until the mover could have stopped
             taus = horizon[:, None] * self._steps[None, :]
             q = dij[:, None, :] + w[:, None, :] * taus[..., None]  # pairs x samples x 3
             touch = ((np.hypot(q[..., 0], q[..., 1]) < reach_xy) & (np.abs(q[..., 2]) < reach_z)).any(axis=1)
