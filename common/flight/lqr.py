@@ -148,16 +148,33 @@ def _lags(model: FlightModel, dt: float) -> tuple[float, float]:
 MAX_STEP_S = 0.1
 """s: the longest time one command is taken to have held (a longer gap is a stall, not a step)."""
 
+GAIN_PERIODS = (0.01, 0.02, 0.04, 0.08, 0.16, 0.32)
+"""s: the control periods a gain is computed for (`FlightLqr`'s gain schedule); the first is the
+model's (100 Hz)."""
+PERIOD_SMOOTHING = 0.3
+"""Weight of the latest time between two commands in the loop's period as the controller judges it."""
+
 
 class FlightLqr:
-    """Roll, pitch, yaw rate and thrust setpoints for one vehicle of `mass` kg."""
+    """Roll, pitch, yaw rate and thrust setpoints for one vehicle of `mass` kg.
+
+    The gain is scheduled on the loop's period: a loaded machine's executor that runs late holds
+    each command for longer than the `dt` the gain was computed for, and the 100 Hz gain held for
+    0.2-0.3 s sets a hovering vehicle swinging at 1.5-3 m/s (the closed loop without latency: 33
+    cm to 3.8 m from where it was held; at 0.1 s with poses 0.1 s late, 0.56 m/s and 9 cm); each
+    command uses the gain of the `GAIN_PERIODS` nearest (in ratio) the period it judges, the
+    times between its commands smoothed (`PERIOD_SMOOTHING`): 0.16-0.24 m/s and 3-4 cm there, 0.17
+    m/s and 2 cm (2026-12-07; `tests/test_controllers.py`). The integrators are rescaled at a change
+    of gain, so that what they add to the command stays the same."""
 
     def __init__(self, mass: float, dt: float = 0.01, weights: LqrWeights = LqrWeights(),
                  integral_limit: float = 0.1) -> None:
         self.mass = mass
         self.model = model = FlightModel(dt=dt, drag_rate=DRAG / mass)
-        self.k = lqr_gain(model, weights)
-        self._gains = axis_gains(self.k)
+        self._schedule = [(dt, axis_gains(lqr_gain(model, weights)))] + [
+            (p, axis_gains(lqr_gain(FlightModel(dt=p, drag_rate=model.drag_rate), weights)))
+            for p in GAIN_PERIODS if p > dt * 1.5]
+        """(period, gains) of the gain schedule, shortest first."""
         self.integral_limit = integral_limit
         self.max_tilt = math.radians(MAX_TILT_DEG)
         self.max_accel = max_thrust() / mass * math.cos(self.max_tilt) - G
@@ -165,15 +182,31 @@ class FlightLqr:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the integrators and the propagated attitude (when a flight or a landing in place starts)."""
+        """Forget the integrators, the propagated attitude and the loop's period (when a flight or
+        a landing in place starts)."""
         self.integral = [0.0, 0.0, 0.0]
+        self.period = self.model.dt
+        """s: the loop's period as this controller judges it (the gain schedule's input)."""
+        self._gains = self._schedule[0][1]
         self.roll = self.pitch = self.yaw_rate = 0.0
         self.expected_accel = (0.0, 0.0, 0.0)  # world frame, m/s^2, of the last command
         self._sent: tuple[float, float, float, float] | None = None  # the last command's time, roll, pitch, yaw rate
 
     def accel_bias(self) -> float:
         """Vertical acceleration (m/s^2) the z integrator adds: the thrust-model error it learned."""
-        return -float(self.k[3, 12]) * self.integral[2]
+        return -self._gains[3][2] * self.integral[2]
+
+    def _schedule_gain(self, held: float) -> None:
+        """Judge the loop's period from the time `held` (s) the last command held, and take the gain
+        of the schedule's period nearest it (module docstring), the integrators rescaled to add what
+        they added."""
+        self.period += PERIOD_SMOOTHING * (held - self.period)
+        gains = min(self._schedule, key=lambda entry: abs(math.log(entry[0] / self.period)))[1]
+        if gains is not self._gains:
+            old = self._gains
+            ix, iy, iz = self.integral
+            self.integral = [ix * old[0][3] / gains[0][3], iy * old[1][3] / gains[1][3], iz * old[3][2] / gains[3][2]]
+            self._gains = gains
 
     def command(self, est: Estimate, ref: RefSample, integrate: bool = True) -> FlightSetpoint:
         """One control step. `integrate` is False while the vehicle still rests on the ground, so
@@ -185,6 +218,7 @@ class FlightLqr:
         dt = self.model.dt
         if self._sent is not None:
             t, roll, pitch, yaw_rate = self._sent
+            self._schedule_gain(min(max(est.t - t, dt), GAIN_PERIODS[-1]))
             late = min(max(est.t - t - dt, 0.0), MAX_STEP_S - dt)
             if late > 0.0:  # the last command held for longer than one period
                 self._propagate(roll, pitch, yaw_rate, late)
