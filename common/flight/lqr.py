@@ -21,6 +21,8 @@ for the estimator's prediction (`expected_accel`).
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from dataclasses import dataclass
 from functools import lru_cache
@@ -175,6 +177,8 @@ class FlightLqr:
             (p, axis_gains(lqr_gain(FlightModel(dt=p, drag_rate=model.drag_rate), weights)))
             for p in GAIN_PERIODS if p > dt * 1.5]
         """(period, gains) of the gain schedule, shortest first."""
+        self._bounds = [math.sqrt(a[0] * b[0]) for a, b in itertools.pairwise(self._schedule)]
+        """Where the schedule's next gain takes over: between two periods, at their geometric mean."""
         self.integral_limit = integral_limit
         self.max_tilt = math.radians(MAX_TILT_DEG)
         self.max_accel = max_thrust() / mass * math.cos(self.max_tilt) - G
@@ -201,7 +205,7 @@ class FlightLqr:
         of the schedule's period nearest it (module docstring), the integrators rescaled to add what
         they added."""
         self.period += PERIOD_SMOOTHING * (held - self.period)
-        gains = min(self._schedule, key=lambda entry: abs(math.log(entry[0] / self.period)))[1]
+        gains = self._schedule[bisect.bisect(self._bounds, self.period)][1]
         if gains is not self._gains:
             old = self._gains
             ix, iy, iz = self.integral
