@@ -248,6 +248,11 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/proximity.py", "    hold_s: float = 0.12\n", "    hold_s: float = 0.0\n"),),
         "tests/test_proximity.py::test_a_vehicle_stopped_short_comes_to_rest_within_the_way_the_stop_counted[fly-0.3]"),
     Handling(
+        "the flight LQR's gain following the loop's period",
+        "flight LQR: the 100 Hz gain whatever the loop's period",
+        (Edit("common/flight/lqr.py", "GAIN_PERIODS = (0.01, 0.02, 0.04, 0.08, 0.16, 0.32)\n", "GAIN_PERIODS = (0.01,)\n"),),
+        "tests/test_controllers.py::test_on_a_slow_loop_a_vehicle_holding_a_point_does_not_swing"),
+    Handling(
         "re-stopping on a status that shows the motors running",
         "gateway: no `motors_restopped`",
         (Edit("services/radio_gateway/vehicle.py",

@@ -165,9 +165,9 @@ class FlightLqr:
     0.2-0.3 s sets a hovering vehicle swinging at 1.5-3 m/s (the closed loop without latency: 33
     cm to 3.8 m from where it was held; at 0.1 s with poses 0.1 s late, 0.56 m/s and 9 cm); each
     command uses the gain of the `GAIN_PERIODS` nearest (in ratio) the period it judges, the
-    times between its commands smoothed (`PERIOD_SMOOTHING`): 0.16-0.24 m/s and 3-4 cm there, 0.17
-    m/s and 2 cm (2026-12-07; `tests/test_controllers.py`). The integrators are rescaled at a change
-    of gain, so that what they add to the command stays the same."""
+    times between its commands smoothed (`PERIOD_SMOOTHING`): 0.18-0.21 m/s and 3-5 cm there, 0.17
+    m/s and 2 cm (2026-12-07, docs/control.md; `tests/test_controllers.py`). The integrators are
+    rescaled at a change of gain, so that what they add to the command stays the same."""
 
     def __init__(self, mass: float, dt: float = 0.01, weights: LqrWeights = LqrWeights(),
                  integral_limit: float = 0.1) -> None:
