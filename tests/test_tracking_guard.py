@@ -372,8 +372,8 @@ class Kept:
 
 def test_the_reflex_to_a_vehicle_its_own_executor_holds_comes_in_the_same_cycle() -> None:
     """An executor's reflex to one of its own vehicles held does not wait for the event to come
-    back through the router (on a starved machine 0.25 s: an 80-vehicle soak, where cf74 ran into
-    cf12, held by the same executor, before it yielded). This executor has no session at all: its
+    back through the router (on a starved machine 0.25 s: in an 80-vehicle soak cf74 yielded to cf12,
+    held by the same executor, that late, and touched it 0.1 s after). This executor has no session at all: its
     other vehicle, whose plan drives to where the held one stands, holds in the same cycle."""
     svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("reflex"))  # never run: no session
     events = svc._event = Kept()
