@@ -467,8 +467,7 @@ class ExecutorService(Service):
         landing (`VehicleController.yield_to`): every owned vehicle whose plan goes where it is held,
         or under it, holds too (at its next tick: this cycle's, if it has not ticked yet), and is
         reported in turn."""
-        seen = self.last_seen.get(event.vid)
-        if event.kind not in ("tracking_hold", "emergency_landing") or seen is None:
+        if event.kind not in ("tracking_hold", "emergency_landing") or (seen := self.last_seen.get(event.vid)) is None:
             return
         frame, pose = seen
         pos, unseen_s = (pose.x, pose.y, pose.z), event.t - frame.t  # (held on a stale pose: unseen a while)
