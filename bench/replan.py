@@ -20,6 +20,7 @@ from bench.soak import MAP, draw_tasks
 from bench.tables import bench_parser, format_table, new_figure, save_figure
 from common.bus.messages import PlanRequest, Replan
 from common.domain.planfile import Plan
+from services.mission.runner import plan_end
 from services.mission.sweeps import left_vehicle
 from services.planner.maps.loading import load_graph
 from services.planner.registry import solve
@@ -47,7 +48,7 @@ def run(vehicles: int, n_faults: int, seed: int, planner: str) -> list[dict]:
     rows = []
     for vid, t in faults(base, n_faults, rng):
         here = base.position(vid, t)
-        sweeps = left_vehicle(vid, "emergency_landing", here, t, 0.0, None)  # as the mission gives them
+        sweeps = left_vehicle(vid, "emergency_landing", here, t, 0.0, None, plan_end(base))  # as the mission gives them
         at = t + 1.0
         moving = sum(1 for v, p in base.paths.items() if v != vid and p[-1].t > at)
         started = time.perf_counter()

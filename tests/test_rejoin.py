@@ -19,7 +19,7 @@ from common.domain.planfile import PathEntry, Plan, Task
 from common.flight.modes import Mode
 from services.executor.vehicle_controller import VehicleController
 from services.mission.rejoin import Candidate, progress_at, shifted_path
-from services.mission.runner import MissionRunner, MissionSpec
+from services.mission.runner import MissionRunner, MissionSpec, plan_end
 from services.mission.sweeps import held
 from services.planner.registry import solve
 from services.planner.validate import validate_plan
@@ -43,7 +43,7 @@ def held_plan(base: Plan, vid: str, t: float) -> tuple[Plan, tuple[float, float,
     """The plan of the others after `vid` was held at its plan's position at `t` (and where)."""
     here = base.position(vid, t)
     reply = solve(PlanRequest(map="town", tasks={}, time_limit=10,
-                              replan=Replan(base=base, at=t + 1.0, left=[vid], sweeps=held(vid, here, t, 0.0))))
+                              replan=Replan(base=base, at=t + 1.0, left=[vid], sweeps=held(vid, here, t, 0.0, plan_end(base)))))
     assert reply.ok and reply.plan is not None, reply.error
     return reply.plan, here
 

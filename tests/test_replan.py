@@ -16,7 +16,8 @@ import pytest
 
 from common.bus.messages import PlanRequest, Replan, Sweep
 from common.domain.planfile import Plan, Task
-from services.mission.sweeps import DESCENT_S_PER_M, REST_S, descent
+from services.mission.runner import plan_end
+from services.mission.sweeps import DESCENT_S_PER_M, REST_S, descent, held
 from services.planner.failed_requests import read_request
 from services.planner.maps.loading import load_graph
 from services.planner.registry import _replan_with, solve
@@ -287,6 +288,36 @@ def test_the_ilp_does_not_replan_a_plan_off_its_time_steps() -> None:
     assert not reply.ok and "replan with sipp" in reply.error, reply.error
 
 
+def test_the_road_beneath_a_held_flyer_stays_open_until_the_plan_ends() -> None:
+    """cf1 is held at 7 s flying out over Wr4 (0.4 m up, 13 cm beside the road node), which cf4
+    drives through at 25 s. A held flyer hovers where it is until its mission ends (`sweeps.held`):
+    its spot is closed for ever, the column below it from the plan's end on (then it lands, and no
+    vehicle may rest beneath it), so cf4 keeps its way beneath it. (Its whole column for ever sent
+    cf4 round the town, arriving 8.5 s later; in a 10-minute 80-vehicle soak such a replan could not
+    place a car at all, and the cars stopped for it stopped 35 more.) With the column closed from
+    20 s on, cf4 goes round it."""
+    base = plan_of()
+    t, end = 7.0, plan_end(base)
+    here = base.position("cf1", t)
+    assert here[2] > 0.3 and math.dist(here[:2], base.graph.nodes["Wr4"].pos[:2]) < 0.15
+
+    def way(plan: Plan) -> list[tuple[str, float]]:
+        return [(e.node, round(e.t, 3)) for e in plan.paths["cf4"]]
+
+    for closed_from in (end, 20.0):
+        spot, column = held("cf1", here, t, 0.0, closed_from)
+        assert spot.rest and spot.p0 == spot.p1 == here and spot.t0 == t
+        assert column.rest and column.p0 == here and column.p1 == (here[0], here[1], 0.0) and column.t0 == closed_from
+        reply = solve(PlanRequest(map="town", tasks={}, time_limit=10, replan=Replan(
+            base=base, at=t + 1.0, left=["cf1"], sweeps=[spot, column], strand=True)))
+        assert reply.ok and reply.plan is not None, reply.error
+        assert validate_plan(reply.plan).ok and reply.plan.tasks["cf4"].goal == "WP6"
+        if closed_from == end:
+            assert way(reply.plan) == way(base)
+        else:
+            assert "Wr4" not in [node for node, _ in way(reply.plan)], way(reply.plan)
+
+
 def test_a_descents_column_frees_from_the_top_as_the_body_comes_down() -> None:
     """`sweeps.descent`: the whole column while the descent may not have begun, then below the
     highest the body may be (the slowest descent assumed), down to its foot, where it rests."""
@@ -334,7 +365,7 @@ def test_a_replan_whose_vehicles_cross_a_prefix_is_planned_again_in_another_orde
     for vid, t, kind in (("cf19", 3.367, "tracking_hold"), ("cf11", 4.385, "tracking_hold"),
                          ("cf04", 5.479, "emergency_landing"), ("cf15", 5.721, "tracking_hold"),
                          ("cf30", 6.539, "tracking_hold")):
-        sweeps += left_vehicle(vid, kind, plan.position(vid, t), t, 0.0, None)
+        sweeps += left_vehicle(vid, kind, plan.position(vid, t), t, 0.0, None, plan_end(plan))
         req = PlanRequest(map=str(city), tasks={}, time_limit=1.0,
                           replan=Replan(base=plan, at=t + 1.0, left=[vid], sweeps=sweeps, strand=True))
         first, _ = _replan_with(load_graph(city), req, "sipp", 1.0)

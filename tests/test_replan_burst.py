@@ -310,8 +310,9 @@ def test_the_vehicles_a_replan_cannot_place_are_held_or_stopped_where_they_are_a
     assert parked not in runner._left_with
     assert aloft in runner._left_with  # (it may come back: `rejoin.py`)
     state = runner.states[aloft]
-    mine = [s for s in runner.sweeps if s.vid == aloft]
-    assert len(mine) == 1 and mine[0].rest and mine[0].p0 == (state.x, state.y, 0.5), mine  # its column
+    spot, column = [s for s in runner.sweeps if s.vid == aloft]  # where it hovers, and its column once the plan ended
+    assert spot.rest and spot.p0 == spot.p1 == (state.x, state.y, 0.5), spot
+    assert column.rest and column.p0 == (state.x, state.y, 0.5) and column.t0 > spot.t0, column
 
 
 class StopsCarAfterCar(Burst):

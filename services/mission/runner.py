@@ -63,6 +63,12 @@ def ground_height(plan: Plan) -> float:
     return min(n.pos[2] for n in plan.graph.nodes.values() if n.kind != "air")
 
 
+def plan_end(plan: Plan) -> float:
+    """When the plan's last vehicle arrives (mission time): from then on a held vehicle's column is
+    closed too (`sweeps.held`)."""
+    return max(path[-1].t for path in plan.paths.values())
+
+
 @dataclass(frozen=True)
 class MissionSpec:
     map: str
@@ -441,7 +447,7 @@ class MissionRunner(MissionClient[MissionResult]):
         nodes = self.plan.graph.nodes
         ground = ground_height(self.plan)
         return left_vehicle(vid, kind, (state.x, state.y, state.z), self.plan_time(), ground,
-                            at if at is not None else nodes[node].pos if node in nodes else None)
+                            at if at is not None else nodes[node].pos if node in nodes else None, plan_end(self.plan))
 
     async def _replan(self, previous: asyncio.Task | None, ticket: int) -> None:
         """After `previous`, plan the remaining vehicles on around those that left and hand the new
@@ -496,7 +502,7 @@ class MissionRunner(MissionClient[MissionResult]):
             self._left_with[vid] = (self.plan.paths[vid], self.plan.tasks[vid])
         ground = ground_height(self.plan)
         self.sweeps += left_vehicle(vid, "tracking_hold", (state.x, state.y, state.z), self.plan_time(),
-                                    ground, None)
+                                    ground, None, plan_end(self.plan))
         self.events.append(reason)
         return True
 
@@ -572,7 +578,9 @@ class MissionRunner(MissionClient[MissionResult]):
             paths[vid], tasks[vid] = shifted_path(c.path, progress, at), c.task
         ground = ground_height(plan)
         t = self.plan_time()
-        standing = [w for vid, p in self.bystanders.items() for w in left_vehicle(vid, "tracking_hold", p, t, ground, None)]
+        end = plan_end(plan)
+        standing = [w for vid, p in self.bystanders.items()
+                    for w in left_vehicle(vid, "tracking_hold", p, t, ground, None, end)]
         return (msgspec.structs.replace(plan, paths=paths, tasks=tasks),
                 [s for s in self.sweeps if s.vid not in rejoin] + standing)
 

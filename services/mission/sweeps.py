@@ -2,7 +2,8 @@
 others are replanned around), for what its executor does on its own:
 
 - held by the tracking guard (`tracking_hold`): it hovers where it is until the mission ends, or
-  stops where it is on the ground: the column below it, for ever;
+  stops where it is on the ground: that spot, for ever, and once the mission's plan has ended the
+  column below it too (`held`);
 - an emergency descent (stale pose; a fall): straight down from where it is, at least at the slowest
   descent assumed (`DESCENT_S_PER_M`) after `REST_S`; the column below its highest possible
   position in each `SLICE_S`, so that the column's top frees as it comes down (a vehicle following
@@ -36,9 +37,23 @@ SLICE_S = 0.5
 Point = tuple[float, float, float]
 
 
-def held(vid: str, p: Point, t: float, ground: float) -> list[Sweep]:
-    """A vehicle held at `p` from `t` (`tracking_hold`): the column below it, for ever."""
-    return [Sweep(vid, p, (p[0], p[1], min(ground, p[2])), t, t, rest=True, reach=SWEEP_REACH)]
+def held(vid: str, p: Point, t: float, ground: float, end: float) -> list[Sweep]:
+    """A vehicle held at `p` from `t` (`tracking_hold`): that spot, for ever (it hovers there, or
+    stands, until its mission ends), and from `end` (the mission's plan's end) on the column below
+    it: once the others are done its executor lands it, on a clear node of its choice
+    (`VehicleController._choose_landing`), or straight down if its poses are lost, so no vehicle
+    may rest beneath it. While the plan runs, a vehicle may pass beneath it as beneath any vehicle
+    flying its plan; an emergency descent is an event of its own, whose replan sweeps the descent
+    (`descent`). (Its whole column for ever from `t` closed the roads beneath a held flyer to
+    the cars on them: in a 10-minute 80-vehicle soak a car 15 cm before a road node 29 cm beside a
+    held flyer's column could not be placed, was stopped on the road for good, and the replans
+    around it stopped 35 vehicles more; replayed with this sweep, that replan plans.)"""
+    spot = Sweep(vid, p, p, t, t, rest=True, reach=SWEEP_REACH)
+    foot = (p[0], p[1], min(ground, p[2]))
+    if foot == p:
+        return [spot]
+    later = max(end, t)
+    return [spot, Sweep(vid, p, foot, later, later, rest=True, reach=SWEEP_REACH)]
 
 
 def descent(vid: str, top: Point, bottom: Point, t: float) -> list[Sweep]:
@@ -63,12 +78,14 @@ def fault_landing(vid: str, p: Point, t: float, target: Point) -> list[Sweep]:
     return [Sweep(vid, p, above, t, t1, reach=REST_REACH)] + descent(vid, above, target, t1)
 
 
-def left_vehicle(vid: str, kind: str, p: Point, t: float, ground: float, target: Point | None) -> list[Sweep]:
-    """Where a vehicle at `p` at `t` that left on a `kind` fault may be (module doc): held, or coming
-    straight down (an emergency descent, a fall), and with a fault landing's node (`target`, at
-    least 5 cm below it) also level to above it and down onto it."""
+def left_vehicle(vid: str, kind: str, p: Point, t: float, ground: float, target: Point | None,
+                 end: float) -> list[Sweep]:
+    """Where a vehicle at `p` at `t` that left on a `kind` fault may be (module doc): held (`end`:
+    the mission's plan's end, `held`), or coming straight down (an emergency descent, a fall), and
+    with a fault landing's node (`target`, at least 5 cm below it) also level to above it and down
+    onto it."""
     if kind == "tracking_hold":
-        return held(vid, p, t, ground)
+        return held(vid, p, t, ground, end)
     out = descent(vid, p, (p[0], p[1], min(ground, p[2])), t)
     if target is not None and p[2] - target[2] >= 0.05:
         out += fault_landing(vid, p, t, target)
