@@ -65,8 +65,8 @@ def ground_height(plan: Plan) -> float:
 
 def plan_end(plan: Plan) -> float:
     """When the plan's last vehicle arrives (mission time): from then on a held vehicle's column is
-    closed too (`sweeps.held`)."""
-    return max(path[-1].t for path in plan.paths.values())
+    closed too (`sweeps.held`); 0 for a plan of no vehicle (every one left: the column at once)."""
+    return max((path[-1].t for path in plan.paths.values() if path), default=0.0)
 
 
 @dataclass(frozen=True)
