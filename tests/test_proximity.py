@@ -169,6 +169,68 @@ def test_no_stop_for_a_vehicle(what: str, follower, leader, v_follower) -> None:
     assert closing(bodies, {"follower": v_follower}, now) == [], what
 
 
+def corner(v: float, t_corner: float) -> Callable[[str, np.ndarray], np.ndarray]:
+    """A plan straight on along +x at `v` m/s that turns to +y at `t_corner` s: its bend."""
+    def bend(_vid: str, taus: np.ndarray) -> np.ndarray:
+        past = np.maximum(taus - t_corner, 0.0)
+        return np.stack((-v * past, v * past, 0.0 * taus), axis=1)
+    return bend
+
+
+def test_a_vehicle_is_judged_on_its_way_bent_as_its_plan_bends() -> None:
+    """Judged on a straight line, a vehicle on time into a corner beside a body its plan passes 5
+    cm away heads into it and stops (the first hold of 80-vehicle soaks that failed, 2026-12-07);
+    its way bent as its plan turns passes the body by. A body its plan turns towards stops it,
+    one it passes straight by does not."""
+    v = (0.3, 0.0, 0.0)
+    ahead = (0.03 + 2 * RADIUS + 0.05, 0.0, 0.0)  # 5 cm beyond the corner, 3 cm (0.1 s) ahead
+    bodies = Bodies()
+    now = frames(bodies, {"car": ((0.0, 0.0, 0.0), v), "parked": (ahead, (0.0, 0.0, 0.0))})
+    [hit] = bodies.closing(["car"], np.array([[v, v]]), RADIUS, HEIGHT, now, 0.15)
+    assert (hit.mover, hit.other) == ("car", "parked") and hit.gap == pytest.approx(0.08, abs=1e-6)
+    assert bodies.closing(["car"], np.array([[v, v]]), RADIUS, HEIGHT, now, 0.15, bend=corner(0.3, 0.1)) == []
+    beside = (0.03, 2 * RADIUS + 0.05, 0.0)  # 5 cm beside the corner: passed straight by, turned into
+    bodies = Bodies()
+    now = frames(bodies, {"car": ((0.0, 0.0, 0.0), v), "parked": (beside, (0.0, 0.0, 0.0))})
+    assert bodies.closing(["car"], np.array([[v, v]]), RADIUS, HEIGHT, now, 0.15) == []
+    [hit] = bodies.closing(["car"], np.array([[v, v]]), RADIUS, HEIGHT, now, 0.15, bend=corner(0.3, 0.1))
+    assert (hit.mover, hit.other) == ("car", "parked") and hit.speed > 0.1
+
+
+def test_a_flyer_on_time_into_its_hover_beside_a_body_does_not_stop_short() -> None:
+    """The controller's bend (`VehicleController.bend`, from the reference it follows): flying on
+    time at 0.3 m/s 4 cm before the node where its plan hovers, 3 cm short of a body hovering
+    beyond it, the flyer does not stop; straight on it would have. A body on its way before that
+    node stops it."""
+    model = VehicleModel(margin=0.03)
+    steps = reference_steps(model)
+    a2 = next(s for s in steps if s.node == "a2")
+    sim = SimFlyingCar("cf1", model, pos=steps[0].pos, yaw=0.0)
+    ctrl = VehicleController("cf1", model, owner="test")
+    ctrl.load(plan_for("cf1", steps, model, t0=0.5))
+    records = run(ctrl, sim, 0.5 + a2.t - 0.04 / 0.3)
+    assert ctrl.mode == Mode.FLYING
+    motion = ctrl.motion()
+    assert motion is not None and motion[3:] == pytest.approx((0.3, 0.0, 0.0), abs=0.01)
+    assert motion[:3] == pytest.approx((0.3, 0.0, 0.0), abs=0.03)  # on time
+
+    def judged(body: tuple[float, float, float], bend: bool) -> list:
+        bodies = Bodies()
+        for k, r in enumerate(records[-31:]):
+            bodies.update(PoseFrame(t=r.t, seq=k, poses=[FramePose("cf1", r.truth.x, r.truth.y, r.truth.z, 0.0),
+                                                          FramePose("cf9", *body, 0.0)]))
+            bodies.settle(r.t)
+        motion = np.array(ctrl.motion()).reshape(1, 2, 3)
+        return bodies.closing(["cf1"], motion, RADIUS, HEIGHT, records[-1].t, 0.15,
+                              bend=(lambda _vid, taus: ctrl.bend(taus)) if bend else None)
+
+    beyond = (a2.pos[0] + 2 * RADIUS + 0.03, a2.pos[1], a2.pos[2])
+    assert [h.other for h in judged(beyond, bend=False)] == ["cf9"]
+    assert judged(beyond, bend=True) == []
+    on_its_way = (records[-1].truth.x + 2 * RADIUS + 0.03, a2.pos[1], a2.pos[2])  # 3 cm ahead, where it goes
+    assert [h.other for h in judged(on_its_way, bend=True)] == ["cf9"]
+
+
 def test_a_body_the_motion_capture_lost_is_not_counted() -> None:
     bodies = Bodies()
     now = frames(bodies, {"follower": ((0.0, 0.0, 0.0), (0.1, 0.0, 0.0)),

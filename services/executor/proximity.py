@@ -7,7 +7,8 @@ by a neighbour on time: 80-vehicle soaks had ground contacts in every run that t
 (docs/reliability.md). The motion capture sees every body, so every executor knows where all of
 them are, whoever owns them: from every frame it keeps each body's position and velocity
 (`Bodies`), and before each control cycle it asks, for each vehicle of its own that moves on its
-plan, whether that vehicle, at its estimated or planned velocity, is heading into a body (within
+plan, whether that vehicle, at its estimated or planned velocity and bent as its plan bends, is
+heading into a body (within
 `near_gap` of contact) before it could have stopped, the other going on as it moves if it
 moves away and standing where it is if it comes closer (its approach is its own executor's to
 stop: each of two vehicles heading into each other stops for its own motion, unless nothing
@@ -160,13 +161,19 @@ class Bodies:
 
     def closing(self, movers: list[str], v_self: np.ndarray, radius: float, height: float,
                 now: float, react_s: float = 0.0,
-                going_on: Callable[[], Collection[str]] = tuple) -> list[Closing]:
+                going_on: Callable[[], Collection[str]] = tuple,
+                bend: Callable[[str, np.ndarray], np.ndarray] | None = None) -> list[Closing]:
         """Which of `movers` (vehicles seen in the frames) head into another body before they could
         have stopped: `v_self` (len(movers) x K x 3) are the velocities each may move at (estimated,
         planned); bodies of `radius` x `height` touch when nearer than 2 radius across and height
         up (DESIGN.md); `react_s`: how late the mover's commands take effect (s); `going_on`: the
         bodies no proximity stop stops (their approach counts, module docstring), asked for only
-        when a pair is near. One `Closing` per such pair, nearest first."""
+        when a pair is near; `bend(mover, taus)`: how far the mover's plan takes it from the
+        straight line at its planned velocity in `taus` s (len(taus) x 3; none: straight on), asked
+        for only when a pair is near: a mover goes the way of its velocity bent as its plan bends
+        (judged on straight lines, a vehicle on time into a corner beside a body its plan passes 5 cm
+        away went straight on into it, and stopped: the first hold of 80-vehicle soaks that failed,
+        2026-12-07). One `Closing` per such pair, nearest first."""
         p = self.params
         react = max(react_s, p.react_s)
         n = len(self.vids)
@@ -204,16 +211,25 @@ class Bodies:
         if unstopped := [self.rows[v] for v in going_on() if v in self.rows]:  # ... unless nothing stops it
             counted |= np.isin(j, unstopped)
         vo = np.where(counted[:, None], vo, 0.0)
-        dist = np.sqrt(np.einsum("ij,ij->i", dij, dij))
+        unit = dij / np.maximum(np.sqrt(np.einsum("ij,ij->i", dij, dij)), 1e-9)[:, None]
         hits: dict[tuple[str, str], Closing] = {}
         for k in range(v_self.shape[1]):
             vs = v_self[i, k]  # pairs x 3
             w = vo - vs  # the other's motion relative to the mover
             horizon = react + self.stop_time(np.sqrt(np.einsum("ij,ij->i", w, w)))  # until the mover could have stopped
             taus = horizon[:, None] * self._steps[None, :]
-            q = dij[:, None, :] + w[:, None, :] * taus[..., None]  # pairs x samples x 3
-            touch = ((np.hypot(q[..., 0], q[..., 1]) < reach_xy) & (np.abs(q[..., 2]) < reach_z)).any(axis=1)
-            towards = np.einsum("ij,ij->i", vs, dij) / np.maximum(dist, 1e-9)
+            way = vs[:, None, :] * taus[..., None]  # pairs x samples x 3: the mover's way on a straight line ...
+            if bend is not None:  # ... bent as its plan bends
+                way += np.stack([bend(movers[i[m]], taus[m]) for m in range(len(i))])
+            q = dij[:, None, :] + vo[:, None, :] * taus[..., None] - way
+            inside = (np.hypot(q[..., 0], q[..., 1]) < reach_xy) & (np.abs(q[..., 2]) < reach_z)
+            touch = inside.any(axis=1)
+            # its speed towards the other: on its way to where they would touch (or its velocity's, touching now)
+            first = np.argmax(inside[:, 1:], axis=1) + 1
+            rows = np.arange(len(i))
+            towards = np.where(inside[:, 1:].any(axis=1),
+                               np.einsum("ij,ij->i", way[rows, first], unit) / np.maximum(taus[rows, first], 1e-9),
+                               np.einsum("ij,ij->i", vs, unit))
             for m in np.nonzero(touch & (towards > p.closing_speed))[0].tolist():
                 gap = max(float(across[m]) - 2.0 * radius, float(abs(dij[m, 2])) - height)
                 pair = (movers[i[m]], self.vids[j[m]])

@@ -532,8 +532,12 @@ class ExecutorService(Service):
         react = self.bodies.reaction(now, self.stats.recent_latency(), self.period)
         v_self = np.array(velocities).reshape(len(movers), 2, 3)
         for closing in self.bodies.closing(movers, v_self, radius, height, now, react,
-                                           lambda: self._going_on(now)):
+                                           lambda: self._going_on(now), self._bend):
             self.controllers[closing.mover].stop_short(closing.why())
+
+    def _bend(self, vid: str, taus: np.ndarray) -> np.ndarray:
+        """How `vid`'s plan bends over the proximity stop's look-ahead (`VehicleController.bend`)."""
+        return self.controllers[vid].bend(taus)
 
     def _going_on(self, now: float) -> set[str]:
         """The vehicles whose approach counts in the proximity stop, since nothing stops them: in a

@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import msgspec
+import numpy as np
 
 from common.bus.messages import (
     Cmd,
@@ -737,6 +738,20 @@ class VehicleController:
         if est.stale or ref is None:
             return None
         return est.vx, est.vy, est.vz, ref.vx, ref.vy, ref.vz
+
+    def bend(self, taus: np.ndarray) -> np.ndarray:
+        """How far the reference followed at the last tick takes the vehicle in `taus` s beyond the
+        straight line at its velocity then (len(taus) x 3, m): the plan's turns over the proximity
+        stop's look-ahead (`Bodies.closing`); zero without a reference."""
+        out = np.zeros((len(taus), 3))
+        if self._seen is None or self._seen[2] is None:
+            return out
+        now, _, ref = self._seen
+        for k, tau in enumerate(taus.tolist()):
+            r = self.reference(now, tau)
+            assert r is not None
+            out[k] = (r.x - ref.x - ref.vx * tau, r.y - ref.y - ref.vy * tau, r.z - ref.z - ref.vz * tau)
+        return out
 
     def stop_short(self, why: str) -> bool:
         """The proximity stop: this vehicle heads into another body (`why`), or its mission holds
