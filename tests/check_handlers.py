@@ -248,6 +248,12 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/proximity.py", "    hold_s: float = 0.12\n", "    hold_s: float = 0.0\n"),),
         "tests/test_proximity.py::test_a_vehicle_stopped_short_comes_to_rest_within_the_way_the_stop_counted[fly-0.3]"),
     Handling(
+        "the proximity stop judging a mover on its way bent as its plan bends",
+        "executor: a mover judged on straight lines (`VehicleController.bend` gives none)",
+        (Edit("services/executor/vehicle_controller.py", "        if self._seen is None or self._seen[2] is None:\n            return out\n",
+              "        if True:\n            return out\n"),),
+        "tests/test_proximity.py::test_a_flyer_on_time_into_its_hover_beside_a_body_does_not_stop_short"),
+    Handling(
         "the flight LQR's gain following the loop's period",
         "flight LQR: the 100 Hz gain whatever the loop's period",
         (Edit("common/flight/lqr.py", "GAIN_PERIODS = (0.01, 0.02, 0.04, 0.08, 0.16, 0.32)\n", "GAIN_PERIODS = (0.01,)\n"),),
