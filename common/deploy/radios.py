@@ -91,7 +91,8 @@ class GatewayParams(msgspec.Struct, **_Strict):
     watchdog stops after 0.5 s); status_hz: wheel-app status requests per vehicle per second (flying
     cars only); log_period_s: the period of the log block the firmware streams (battery, supervisor,
     RSSI); link_timeout_s: no log block for this long means the link is lost; reopen_s, reopen_max_s:
-    a lost link is closed and reopened after reopen_s, doubling up to reopen_max_s; stale_s: a cmd
+    a lost link is closed and reopened after reopen_s, doubling up to reopen_max_s; level_s: an
+    attitude setpoint older than this is resent levelled (its vertical thrust kept); stale_s: a cmd
     older than this is stale; stop_repeats: how many times a stop (motors off, and zero wheels) and
     a notify-setpoint-stop are sent; settle_period_s, settle_max_s: after a flight, stops go out this
     often while the supervisor reports the vehicle flying (at most twice settle_max_s, or settle_max_s
@@ -108,6 +109,7 @@ class GatewayParams(msgspec.Struct, **_Strict):
     connect_timeout_s: Positive = 10.0
     reopen_s: Positive = 1.0
     reopen_max_s: Positive = 8.0
+    level_s: Positive = 0.05
     stale_s: Positive = 0.2
     stop_repeats: Annotated[int, msgspec.Meta(ge=1)] = 3
     settle_period_s: Annotated[float, msgspec.Meta(gt=0, lt=0.5)] = 0.1

@@ -3,7 +3,11 @@
 Modes:
 
 - FLIGHT: the owner's latest flight setpoint, resent every tick it gets a slot (a fresh one replaces
-  it), so the firmware's commander watchdog (0.5 s level, 2 s motors off) never starves. The first
+  it), so the firmware's commander watchdog (0.5 s level, 2 s motors off) never starves. An
+  attitude setpoint older than `level_s` goes out levelled (roll, pitch and yaw rate 0, its vertical
+  thrust kept), as the watchdog would level it later: an attitude is its owner's command for one
+  control period, and a braking tilt resent through a stalled executor's silence swung a held
+  flyer back at 0.3-0.7 m/s (levelled: 0.1, its controller's own swing back; docs/radio.md). The first
   `stop_repeats` flight packets after the motors were off, or after a new connection, are zero-thrust
   setpoints: the firmware keeps the thrust locked after boot until it sees one (crazyflie-firmware
   crtp_commander_rpyt.c, `thrustLocked`), and one lost packet must not keep it locked.
@@ -125,6 +129,7 @@ class VehicleChannel:
         self._flight: FlightSetpoint | None = None
         self._thrusts: deque[float] = deque(maxlen=HOVER_WINDOW)  # vertical thrust (N) of recent setpoints
         self._flight_raw = b""
+        self._level_raw: bytes | None = None  # the owner's attitude levelled, once it is older than `level_s`
         self._unlocks_left = 0
         self._lifting_since: float | None = None
         self._stops_left = 0
@@ -184,7 +189,7 @@ class VehicleChannel:
                 if self.mode == Drive.DRIVE:  # a driver taking off: zero wheels, repeated like a stop
                     self._wheels = (0.0, 0.0)
                     self._wheel_zeros_left = self.params.stop_repeats
-            self._flight_raw = raw
+            self._flight_raw, self._level_raw = raw, None
             self._flight_new = True
             if isinstance(setpoint, FlightSetpoint) and setpoint.thrust >= FIRMWARE_MIN_THRUST:
                 self._thrusts.append(thrust_newtons(setpoint.thrust) * math.cos(math.radians(setpoint.roll))
@@ -395,7 +400,7 @@ class VehicleChannel:
             if self._unlocks_left > 0:  # repeated: one lost packet must not leave the thrust locked
                 self._unlocks_left -= 1
                 return self._count(crtp.encode_setpoint(_UNLOCK)), []
-            return self._count(self._flight_raw), []
+            return self._count(self._resent(now)), []
         if self.mode == Drive.LANDING:
             assert self.landing is not None
             sp = self.landing.step(now)
@@ -420,6 +425,18 @@ class VehicleChannel:
                 self._settle_from, self._settle_sent = now, now
             return raw, events
         return self._settle_packet(now), events
+
+    def _resent(self, now: float) -> bytes:
+        """The owner's flight setpoint as it goes out at `now`: an attitude older than `level_s`
+        levelled, its vertical thrust kept (module docstring)."""
+        sp = self._flight
+        if self.onboard or sp is None or now - self.cmd_at <= self.params.level_s or sp.thrust < FIRMWARE_MIN_THRUST:
+            return self._flight_raw
+        if self._level_raw is None:
+            lift = thrust_newtons(sp.thrust) * math.cos(math.radians(sp.roll)) * math.cos(math.radians(sp.pitch))
+            self._level_raw = crtp.encode_setpoint(FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0,
+                                                                  thrust=thrust_command(lift)))
+        return self._level_raw
 
     def wheel_due(self, now: float) -> bool:
         """Whether the driving command switch should carry a wheel packet for this vehicle."""

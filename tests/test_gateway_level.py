@@ -1,0 +1,78 @@
+"""An attitude setpoint resent through its owner's silence goes out levelled after `level_s`
+(`services/radio_gateway/vehicle.py`, FLIGHT): an attitude is the executor's command for one control
+period, and a braking tilt resent for a stalled executor's 0.2 s swung a held flyer back."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from common.bus.messages import FlightSetpoint
+from common.crazyflie.thrust import thrust_newtons
+from common.deploy.radios import GatewayParams
+from common.domain.vehicle_model import VehicleModel
+from services.executor.vehicle_controller import VehicleController
+from services.radio_gateway.vehicle import Drive, VehicleChannel
+from services.sim.crazyflie.physics import SimFlyingCar
+from tests.support.closed_loop import plan_for, reference_steps, run
+from tests.support.gateway_packets import decode
+
+BRAKING = FlightSetpoint(roll=-4.0, pitch=-12.0, yawrate=10.0, thrust=47000)
+
+
+def flying(params: GatewayParams | None = None) -> VehicleChannel:
+    """A channel in flight, its thrust unlocked (the unlock's zero-thrust packets gone out)."""
+    params = params or GatewayParams()
+    ch = VehicleChannel("cf1", params, 0.0, wheels=False)
+    ch.command(BRAKING, 0.0)
+    for _ in range(params.stop_repeats):
+        ch.flight_packet(0.0)
+    return ch
+
+
+def test_an_attitude_resent_past_level_s_goes_out_levelled_with_its_vertical_thrust() -> None:
+    ch = flying()
+    assert decode(ch.flight_packet(0.01)[0]) == BRAKING
+    assert decode(ch.flight_packet(0.05)[0]) == BRAKING  # within level_s: as the executor sent it
+    levelled = decode(ch.flight_packet(0.06)[0])
+    assert isinstance(levelled, FlightSetpoint)
+    assert (levelled.roll, levelled.pitch, levelled.yawrate) == (0.0, 0.0, 0.0)
+    lift = thrust_newtons(BRAKING.thrust) * math.cos(math.radians(4.0)) * math.cos(math.radians(12.0))
+    assert thrust_newtons(levelled.thrust) == pytest.approx(lift, rel=1e-3)
+    assert decode(ch.flight_packet(0.15)[0]) == levelled and ch.mode == Drive.FLIGHT  # until stale_s
+    ch.command(BRAKING, 0.16)  # a fresh command goes out as sent
+    assert decode(ch.flight_packet(0.17)[0]) == BRAKING
+
+
+def swing_back(params: GatewayParams, stall_s: float = 0.2) -> float:
+    """A flyer at 0.3 m/s on its plan stops short; 20 ms later its executor goes silent for
+    `stall_s` and the gateway resends its last setpoint; then the executor comes back. Its fastest
+    speed back along the way it came (m/s, ground truth), from the stop on."""
+    model = VehicleModel(margin=0.03)
+    steps = reference_steps(model)
+    a1, a2 = (next(s for s in steps if s.node == node) for node in ("a1", "a2"))
+    sim = SimFlyingCar("cf1", model, pos=steps[0].pos, yaw=0.0)
+    ctrl = VehicleController("cf1", model, owner="test")
+    ctrl.load(plan_for("cf1", steps, model, t0=0.5))
+    records = run(ctrl, sim, 0.5 + (a1.t + a2.t) / 2)
+    assert records[-1].truth.vx == pytest.approx(0.3, abs=0.02)
+    assert ctrl.stop_short("stops short of cf9")
+    records = run(ctrl, sim, sim.t + 0.02)
+    ch = flying(params)
+    ch.command(ctrl.tick(sim.t).setpoint, sim.t)  # the last command before the silence
+    silent_until = sim.t + stall_s
+    while sim.t < silent_until - 1e-9:
+        sim.apply(decode(ch.flight_packet(sim.t)[0]), sim.t)
+        records.append(type(records[0])(sim.t, sim.truth(), None, ctrl.mode))
+        sim.step(0.01)
+    assert ch.mode == Drive.FLIGHT
+    records += run(ctrl, sim, sim.t + 1.0)
+    return -min(r.truth.vx for r in records)
+
+
+def test_a_held_flyer_whose_executor_falls_silent_does_not_swing_back() -> None:
+    """Resent as it was (`level_s` past the silence), the hold's braking tilt swings the flyer back
+    at more than 0.25 m/s; levelled, it comes back to its hold's point at its controller's pace."""
+    assert swing_back(GatewayParams()) < 0.15
+    assert swing_back(GatewayParams(level_s=0.5)) > 0.25
