@@ -254,6 +254,13 @@ HANDLINGS: tuple[Handling, ...] = (
               "        if True:\n            return out\n"),),
         "tests/test_proximity.py::test_a_flyer_on_time_into_its_hover_beside_a_body_does_not_stop_short"),
     Handling(
+        "an old attitude resent levelled",
+        "gateway: the owner's last attitude resent as it was until the command is stale",
+        (Edit("services/radio_gateway/vehicle.py",
+              "        if self.onboard or sp is None or now - self.cmd_at <= self.params.level_s or sp.thrust < FIRMWARE_MIN_THRUST:\n",
+              "        if True:\n"),),
+        "tests/test_gateway_level.py::test_a_held_flyer_whose_executor_falls_silent_does_not_swing_back"),
+    Handling(
         "the flight LQR's gain following the loop's period",
         "flight LQR: the 100 Hz gain whatever the loop's period",
         (Edit("common/flight/lqr.py", "GAIN_PERIODS = (0.01, 0.02, 0.04, 0.08, 0.16, 0.32)\n", "GAIN_PERIODS = (0.01,)\n"),),
