@@ -105,6 +105,8 @@ class Bodies:
         self._frame_rows: list[int] = []
         self._steps = np.linspace(0.0, 1.0, params.samples)
         """The points of a look-ahead at which two bodies are judged, as shares of it."""
+        self._grid = np.linspace(0.0, 1.0, 2 * params.samples)
+        """The points of a mover's farthest look-ahead at which its plan's bend is asked for."""
 
     def _row(self, vid: str) -> int:
         row = self.rows.get(vid)
@@ -212,15 +214,24 @@ class Bodies:
             counted |= np.isin(j, unstopped)
         vo = np.where(counted[:, None], vo, 0.0)
         unit = dij / np.maximum(np.sqrt(np.einsum("ij,ij->i", dij, dij)), 1e-9)[:, None]
+        w_all = vo[:, None, :] - v_self[i]  # pairs x candidates x 3: the other's motion relative to the mover
+        horizons = react + self.stop_time(np.sqrt(np.einsum("pkx,pkx->pk", w_all, w_all)))  # until it could have stopped
+        if bend is not None:  # each mover's bend once, over the farthest look-ahead of its pairs
+            owners, slot = np.unique(i, return_inverse=True)
+            far = np.zeros(len(owners))
+            np.maximum.at(far, slot, horizons.max(axis=1))
+            grid = far[:, None] * self._grid[None, :]
+            bends = np.stack([bend(movers[u], grid[n]) for n, u in enumerate(owners.tolist())])  # owners x grid x 3
         hits: dict[tuple[str, str], Closing] = {}
         for k in range(v_self.shape[1]):
             vs = v_self[i, k]  # pairs x 3
-            w = vo - vs  # the other's motion relative to the mover
-            horizon = react + self.stop_time(np.sqrt(np.einsum("ij,ij->i", w, w)))  # until the mover could have stopped
-            taus = horizon[:, None] * self._steps[None, :]
+            taus = horizons[:, k, None] * self._steps[None, :]
             way = vs[:, None, :] * taus[..., None]  # pairs x samples x 3: the mover's way on a straight line ...
-            if bend is not None:  # ... bent as its plan bends
-                way += np.stack([bend(movers[i[m]], taus[m]) for m in range(len(i))])
+            if bend is not None:  # ... bent as its plan bends (between the points of its grid, linearly)
+                at = taus / far[slot, None] * (len(self._grid) - 1)
+                lo = np.minimum(at.astype(np.intp), len(self._grid) - 2)
+                f = (at - lo)[..., None]
+                way += bends[slot[:, None], lo] * (1.0 - f) + bends[slot[:, None], lo + 1] * f
             q = dij[:, None, :] + vo[:, None, :] * taus[..., None] - way
             inside = (np.hypot(q[..., 0], q[..., 1]) < reach_xy) & (np.abs(q[..., 2]) < reach_z)
             touch = inside.any(axis=1)

@@ -20,6 +20,8 @@ from bisect import bisect_right
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from common.bus.messages import PlanStep
 from common.flight.modes import AIRBORNE, Mode, segment_mode
 from common.flight.reference import RefSample, wrap_angle
@@ -64,6 +66,7 @@ class Trajectory:
         t (None before any): the way along which a vehicle is behind its plan."""
         self.modes = self._plan_modes()
         self._yaw = self._plan_yaw(yaw0)
+        self._plan_arrays: tuple[np.ndarray, np.ndarray] | None = None  # times, nodes (n x 3): `plan_positions`
 
     def _ways(self) -> list[tuple[float, float, float] | None]:
         out: list[tuple[float, float, float] | None] = [None]
@@ -207,6 +210,14 @@ class Trajectory:
         s = t - self.times[j]
         n_j = self.nodes[j]
         return (n_j[0] + v[0] * s, n_j[1] + v[1] * s, n_j[2] + v[2] * s)
+
+
+    def plan_positions(self, ts: np.ndarray) -> np.ndarray:
+        """`plan_position` at each of the times `ts` at once (len(ts) x 3)."""
+        if self._plan_arrays is None:
+            self._plan_arrays = (np.array(self.times), np.array(self.nodes))
+        times, nodes = self._plan_arrays
+        return np.stack([np.interp(ts, times, nodes[:, k]) for k in range(3)], axis=1)
 
 
 def _dedupe(steps: Sequence[PlanStep]) -> list[PlanStep]:

@@ -740,18 +740,16 @@ class VehicleController:
         return est.vx, est.vy, est.vz, ref.vx, ref.vy, ref.vz
 
     def bend(self, taus: np.ndarray) -> np.ndarray:
-        """How far the reference followed at the last tick takes the vehicle in `taus` s beyond the
-        straight line at its velocity then (len(taus) x 3, m): the plan's turns over the proximity
-        stop's look-ahead (`Bodies.closing`); zero without a reference."""
-        out = np.zeros((len(taus), 3))
-        if self._seen is None or self._seen[2] is None:
-            return out
-        now, _, ref = self._seen
-        for k, tau in enumerate(taus.tolist()):
-            r = self.reference(now, tau)
-            assert r is not None
-            out[k] = (r.x - ref.x - ref.vx * tau, r.y - ref.y - ref.vy * tau, r.z - ref.z - ref.vz * tau)
-        return out
+        """How far the plan followed at the last tick takes the vehicle in `taus` s beyond the
+        straight line at its reference's velocity then (len(taus) x 3, m; at the clock's pace): the
+        plan's turns and stops over the proximity stop's look-ahead (`Bodies.closing`), on the
+        plan's own way (`Trajectory.plan_positions`, within the smoothing's 5 mm of the reference);
+        zero without a plan followed."""
+        if self._seen is None or self._seen[2] is None or self._active is None or self._hover_ref is not None:
+            return np.zeros((len(taus), 3))
+        ref = self._seen[2]
+        way = self._active.plan_positions(np.concatenate(((ref.t,), ref.t + self.pace * taus)))
+        return way[1:] - way[0] - np.outer(taus, (ref.vx, ref.vy, ref.vz))
 
     def stop_short(self, why: str) -> bool:
         """The proximity stop: this vehicle heads into another body (`why`), or its mission holds
