@@ -250,8 +250,9 @@ HANDLINGS: tuple[Handling, ...] = (
     Handling(
         "the proximity stop judging a mover on its way bent as its plan bends",
         "executor: a mover judged on straight lines (`VehicleController.bend` gives none)",
-        (Edit("services/executor/vehicle_controller.py", "        if self._seen is None or self._seen[2] is None:\n            return out\n",
-              "        if True:\n            return out\n"),),
+        (Edit("services/executor/vehicle_controller.py",
+              "        if self._seen is None or self._seen[2] is None or self._active is None or self._hover_ref is not None:\n",
+              "        if True:\n"),),
         "tests/test_proximity.py::test_a_flyer_on_time_into_its_hover_beside_a_body_does_not_stop_short"),
     Handling(
         "an old attitude resent levelled",
