@@ -211,7 +211,6 @@ class Trajectory:
         n_j = self.nodes[j]
         return (n_j[0] + v[0] * s, n_j[1] + v[1] * s, n_j[2] + v[2] * s)
 
-
     def plan_positions(self, ts: np.ndarray) -> np.ndarray:
         """`plan_position` at each of the times `ts` at once (len(ts) x 3)."""
         if self._plan_arrays is None:
