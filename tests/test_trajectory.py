@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -32,6 +33,16 @@ def test_reference_stays_within_the_deviation_bound_of_the_plan() -> None:
     assert worst <= traj.params.max_deviation + 1e-9
     assert traj.deviation_bound() <= traj.params.max_deviation + 1e-9
     assert worst > 0.5 * traj.params.max_deviation  # the corners really are smoothed
+
+
+def test_plan_positions_are_plan_position_at_each_time_at_once() -> None:
+    """(The proximity stop's bend reads a mover's plan so, `VehicleController.bend`.)"""
+    traj = Trajectory(STEPS)
+    ts = [traj.start_time - 1.0, *(s.t for s in STEPS), *(0.37 * k for k in range(120)), traj.end_time + 1.0]
+    at_once = traj.plan_positions(np.array(ts))
+    assert at_once.shape == (len(ts), 3)
+    for t, p in zip(ts, at_once, strict=True):
+        assert p == pytest.approx(traj.plan_position(t), abs=1e-12), t
 
 
 def test_every_node_is_within_the_bound_at_its_time_and_on_schedule_after_the_blend() -> None:
