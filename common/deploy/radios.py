@@ -92,7 +92,7 @@ class GatewayParams(msgspec.Struct, **_Strict):
     cars only); log_period_s: the period of the log block the firmware streams (battery, supervisor,
     RSSI); link_timeout_s: no log block for this long means the link is lost; reopen_s, reopen_max_s:
     a lost link is closed and reopened after reopen_s, doubling up to reopen_max_s; level_s: an
-    attitude setpoint older than this is resent levelled (its vertical thrust kept); stale_s: a cmd
+    attitude setpoint older than this is resent levelled at the hover thrust; stale_s: a cmd
     older than this is stale; stop_repeats: how many times a stop (motors off, and zero wheels) and
     a notify-setpoint-stop are sent; settle_period_s, settle_max_s: after a flight, stops go out this
     often while the supervisor reports the vehicle flying (at most twice settle_max_s, or settle_max_s

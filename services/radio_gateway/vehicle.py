@@ -4,10 +4,12 @@ Modes:
 
 - FLIGHT: the owner's latest flight setpoint, resent every tick it gets a slot (a fresh one replaces
   it), so the firmware's commander watchdog (0.5 s level, 2 s motors off) never starves. An
-  attitude setpoint older than `level_s` goes out levelled (roll, pitch and yaw rate 0, its vertical
-  thrust kept), as the watchdog would level it later: an attitude is its owner's command for one
-  control period, and a braking tilt resent through a stalled executor's silence swung a held
-  flyer back at 0.3-0.7 m/s (levelled: 0.1, its controller's own swing back; docs/radio.md). The first
+  attitude setpoint older than `level_s` goes out levelled at the hover thrust (roll, pitch and yaw
+  rate 0, the thrust `_hover_setpoint`'s: the median vertical thrust of the owner's last second of
+  setpoints, 3 % under), as the watchdog would level it later: an attitude is its owner's command
+  for one control period. A braking tilt resent through a stalled executor's silence swung a held
+  flyer back at 0.3-0.7 m/s (levelled: 0.1, its controller's own swing back), and a climbing
+  thrust resent for 0.2 s took a flyer 17 cm over its level (docs/radio.md). The first
   `stop_repeats` flight packets after the motors were off, or after a new connection, are zero-thrust
   setpoints: the firmware keeps the thrust locked after boot until it sees one (crazyflie-firmware
   crtp_commander_rpyt.c, `thrustLocked`), and one lost packet must not keep it locked.
@@ -428,14 +430,15 @@ class VehicleChannel:
 
     def _resent(self, now: float) -> bytes:
         """The owner's flight setpoint as it goes out at `now`: an attitude older than `level_s`
-        levelled, its vertical thrust kept (module docstring)."""
+        levelled at the hover thrust the safety landing starts from (`_hover_setpoint`; module
+        docstring)."""
         sp = self._flight
         if self.onboard or sp is None or now - self.cmd_at <= self.params.level_s or sp.thrust < FIRMWARE_MIN_THRUST:
             return self._flight_raw
         if self._level_raw is None:
-            lift = thrust_newtons(sp.thrust) * math.cos(math.radians(sp.roll)) * math.cos(math.radians(sp.pitch))
-            self._level_raw = crtp.encode_setpoint(FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0,
-                                                                  thrust=thrust_command(lift)))
+            hover = self._hover_setpoint()
+            assert hover is not None
+            self._level_raw = crtp.encode_setpoint(hover)
         return self._level_raw
 
     def wheel_due(self, now: float) -> bool:
