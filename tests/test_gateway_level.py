@@ -13,10 +13,8 @@ from common.bus.messages import FlightSetpoint
 from common.crazyflie.thrust import thrust_command, thrust_newtons
 from common.deploy.radios import GatewayParams
 from common.domain.vehicle_model import VehicleModel
-from services.executor.vehicle_controller import VehicleController
 from services.radio_gateway.vehicle import HOVER_MARGIN, Drive, VehicleChannel
-from services.sim.crazyflie.physics import SimFlyingCar
-from tests.support.closed_loop import plan_for, reference_steps, run
+from tests.support.closed_loop import on_reference_plan, run
 from tests.support.gateway_packets import decode
 
 BRAKING = FlightSetpoint(roll=-4.0, pitch=-12.0, yawrate=10.0, thrust=47000)
@@ -50,12 +48,8 @@ def swing_back(params: GatewayParams, stall_s: float = 0.2) -> float:
     """A flyer at 0.3 m/s on its plan stops short; 20 ms later its executor goes silent for
     `stall_s` and the gateway resends its last setpoint; then the executor comes back. Its fastest
     speed back along the way it came (m/s, ground truth), from the stop on."""
-    model = VehicleModel(margin=0.03)
-    steps = reference_steps(model)
+    steps, sim, ctrl = on_reference_plan(VehicleModel(margin=0.03))
     a1, a2 = (next(s for s in steps if s.node == node) for node in ("a1", "a2"))
-    sim = SimFlyingCar("cf1", model, pos=steps[0].pos, yaw=0.0)
-    ctrl = VehicleController("cf1", model, owner="test")
-    ctrl.load(plan_for("cf1", steps, model, t0=0.5))
     records = run(ctrl, sim, 0.5 + (a1.t + a2.t) / 2)
     assert records[-1].truth.vx == pytest.approx(0.3, abs=0.02)
     assert ctrl.stop_short("stops short of cf9")
@@ -81,13 +75,10 @@ def test_a_held_flyer_whose_executor_falls_silent_does_not_swing_back() -> None:
 
 def climb(params: GatewayParams, stall_s: float = 0.2) -> float:
     """A flyer hovering on its plan, its executor's last command before a silence of `stall_s` a
-    thrust 15 % over the hover (a correction of a sag): how far it rises meanwhile (m, ground truth)."""
-    model = VehicleModel(margin=0.03)
-    steps = reference_steps(model)
+    thrust 25 % over the hover (as in the soak: a sag's correction): how far it rises meanwhile (m,
+    ground truth)."""
+    steps, sim, ctrl = on_reference_plan(VehicleModel(margin=0.03))
     a2 = next(s for s in steps if s.node == "a2")
-    sim = SimFlyingCar("cf1", model, pos=steps[0].pos, yaw=0.0)
-    ctrl = VehicleController("cf1", model, owner="test")
-    ctrl.load(plan_for("cf1", steps, model, t0=0.5))
     run(ctrl, sim, 0.5 + a2.t + 0.5)
     hover = ctrl.tick(sim.t).setpoint
     assert isinstance(hover, FlightSetpoint)

@@ -25,7 +25,7 @@ from services.executor.vehicle_controller import VehicleController
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from services.sim.crazyflie.physics import SimFlyingCar
-from tests.support.closed_loop import plan_for, reference_steps, run
+from tests.support.closed_loop import on_reference_plan, plan_for, reference_steps, run
 from tests.support.fleet_faults import NO_RECORDER, TOWN_TASKS, Watch, until
 from tests.support.fleet_faults import fly as fly_mission
 
@@ -202,12 +202,8 @@ def test_a_flyer_on_time_into_its_hover_beside_a_body_does_not_stop_short() -> N
     time at 0.3 m/s 4 cm before the node where its plan hovers, 3 cm short of a body hovering
     beyond it, the flyer does not stop; straight on it would have. A body on its way before that
     node stops it."""
-    model = VehicleModel(margin=0.03)
-    steps = reference_steps(model)
+    steps, sim, ctrl = on_reference_plan(VehicleModel(margin=0.03))
     a2 = next(s for s in steps if s.node == "a2")
-    sim = SimFlyingCar("cf1", model, pos=steps[0].pos, yaw=0.0)
-    ctrl = VehicleController("cf1", model, owner="test")
-    ctrl.load(plan_for("cf1", steps, model, t0=0.5))
     records = run(ctrl, sim, 0.5 + a2.t - 0.04 / 0.3)
     assert ctrl.mode == Mode.FLYING
     motion = ctrl.motion()

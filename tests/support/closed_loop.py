@@ -99,6 +99,16 @@ def reference_steps(model: VehicleModel) -> list[PlanStep]:
     return steps
 
 
+def on_reference_plan(model: VehicleModel, t0: float = 0.5) -> tuple[list[PlanStep], SimFlyingCar, VehicleController]:
+    """cf1 parked at the start of `reference_steps`' plan, its mission starting at `t0`: the plan's
+    steps, the simulated vehicle and its controller with the plan loaded."""
+    steps = reference_steps(model)
+    sim = SimFlyingCar("cf1", model, pos=steps[0].pos, yaw=0.0)
+    ctrl = VehicleController("cf1", model, owner="test")
+    ctrl.load(plan_for("cf1", steps, model, t0=t0))
+    return steps, sim, ctrl
+
+
 def run(ctrl: VehicleController, sim: SimFlyingCar | FirmwareCar, until: float, mocap: Mocap | None = None,
         dt: float = 0.01, telemetry_every: int = 10,
         on_tick: Callable[[float], None] | None = None, control: ControlMode = "offboard",
