@@ -8,6 +8,7 @@ import asyncio
 import time
 from collections.abc import Callable
 
+import msgspec
 import numpy as np
 import pytest
 import zenoh
@@ -19,7 +20,7 @@ from common.bus.session import ZenohConfig
 from common.domain.planfile import Task
 from common.domain.vehicle_model import Speeds, VehicleModel
 from common.flight.modes import Mode
-from services.executor.proximity import Bodies
+from services.executor.proximity import Bodies, standing
 from services.executor.service import BODIES_FRESH_S, ExecutorService
 from services.executor.vehicle_controller import VehicleController
 from services.mission.demo import local_fleet
@@ -227,6 +228,17 @@ def test_a_flyer_on_time_into_its_hover_beside_a_body_does_not_stop_short() -> N
     assert [h.other for h in judged(on_its_way, bend=True)] == ["cf9"]
 
 
+def test_a_stop_short_says_how_a_body_stood_as_its_executor_last_told() -> None:
+    """The report of a proximity stop names each body's mode, hold and distance from its reference
+    (`standing`): the one off its plan shows without a trace."""
+    told = VehicleState(vid="cf2", t=99.96, owner="e2", mode="driving", x=0.0, y=0.0, z=0.0, yaw=0.0,
+                        tracking_error=0.123)
+    assert standing("cf2", told, 100.0) == "cf2: driving, 12.3 cm from its reference 40 ms ago"
+    held = msgspec.structs.replace(told, mode="holding", held="tracking error 0.12 m", tracking_error=0.0)
+    assert standing("cf2", held, 100.0) == "cf2: holding, held, 0.0 cm from its reference 40 ms ago"
+    assert standing("cf3", None, 100.0) == "cf3: no state"
+
+
 def test_a_body_the_motion_capture_lost_is_not_counted() -> None:
     bodies = Bodies()
     now = frames(bodies, {"follower": ((0.0, 0.0, 0.0), (0.1, 0.0, 0.0)),
@@ -300,6 +312,8 @@ def test_a_vehicle_stops_short_of_a_body_its_plan_did_not_know(tmp_path) -> None
     assert 0.0 < result.min_gap < 0.05 and set(result.min_pair) == {"cf3", "cf4"}, (result.min_gap, result.min_pair)
     [held] = [e for _t, e in watch.events if e.vid == "cf3" and e.kind == "tracking_hold"]
     assert held.detail.startswith("stops short of cf4"), held.detail
+    # how each stood, to tell which was off its plan: cf3 on its way, cf4 reported by no executor
+    assert "; cf3: driving, " in held.detail and held.detail.endswith("; cf4: no state"), held.detail
     assert any(e.startswith("cf3 not back yet") and "crosses where cf4 may be" in e for e in result.events), \
         result.events  # cf4 is outside the mission: the mission sees it in the motion capture's frames
     assert not any(e.startswith("cf3 rejoined") for e in result.events), result.events

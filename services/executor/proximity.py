@@ -34,7 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from common.bus.messages import PoseFrame
+from common.bus.messages import PoseFrame, VehicleState
 
 NEVER = -1e9
 """The capture time of a body not seen yet (s)."""
@@ -85,6 +85,18 @@ class Closing(NamedTuple):
         vm, vo = (", ".join(f"{c:.2f}" for c in v) for v in (self.v_mover, self.v_other))
         return (f"stops short of {self.other}: bodies {100 * self.gap:.1f} cm apart, closing at {self.speed:.2f} m/s "
                 f"(its velocity ({vm}), {self.other}'s ({vo}); reaction {1000 * self.react:.0f} ms)")
+
+
+def standing(vid: str, state: VehicleState | None, now: float) -> str:
+    """How `vid` stood as its executor last told (`state`, `now - state.t` ago): its mode, whether
+    it was held and how far from the reference it follows. A proximity stop's report names the
+    mover's and the other body's, so that the one off its plan (late, ahead, or held) shows
+    without a trace; "no state" for a body no executor reports (one outside every mission)."""
+    if state is None:
+        return f"{vid}: no state"
+    held = ", held" if state.held else ""
+    return (f"{vid}: {state.mode}{held}, {100 * state.tracking_error:.1f} cm from its reference "
+            f"{1000 * max(now - state.t, 0.0):.0f} ms ago")
 
 
 class Bodies:

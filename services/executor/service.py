@@ -72,7 +72,7 @@ from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, 
 from common.flight.modes import Mode
 from common.flight.plan_clock import ClockParams, PlanClock, latency_pace
 from services.executor.faults import ASIDE, STRAIGHT_DOWN, FaultParams
-from services.executor.proximity import Bodies, ProximityParams
+from services.executor.proximity import Bodies, ProximityParams, standing
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
 from services.executor.vehicle_controller import ControlParams, VehicleController
@@ -179,6 +179,8 @@ class ExecutorService(Service):
         self._unstopped: dict[str, float] = {}
         """Other executors' vehicles in a fault or an emergency landing, which no proximity stop
         stops (`_going_on`): vid -> when heard."""
+        self._heard: dict[str, VehicleState] = {}
+        """Other executors' vehicles' latest states, for the proximity stop's report (`_standing`)."""
         self.gateway_of: dict[str, str] = {}
         """Each vehicle's gateway, from its telemetry: where its commands go."""
         self._maps: dict[str, MapSpec | None] = {}
@@ -429,6 +431,7 @@ class ExecutorService(Service):
         self.team.on_state(state)
         self.ownership.on_state(state)
         if state.owner != self.instance:  # another executor's fault landing, announced
+            self._heard[state.vid] = state
             if state.landing is not None or state.mode == Mode.EMERGENCY_LANDING:
                 self._unstopped[state.vid] = time.time()
             else:
@@ -533,7 +536,13 @@ class ExecutorService(Service):
         v_self = np.array(velocities).reshape(len(movers), 2, 3)
         for closing in self.bodies.closing(movers, v_self, radius, height, now, react,
                                            lambda: self._going_on(now), self._bend):
-            self.controllers[closing.mover].stop_short(closing.why())
+            self.controllers[closing.mover].stop_short(
+                f"{closing.why()}; {self._standing(closing.mover, now)}; {self._standing(closing.other, now)}")
+
+    def _standing(self, vid: str, now: float) -> str:
+        """How `vid` stands (`standing`): an owned vehicle by its last tick, another by its state heard."""
+        ctl = self.controllers.get(vid)
+        return standing(vid, ctl.state() if ctl is not None and ctl.ticked else self._heard.get(vid), now)
 
     def _bend(self, vid: str, taus: np.ndarray) -> np.ndarray:
         """How `vid`'s plan bends over the proximity stop's look-ahead (`VehicleController.bend`)."""

@@ -1103,6 +1103,11 @@ class VehicleController:
             return self.model.power.drive
         return self.model.power.idle
 
+    @property
+    def ticked(self) -> bool:
+        """Whether it has ticked (and has a `state`)."""
+        return self._seen is not None
+
     def state(self) -> VehicleState:
         """The vehicle's state as the last `tick` saw it (its estimate, reference and mode)."""
         if self._seen is None:
