@@ -15,7 +15,7 @@ from typing import Literal
 
 import msgspec
 
-from common.bus.messages import ControlMode, PlanStep, Pose, SimTruth, Telemetry, VehiclePlan
+from common.bus.messages import ControlMode, PlanStep, Pose, Setpoint, SimTruth, Telemetry, VehiclePlan
 from common.domain.planfile import PlanModel
 from common.domain.vehicle_model import EdgeKind, NodeKind, VehicleModel
 from common.flight.modes import Mode
@@ -112,15 +112,17 @@ def on_reference_plan(model: VehicleModel, t0: float = 0.5) -> tuple[list[PlanSt
 def run(ctrl: VehicleController, sim: SimFlyingCar | FirmwareCar, until: float, mocap: Mocap | None = None,
         dt: float = 0.01, telemetry_every: int = 10,
         on_tick: Callable[[float], None] | None = None, control: ControlMode = "offboard",
-        every: int = 1, delay_s: float = 0.0) -> list[Record]:
+        every: int = 1, delay_s: float = 0.0, act_delay_s: float = 0.0) -> list[Record]:
     """Step the loop from the simulator's clock to `until`: pose -> controller -> setpoint ->
     physics, with battery telemetry every `telemetry_every` ticks (saying control mode `control`;
     onboard needs `sim` to be a `tests.support.onboard_loop.FirmwareCar`). `on_tick(now)` runs
     before each tick (fault injection). A slow loop: poses reach the controller `delay_s` late and
-    it ticks every `every` periods (the vehicle keeps the last setpoint meanwhile)."""
+    it ticks every `every` periods (the vehicle keeps the last setpoint meanwhile); a late link:
+    each setpoint acts `act_delay_s` after its tick (the vehicle keeps the one before meanwhile)."""
     mocap = mocap or Mocap()
     records: list[Record] = []
     late: deque[Pose] = deque()
+    sent: deque[tuple[float, Setpoint]] = deque()  # (when it acts, setpoint)
     setpoint = None
     k = 0
     while sim.t < until - 1e-9:
@@ -138,8 +140,11 @@ def run(ctrl: VehicleController, sim: SimFlyingCar | FirmwareCar, until: float, 
                                         link_quality=1.0, sent=k, dropped=0,
                                         cmd_rate_hz=1.0 / dt, control=control), now)
         if k % every == 0:
-            setpoint = ctrl.tick(now).setpoint
-        sim.apply(setpoint, now)
+            sent.append((now + act_delay_s, ctrl.tick(now).setpoint))
+        while sent and sent[0][0] <= now + 1e-9:
+            setpoint = sent.popleft()[1]
+        if setpoint is not None:
+            sim.apply(setpoint, now)
         records.append(Record(now, truth, ctrl.reference(now), ctrl.mode))
         sim.step(dt)
         k += 1
