@@ -8,15 +8,19 @@ from __future__ import annotations
 import itertools
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
 import numpy as np
 import pytest
+import zenoh
 
-from common.bus.messages import PlanRequest, Replan, Sweep
+from common.bus.keys import Keys
+from common.bus.messages import PlanRequest, Replan, Sweep, VehiclePlan
+from common.bus.session import ZenohConfig
 from common.domain.planfile import Plan, Task
-from services.mission.runner import plan_end
+from services.mission.runner import MissionRunner, MissionSpec, plan_end
 from services.mission.sweeps import DESCENT_S_PER_M, REST_S, descent, held
 from services.planner.failed_requests import read_request
 from services.planner.maps.loading import load_graph
@@ -425,3 +429,35 @@ def test_a_soaks_replan_whose_first_order_met_head_on_is_valid_on_its_first_orde
     assert reply.ok and later is None, reply.error
     order = [leg.vid for leg in priority(split(graph, req.replan)[1])]
     assert order.index("cf21") < order.index("cf73") and order.index("cf04") < order.index("cf38")
+
+
+def test_a_stranded_vehicle_goes_on_to_its_goal_once_a_later_replan_finds_it_in_reach(
+        zenoh_router: str, zsession: Callable[..., zenoh.Session]) -> None:
+    """cf4 comes down on cf1's goal: the mission's replan strands cf1 short of it. Once cf4 is gone
+    (its body no longer in the way), the next replan, asked for anything, asks for cf1's goal again
+    (`MissionRunner._stranded_goals`): cf1 goes on to it, stranded no more, and the mission says so.
+    (Without it a replan around two held vehicles stranded one in an 80-vehicle soak; both came
+    back, every vehicle arrived, and the mission failed for the stranded one's goal.)"""
+    keys = Keys("strand")
+    runner = MissionRunner(MissionSpec(map="town", tasks=TASKS, planner="sipp"), ZenohConfig.client(zenoh_router),
+                           keys, progress=False)
+    runner._session = zsession()  # (its plans handed out on a real session; nobody listens)
+    runner._plans = runner.publishers(lambda vid: keys.vehicle(vid, "plan"), VehiclePlan)
+    runner.plan, runner.t0 = plan_of(), time.time()
+    goal = runner.plan.graph.nodes["EP8"].pos
+
+    def replan(at: float, left: list[str], sweeps: list[Sweep]) -> None:
+        request = PlanRequest(map="town", tasks={}, time_limit=10, replan=Replan(
+            base=runner.plan, at=at, left=left, sweeps=sweeps, goals=runner._stranded_goals(left), strand=True))
+        reply = solve(request)
+        assert reply.ok, reply.error
+        assert runner._apply_replan(reply, at, 0.1, left, {}) is None
+
+    replan(1.0, ["cf4"], [Sweep("cf4", goal, goal, 1.0, 1.0, rest=True)])
+    assert runner.stranded == {"cf1": "EP8"} and runner.plan.tasks["cf1"].goal != "EP8"
+    assert any(e.startswith("cf1: 'EP8' out of reach now") for e in runner.events), runner.events
+    replan(3.0, [], [])  # cf4's body gone
+    assert runner.stranded == {} and runner.plan.tasks["cf1"].goal == "EP8", runner.plan.tasks["cf1"]
+    assert runner.plan.paths["cf1"][-1].node == "EP8" and not runner.reports["cf1"].arrived
+    assert "cf1: 'EP8' in reach again: it goes on to it" in runner.events, runner.events
+    assert validate_plan(runner.plan).ok

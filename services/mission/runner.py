@@ -533,7 +533,8 @@ class MissionRunner(MissionClient[MissionResult]):
             base, sweeps = self._with_rejoining(plan, rejoin, at)
             req = PlanRequest(map=self.spec.map, tasks={}, planner="sipp" if rejoin else self.spec.replanner,
                               mu=self.spec.mu, time_limit=limit, reply_within=lead,
-                              replan=Replan(base=base, at=at, left=left, sweeps=sweeps, goals=goals, strand=True,
+                              replan=Replan(base=base, at=at, left=left, sweeps=sweeps,
+                                            goals={**self._stranded_goals(left), **goals}, strand=True,
                                             rejoin=list(rejoin)))
             started = time.perf_counter()
             try:
@@ -556,6 +557,14 @@ class MissionRunner(MissionClient[MissionResult]):
                 return reply, at, took
             late = f"the replan came too late ({took:.2f} s)"
         return f"{late} ({len(REPLAN_TIME_LIMITS_S)} times)"
+
+    def _stranded_goals(self, left: Sequence[str]) -> dict[str, str]:
+        """The goals a replan had left out of reach (`stranded`), asked for again by every replan
+        after it, of the vehicles still in the mission: what closed one (a vehicle held on the way,
+        which came back since, a body that left) may be gone. (An 80-vehicle soak's replan around
+        two held vehicles left cf26 short of its spot; both came back 2-4 s later, every vehicle
+        arrived, and the mission failed for cf26's goal.) Given up again, it stays stranded."""
+        return {v: g for v, g in self.stranded.items() if v not in left and v not in self.left}
 
     def _replan_failed(self, reply: PlanReply) -> str:
         """Note whom a failed replan names (the vehicles it could not place, those it could not bring
@@ -590,16 +599,21 @@ class MissionRunner(MissionClient[MissionResult]):
         plans handed out (`back`: the held vehicles it brings back); why not, if it left a new goal
         out of reach."""
         assert self.plan is not None and self.t0 is not None and reply.plan is not None
-        wanted = {v: goals.get(v, t.goal) for v, t in self.plan.tasks.items()}
+        before = {v: t.goal for v, t in self.plan.tasks.items()}
+        wanted = {v: goals.get(v, self.stranded.get(v, g)) for v, g in before.items()}
         short = {v: t.goal for v, t in reply.plan.tasks.items() if t.goal != wanted.get(v, t.goal)}
         if refused := sorted(set(short) & set(goals)):
             return f"{', '.join(f'{wanted[v]!r}' for v in refused)} out of reach"
         self.replans.append(took)
         self.plan, self._back = reply.plan, frozenset(back)
+        for vid in [v for v in self.stranded if v in reply.plan.tasks and v not in short and v not in goals]:
+            self.reports[vid].arrived = False
+            self.events.append(f"{vid}: {self.stranded.pop(vid)!r} in reach again: it goes on to it")
         for vid, node in short.items():
             self.stranded.setdefault(vid, wanted[vid])
             self.reports[vid].arrived = False
-            self.events.append(f"{vid}: {wanted[vid]!r} out of reach now: it stops at {node!r}")
+            if node != before.get(vid):
+                self.events.append(f"{vid}: {wanted[vid]!r} out of reach now: it stops at {node!r}")
         for vid, path in self.plan.paths.items():
             self.reports[vid].planned_s = path[-1].t
         for vid in goals:
@@ -626,6 +640,7 @@ class MissionRunner(MissionClient[MissionResult]):
         if self._in_air(plan, req.goal) and not self.spec.hover:
             return TaskAddReply(ok=False, error=f"{req.goal} is an air node: only a hover mission (--hover) ends a task there")
         taken = {t.goal: v for v, t in plan.tasks.items() if v != req.vid}
+        taken |= {g: v for v, g in self.stranded.items() if v != req.vid}  # (asked for again by every replan)
         if req.goal in taken:
             return TaskAddReply(ok=False, error=f"{req.goal} is the goal of {taken[req.goal]}")
         if req.vid in self._pending:
