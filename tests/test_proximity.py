@@ -229,13 +229,13 @@ def test_a_flyer_on_time_into_its_hover_beside_a_body_does_not_stop_short() -> N
 
 
 def test_a_stop_short_says_how_a_body_stood_as_its_executor_last_told() -> None:
-    """The report of a proximity stop names each body's mode, hold and distance from its reference
-    (`standing`): the one off its plan shows without a trace."""
+    """The report of a proximity stop names each body's mode, hold, distance from its reference and
+    plan clock's delay (`standing`): the one off its plan shows without a trace."""
     told = VehicleState(vid="cf2", t=99.96, owner="e2", mode="driving", x=0.0, y=0.0, z=0.0, yaw=0.0,
-                        tracking_error=0.123)
-    assert standing("cf2", told, 100.0) == "cf2: driving, 12.3 cm from its reference 40 ms ago"
+                        tracking_error=0.123, delay=1.5)
+    assert standing("cf2", told, 100.0) == "cf2: driving, 12.3 cm from its reference, clock 1.50 s behind, 40 ms ago"
     held = msgspec.structs.replace(told, mode="holding", held="tracking error 0.12 m", tracking_error=0.0)
-    assert standing("cf2", held, 100.0) == "cf2: holding, held, 0.0 cm from its reference 40 ms ago"
+    assert standing("cf2", held, 100.0) == "cf2: holding, held, 0.0 cm from its reference, clock 1.50 s behind, 40 ms ago"
     assert standing("cf3", None, 100.0) == "cf3: no state"
 
 

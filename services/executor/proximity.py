@@ -89,14 +89,15 @@ class Closing(NamedTuple):
 
 def standing(vid: str, state: VehicleState | None, now: float) -> str:
     """How `vid` stood as its executor last told (`state`, `now - state.t` ago): its mode, whether
-    it was held and how far from the reference it follows. A proximity stop's report names the
-    mover's and the other body's, so that the one off its plan (late, ahead, or held) shows
-    without a trace; "no state" for a body no executor reports (one outside every mission)."""
+    it was held, how far from the reference it follows and how far its plan's clock stood behind
+    (`VehicleState.delay`). A proximity stop's report names the mover's and the other body's, so
+    that the one off its plan (late, ahead, held, or on a clock of its own) shows without a
+    trace; "no state" for a body no executor reports (one outside every mission)."""
     if state is None:
         return f"{vid}: no state"
     held = ", held" if state.held else ""
-    return (f"{vid}: {state.mode}{held}, {100 * state.tracking_error:.1f} cm from its reference "
-            f"{1000 * max(now - state.t, 0.0):.0f} ms ago")
+    return (f"{vid}: {state.mode}{held}, {100 * state.tracking_error:.1f} cm from its reference, "
+            f"clock {state.delay:.2f} s behind, {1000 * max(now - state.t, 0.0):.0f} ms ago")
 
 
 class Bodies:
