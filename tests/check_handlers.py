@@ -262,6 +262,18 @@ HANDLINGS: tuple[Handling, ...] = (
               "        if True:\n"),),
         "tests/test_gateway_level.py::test_a_held_flyer_whose_executor_falls_silent_does_not_swing_back"),
     Handling(
+        "the flight controller leading its commands' actuation",
+        "executor: the flight LQR on the state and reference of its tick (no lead)",
+        (Edit("services/executor/vehicle_controller.py", "ACTUATION_S = 0.05\n", "ACTUATION_S = 0.0\n"),),
+        "tests/test_closed_loop.py::test_a_flyer_whose_commands_act_late_holds_its_height_when_its_controller_leads"),
+    Handling(
+        "a stranded vehicle's goal asked for again",
+        "mission: a goal a replan left out of reach stays so for the mission",
+        (Edit("services/mission/runner.py",
+              "        return {v: g for v, g in self.stranded.items() if v not in left and v not in self.left}\n",
+              "        return {}\n"),),
+        "tests/test_replan.py::test_a_stranded_vehicle_goes_on_to_its_goal_once_a_later_replan_finds_it_in_reach"),
+    Handling(
         "the flight LQR's gain following the loop's period",
         "flight LQR: the 100 Hz gain whatever the loop's period",
         (Edit("common/flight/lqr.py", "GAIN_PERIODS = (0.01, 0.02, 0.04, 0.08, 0.16, 0.32)\n", "GAIN_PERIODS = (0.01,)\n"),),
