@@ -361,3 +361,15 @@ def test_the_lift_error_learns_only_from_recent_poses_of_thrust_commands_clear_o
     assert hover(0.5, learn=False) == 0.0
     assert hover(0.5, learn=True, every=20) == 0.0  # poses 0.2 s apart
     assert hover(0.03, learn=True) == 0.0  # in the ground effect
+
+
+def test_an_estimate_carried_ahead_is_the_estimate_then() -> None:
+    """`ahead` (a controller leading its commands' delay) carries an estimate on at the last
+    command: what `estimate` predicts then, while no command comes meanwhile."""
+    est = PoseEstimator()
+    track(est, 0.0, 1.0, yaw_rate=0.4)
+    est.command((0.5, -0.3, 1.2), 1.0, aloft=True, yaw_rate=0.4)
+    now = 1.02
+    led, then = est.ahead(est.estimate(now), 0.05), est.estimate(now + 0.05)
+    for field in ("t", "x", "y", "z", "vx", "vy", "vz", "yaw", "yaw_rate"):
+        assert getattr(led, field) == pytest.approx(getattr(then, field), abs=1e-9), field

@@ -906,7 +906,7 @@ class VehicleController:
             link = not self.faults.link_lost(now)
             aloft = est.z - self._ground_z > self.params.liftoff_height
             lead = self.params.actuation_s  # it acts then: on the state and reference of then
-            sp = self.lqr.command(self._acting(now, est), self.reference(now, lead) or ref if lead > 0.0 else ref,
+            sp = self.lqr.command(self._acting(est), self.reference(now, lead) or ref if lead > 0.0 else ref,
                                   integrate=aloft and link)
             if link:
                 self.estimator.command(self.lqr.expected_accel, now, aloft, yaw_rate=self.lqr.yaw_rate)
@@ -1020,7 +1020,7 @@ class VehicleController:
             return StopSetpoint()
         if on_board:
             return onboard.descent(est, faults.descent_accel_cmd(est.vz), self.estimator, faults, now)
-        est = self._acting(now, est)
+        est = self._acting(est)
         accel = faults.descent_accel_cmd(est.vz)
         ax, ay = faults.descent_brake(est.vx, est.vy)
         c, s = math.cos(est.yaw), math.sin(est.yaw)
@@ -1033,11 +1033,11 @@ class VehicleController:
         thrust = self.model.mass * (G + bias + accel + d * est.vz) / (math.cos(roll) * math.cos(pitch))
         return to_flight_setpoint(roll, pitch, 0.0, thrust_command(thrust))
 
-    def _acting(self, now: float, est: Estimate) -> Estimate:
-        """The state predicted to when a command given at `now` acts (`ACTUATION_S`), from `est`'s
-        filter (`est` itself, at `now`, with no delay to lead)."""
+    def _acting(self, est: Estimate) -> Estimate:
+        """The state predicted to when a command given now acts (`ACTUATION_S`): `est`, the
+        estimate at `now`, carried on (itself with no delay to lead)."""
         lead = self.params.actuation_s
-        return self.estimator.estimate(now + lead) if lead > 0.0 else est
+        return self.estimator.ahead(est, lead) if lead > 0.0 else est
 
     def _column_foot(self, ref: RefSample | None, mode: Mode) -> tuple[float, float] | None:
         """Where (x, y) on the ground the take-off or landing (`mode`) it is in stands: of its
