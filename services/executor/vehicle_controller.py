@@ -92,14 +92,15 @@ dead-reckoned to then and the reference of then (`_acting`; a Smith predictor's 
 model of the commands left as it is: shifted in it too, a vehicle stronger than its model learned
 its lift error wrong in the climb and came down blind at 3 m/s). Unled, a flyer's height loop swung
 on the delay: in the closed loop with its commands acting 40 ms late on 30 ms old poses, 4.7 cm
-peak to peak at up to 0.24 m/s, 60 ms late 15 cm; led by 50 ms, 0.4 and about 5 cm; led with no
-delay to lead, 0.3 cm as unled (`tests/test_closed_loop.py`). An 80-vehicle soak's flyers swung
+peak to peak at up to 0.24 m/s, 60 ms late 15 cm; led by 50 ms, 0.4 and 4.4 cm; led with no
+delay to lead, 0.2 cm (unled 0.3; `tests/test_closed_loop.py`). An 80-vehicle soak's flyers swung
 +-3 cm at 0.3 m/s, and the proximity stop held them for it (docs/reliability.md)."""
 
 
 @dataclass(frozen=True)
 class ControlParams:
-    """dt: control period (s); actuation_s: how long after its tick a command acts (`ACTUATION_S`); touchdown_height: height above the landing node (m) below which,
+    """dt: control period (s); actuation_s: how long after its tick a command acts on the vehicle
+    (`ACTUATION_S`); touchdown_height: height above the landing node (m) below which,
     with the reference there too, a landing is complete and the motors stop; liftoff_height:
     height above which the flight integrators run; arrive_radius: m from the goal that counts as
     arrived; finish_s, finish_radius: a vehicle on the ground at its plan's end but short of its
@@ -906,8 +907,8 @@ class VehicleController:
             link = not self.faults.link_lost(now)
             aloft = est.z - self._ground_z > self.params.liftoff_height
             lead = self.params.actuation_s  # it acts then: on the state and reference of then
-            sp = self.lqr.command(self._acting(est), self.reference(now, lead) or ref if lead > 0.0 else ref,
-                                  integrate=aloft and link)
+            ref_then = (self.reference(now, lead) or ref) if lead > 0.0 else ref
+            sp = self.lqr.command(self._acting(est), ref_then, integrate=aloft and link)
             if link:
                 self.estimator.command(self.lqr.expected_accel, now, aloft, yaw_rate=self.lqr.yaw_rate)
             else:
