@@ -267,6 +267,11 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/vehicle_controller.py", "ACTUATION_S = 0.05\n", "ACTUATION_S = 0.0\n"),),
         "tests/test_closed_loop.py::test_a_flyer_whose_commands_act_late_holds_its_height_when_its_controller_leads"),
     Handling(
+        "only steady thrust teaching the lift error on a late loop",
+        "estimator: every thrust command teaches the lift error, however late the loop",
+        (Edit("common/flight/estimator.py", "LIFT_LATE_S = 0.05\n", "LIFT_LATE_S = math.inf\n"),),
+        "tests/test_closed_loop.py::test_a_flyer_on_a_late_loop_holds_its_height_when_only_steady_thrust_teaches_the_lift_error"),
+    Handling(
         "a stranded vehicle's goal asked for again",
         "mission: a goal a replan left out of reach stays so for the mission",
         (Edit("services/mission/runner.py",

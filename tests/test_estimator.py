@@ -12,6 +12,7 @@ import pytest
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
+import common.flight.estimator as estimator_module
 from common.bus.messages import Pose
 from common.domain.vehicle_model import G
 from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, fuse_poses
@@ -373,3 +374,46 @@ def test_an_estimate_carried_ahead_is_the_estimate_then() -> None:
     led, then = est.ahead(est.estimate(now), 0.05), est.estimate(now + 0.05)
     for field in ("t", "x", "y", "z", "vx", "vy", "vz", "yaw", "yaw_rate"):
         assert getattr(led, field) == pytest.approx(getattr(then, field), abs=1e-9), field
+
+
+def _lift_learned_on_a_late_loop(error: float, swing: float, period: float, lag: float = 0.06,
+                                 late: float = 0.1, seconds: float = 3.0) -> float:
+    """The lift error learned by a late loop's estimator: poses fused `late` s after their capture,
+    thrust commands for `swing` x sin(2 pi t / `period`) m/s^2 every 10 ms, each acting `lag` s after it
+    was given on a vehicle whose thrust is (1 + `error`) times its model's."""
+    est = PoseEstimator()
+    dt, z, vz, acting = 0.01, 0.5, 0.0, 0.0
+    poses: list[Pose] = []
+    commands: list[tuple[float, float]] = []  # (when it acts, acceleration expected)
+    for k in range(int(seconds / dt)):
+        t = k * dt
+        poses.append(Pose(vid="v", t=t, x=0.0, y=0.0, z=z, yaw=0.0))
+        while poses and poses[0].t <= t - late + 1e-9:
+            est.update(poses.pop(0))
+        a = swing * math.sin(2.0 * math.pi * t / period)
+        est.command((0.0, 0.0, a), t, aloft=True)
+        commands.append((t + lag, a))
+        while commands and commands[0][0] <= t + 1e-9:
+            acting = commands.pop(0)[1]
+        true = (1.0 + error) * (G + acting) - G
+        z, vz = z + vz * dt + 0.5 * true * dt * dt, vz + true * dt
+    return est.lift_error
+
+
+@pytest.mark.parametrize("steady_only", [True, False])
+def test_a_late_loops_thrust_swings_teach_no_lift_error_its_steady_commands_do(
+        steady_only: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """On a late loop (poses 0.1 s old when it commands) thrust commands that swing +-3 m/s^2 over a
+    second, acting 60 ms after they were given, on a vehicle true to its model: only steady commands
+    teach the lift error (`LIFT_LATE_S`), so it learns none; every command teaching (as before) it
+    learned the swing's lag as a thrust-model error (0.04). Commands that jitter +-0.5 m/s^2 still
+    teach a thrust 10 % off within 0.02 in 3 s."""
+    if not steady_only:
+        monkeypatch.setattr(estimator_module, "LIFT_LATE_S", math.inf)
+    swung = _lift_learned_on_a_late_loop(0.0, swing=3.0, period=1.0)
+    if steady_only:
+        assert abs(swung) < 0.01, swung
+        assert _lift_learned_on_a_late_loop(0.1, swing=0.5, period=0.1) == pytest.approx(0.1, abs=0.02)
+        assert _lift_learned_on_a_late_loop(-0.1, swing=0.5, period=0.1, lag=0.0) == pytest.approx(-0.1, abs=0.02)
+    else:
+        assert swung > 0.03, swung

@@ -52,6 +52,13 @@ LIFT_ERROR_MAX = 0.2
 LIFT_LEARN_HEIGHT = 0.05
 """m above its floor from which the lift error learns (nearer the ground its lift is the ground
 effect's too)."""
+LIFT_LATE_S = 0.05
+"""s: a command given on a pose older than this comes from a late loop (`PoseEstimator.command`),
+whose thrust commands teach the lift error only while held steady."""
+LIFT_STEADY_ACCEL, LIFT_STEADY_S, LIFT_SMOOTH_S = 1.5, 0.1, 0.1
+"""A late loop's thrust commands are steady once their vertical acceleration (smoothed over
+`LIFT_SMOOTH_S` s: a hover's commands jitter +-1 m/s^2 on the motion capture's noise) has stayed
+within `LIFT_STEADY_ACCEL` m/s^2 of one value for `LIFT_STEADY_S` s."""
 LIFT_LEARN_GAP_S = 0.1
 """s: a pose later than this after the last teaches no lift error (a gap's prediction holds more
 than the thrust model's error)."""
@@ -211,6 +218,8 @@ class PoseEstimator:
         """The yaw predicted from: (time, yaw then, the yaw rate commanded from then on, None for none)."""
         self._yaw_inputs: list[tuple[float, float | None]] = []  # (from when, yaw rate or None), since `_yaw_from`
         self._unlearned_until = math.inf  # the end of the last input that teaches no lift error (inf: in force)
+        self._steady: tuple[float, float] = (-math.inf, math.inf)  # (since, vertical acceleration) commanded steadily
+        self._smooth: tuple[float, float] | None = None  # (when, the thrust commands' vertical acceleration smoothed)
         self.floor: float | None = None
         """Height (m) the vehicle cannot be below, set by its controller (the ground where it takes
         off or lands; else the lowest ground there is): the dead reckoning and the filter's state
@@ -232,9 +241,10 @@ class PoseEstimator:
         interval's own g' instead, corrections that follow the thrust's swings, late by the motors'
         lag, did not, and a slow loop learned a 10 % error as 3-6 %). The predictions add it. A
         fraction, not an acceleration: a take-off's thrust is 1.5 times a hover's, and its error
-        with it. (The flight controller's settled integrator stood in for it, learned only on its
-        reference: a vehicle 10 % stronger than its model that lost its poses a second or two after
-        lift-off descended blind on a thrust that climbed, to 2-7 m, its motors stopped there.)"""
+        with it. On a late loop only steady commands teach it (`_teaches`). (The flight
+        controller's settled integrator stood in for it, learned only on its reference: a vehicle
+        10 % stronger than its model that lost its poses a second or two after lift-off descended
+        blind on a thrust that climbed, to 2-7 m, its motors stopped there.)"""
 
     def reset(self, pose: Pose, velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
         """Start over at `pose`, at rest or at `velocity` (m/s)."""
@@ -314,8 +324,28 @@ class PoseEstimator:
         The poses that follow teach the lift error if it is `aloft` and `learn`s (not a command
         sent blind, or at a cap its model does not know). `yaw_rate`: the yaw rate it gives (rad/s)."""
         ax, ay, az = accel
-        self.set_input(felt((ax, ay, az + self.lift_error * (G + az)), aloft), now, learn=aloft and learn,
+        teaches = self._teaches(az, now, aloft)
+        self.set_input(felt((ax, ay, az + self.lift_error * (G + az)), aloft), now, learn=aloft and learn and teaches,
                        yaw_rate=yaw_rate if aloft else None)
+
+    def _teaches(self, az: float, now: float, aloft: bool) -> bool:
+        """Whether a thrust command for vertical acceleration `az` given at `now` may teach the lift
+        error: on a recent pose (`LIFT_LATE_S`), or steady (`LIFT_STEADY_ACCEL`). The predictions
+        count a command from its tick, but it acts tens of milliseconds later (`ACTUATION_S`), more
+        on a late loop: the thrust's changes within that lag show in the poses as a thrust-model
+        error. On a loop whose poses were 0.1 s old, ticking every other period, its commands
+        acting 60 ms late, a model-true vehicle's lift error learned the swings of its height loop
+        (0.09, where there was none) and fed them back: its height swung 23 cm peak to peak in
+        level flight, 10 with only steady commands teaching (`tests/test_closed_loop.py`)."""
+        smooth = self._smooth
+        if smooth is None or not aloft:
+            smooth = (now, az)
+        else:
+            smooth = (now, smooth[1] + min(max(now - smooth[0], 0.0) / LIFT_SMOOTH_S, 1.0) * (az - smooth[1]))
+        self._smooth = smooth
+        if abs(smooth[1] - self._steady[1]) > LIFT_STEADY_ACCEL:
+            self._steady = (now, smooth[1])
+        return now - (self.t or now) <= LIFT_LATE_S or now - self._steady[0] >= LIFT_STEADY_S
 
     def update(self, pose: Pose) -> bool:
         """Fuse one pose; False if it was dropped (out of order) or rejected by the gate."""
