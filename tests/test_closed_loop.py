@@ -530,8 +530,8 @@ def test_a_flyer_on_a_late_loop_holds_its_height_when_only_steady_thrust_teaches
     """Poses 0.1 s old, a tick every other period, commands acting 60 ms late (a starved executor):
     the take-off's and the height loop's swings, learned as a thrust-model error, fed back into its
     predictions and swung it more. With only steady commands teaching on a late loop
-    (`PoseEstimator._teaches`) it flies its level leg within 14 cm of height peak to peak (10) and
-    learns next to no error (it has none); every command teaching (as before), 23 cm and 0.09."""
+    (`PoseEstimator._teaches`) it flies its level leg within 14 cm of height peak to peak (10-12)
+    and learns next to no error (it has none); every command teaching (as before), 23 cm and 0.09."""
     if not steady_only:
         monkeypatch.setattr(estimator_module, "LIFT_LATE_S", math.inf)
     sim = SimFlyingCar("cf1", MODEL, pos=STEPS[0].pos, yaw=0.0)

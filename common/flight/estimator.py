@@ -336,16 +336,20 @@ class PoseEstimator:
         error. On a loop whose poses were 0.1 s old, ticking every other period, its commands
         acting 60 ms late, a model-true vehicle's lift error learned the swings of its height loop
         (0.09, where there was none) and fed them back: its height swung 23 cm peak to peak in
-        level flight, 10 with only steady commands teaching (`tests/test_closed_loop.py`)."""
+        level flight, 10-12 with only steady commands teaching (`tests/test_closed_loop.py`). A loop
+        that turns late teaches from its first 0.1 s of steady commands on."""
+        if not aloft or now - (self.t or now) <= LIFT_LATE_S:
+            self._smooth = None
+            return True
         smooth = self._smooth
-        if smooth is None or not aloft:
-            smooth = (now, az)
-        else:
-            smooth = (now, smooth[1] + min(max(now - smooth[0], 0.0) / LIFT_SMOOTH_S, 1.0) * (az - smooth[1]))
-        self._smooth = smooth
-        if abs(smooth[1] - self._steady[1]) > LIFT_STEADY_ACCEL:
-            self._steady = (now, smooth[1])
-        return now - (self.t or now) <= LIFT_LATE_S or now - self._steady[0] >= LIFT_STEADY_S
+        if smooth is None:  # late from now on: steady from now on
+            self._smooth = self._steady = (now, az)
+            return False
+        smoothed = smooth[1] + min((now - smooth[0]) / LIFT_SMOOTH_S, 1.0) * (az - smooth[1])
+        self._smooth = (now, smoothed)
+        if abs(smoothed - self._steady[1]) > LIFT_STEADY_ACCEL:
+            self._steady = (now, smoothed)
+        return now - self._steady[0] >= LIFT_STEADY_S
 
     def update(self, pose: Pose) -> bool:
         """Fuse one pose; False if it was dropped (out of order) or rejected by the gate."""
