@@ -272,6 +272,11 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("common/flight/estimator.py", "LIFT_LATE_S = 0.05\n", "LIFT_LATE_S = math.inf\n"),),
         "tests/test_closed_loop.py::test_a_flyer_on_a_late_loop_holds_its_height_when_only_steady_thrust_teaches_the_lift_error"),
     Handling(
+        "a vehicle taken over given back only to steady commands",
+        "gateway: a vehicle taken over for stale commands given back to the first fresh one",
+        (Edit("common/deploy/radios.py", "    resume_s: NonNegative = 0.1\n", "    resume_s: NonNegative = 0.0\n"),),
+        "tests/test_gateway_landing.py::test_an_executor_starved_in_bursts_gets_its_vehicle_back_only_once_its_commands_come_steadily"),
+    Handling(
         "a stranded vehicle's goal asked for again",
         "mission: a goal a replan left out of reach stays so for the mission",
         (Edit("services/mission/runner.py",

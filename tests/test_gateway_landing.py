@@ -8,11 +8,13 @@ import random
 
 import pytest
 
-from common.bus.messages import FlightSetpoint, Pose
+from common.bus.messages import FlightSetpoint, Pose, Setpoint, Telemetry
 from common.crazyflie.thrust import hover_command
-from common.deploy.radios import LandingParams
-from services.radio_gateway.landing import OpenLoopDescent, SafeLanding
+from common.deploy.radios import GatewayParams, LandingParams
+from common.domain.vehicle_model import VehicleModel
+from services.radio_gateway.landing import HandBack, OpenLoopDescent, SafeLanding
 from services.sim.crazyflie.physics import PhysicsParams, SimFlyingCar
+from tests.support.closed_loop import Mocap, on_reference_plan
 
 DT = 0.01
 HOVER = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=hover_command(0.041))
@@ -111,3 +113,57 @@ def test_open_loop_descent_profile() -> None:
     assert d.accel_at(d.touchdown + 0.1) == 0.0 and d.accel_at(d.duration) is None
     fast = OpenLoopDescent(height=1.0, speed=0.2, accel=1.0, v0=0.5)  # already falling faster
     assert fast.accel_at(0.0) == 1.0 and fast.accel_at(0.35) == 0.0 and fast.speed_at(0.15) == pytest.approx(0.35)
+
+
+@pytest.mark.parametrize("steadily", [True, False])
+def test_an_executor_starved_in_bursts_gets_its_vehicle_back_only_once_its_commands_come_steadily(
+        steadily: bool) -> None:
+    """A flyer's executor, in its level flight, runs 40 ms at a time between 0.25 s silences (a
+    saturated machine) for 4 s; its gateway takes the vehicle over after `stale_s` without commands
+    (`SafeLanding`) and gives it back once the commands have come for `resume_s` (`HandBack`). Given
+    back to each burst (`resume_s` 0: at once, as before), the vehicle flew on the executor's
+    estimate carried over the silence on commands that never acted, between landings started
+    afresh: thrown about at over 1 m/s (1.7). Held until the commands come steadily, it is landed
+    by its gateway, never faster than 0.5 m/s (0.36)."""
+    params = GatewayParams()
+    resume_s = params.resume_s if steadily else 0.0
+    model = VehicleModel(margin=0.05)
+    steps, car, ctrl = on_reference_plan(model)
+    mocap = Mocap(seed=1)
+    start = 0.5 + next(s.t for s in steps if s.node == "a1") + 0.5
+    setpoint: Setpoint | None = None
+    landing: SafeLanding | None = None
+    hand_back = HandBack(resume_s, params.stale_s / 2)
+    cmd_at, top, k = -math.inf, 0.0, 0
+    while car.t < start + 4.0:
+        now = car.t
+        truth = car.truth()
+        pose = mocap.observe(truth)
+        command = None
+        if now < start or (now - start) % 0.29 >= 0.25:  # the executor's loop runs
+            if k % 10 == 0:
+                ctrl.on_telemetry(Telemetry(vid=car.vid, t=now, gateway="sim", vbat=car.battery.vbat,
+                                            link_quality=1.0, sent=k, dropped=0, cmd_rate_hz=100.0), now)
+            if pose is not None:
+                ctrl.on_pose(pose)
+            command = ctrl.tick(now).setpoint
+        if command is not None and (landing is None or hand_back.command(now)):
+            landing, setpoint, cmd_at = None, command, now
+        elif command is not None:
+            cmd_at = now
+        elif landing is None and now - cmd_at > params.stale_s:
+            landing, hand_back = SafeLanding(now, setpoint, params.landing, DT), HandBack(resume_s, params.stale_s / 2)
+        if landing is not None:
+            if pose is not None:
+                landing.on_pose(pose, now)
+            setpoint = landing.step(now) or FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=0)
+        assert setpoint is not None
+        car.apply(setpoint, now)
+        if now >= start:
+            top = max(top, math.hypot(truth.vx, truth.vy, truth.vz))
+        car.step(DT)
+        k += 1
+    if steadily:
+        assert top < 0.5 and not car.airborne, (top, car.z)
+    else:
+        assert top > 1.0, top

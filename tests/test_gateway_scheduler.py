@@ -147,7 +147,13 @@ def test_stale_commands_land_a_flyer_and_stop_a_driver() -> None:
     after = [p for t, p in sent[driver.vid] if t > 0.6]
     assert crtp.Wheels(0, 0) in after and sum(isinstance(p, crtp.Stop) for p in after) == 3
     assert driver.mode == Drive.IDLE and driver.took_over
-    flyer.command(HOVER, 1.0)  # a fresh command takes back over
+    resume = GatewayParams().resume_s
+    for k in range(round(resume / TICK)):  # fresh commands, short of `resume_s`: the landing goes on
+        assert flyer.command(HOVER, 1.0 + k * TICK) == []
+    assert flyer.mode == Drive.LANDING and flyer.took_over
+    for k in range(round(resume / TICK)):  # after a silence they begin again; once they have come
+        flyer.command(HOVER, 1.5 + k * TICK)  # for `resume_s`, the owner has the vehicle back
+    assert flyer.command(HOVER, 1.5 + resume) == [("cmd_resumed", "fresh flight command during the safety landing")]
     assert flyer.mode == Drive.FLIGHT and not flyer.took_over
 
 

@@ -93,7 +93,9 @@ class GatewayParams(msgspec.Struct, **_Strict):
     RSSI); link_timeout_s: no log block for this long means the link is lost; reopen_s, reopen_max_s:
     a lost link is closed and reopened after reopen_s, doubling up to reopen_max_s; level_s: an
     attitude setpoint older than this is resent levelled at the hover thrust; stale_s: a cmd
-    older than this is stale; stop_repeats: how many times a stop (motors off, and zero wheels) and
+    older than this is stale; resume_s: a flying vehicle taken over for stale commands goes back to
+    its owner once the owner's commands have come for this long, none more than stale_s / 2 after
+    the one before (`HandBack`); stop_repeats: how many times a stop (motors off, and zero wheels) and
     a notify-setpoint-stop are sent; settle_period_s, settle_max_s: after a flight, stops go out this
     often while the supervisor reports the vehicle flying (at most twice settle_max_s, or settle_max_s
     while it reports nothing); estop_repeats: an emergency stop is sent this many times, one per tick;
@@ -111,6 +113,7 @@ class GatewayParams(msgspec.Struct, **_Strict):
     reopen_max_s: Positive = 8.0
     level_s: Positive = 0.05
     stale_s: Positive = 0.2
+    resume_s: NonNegative = 0.1
     stop_repeats: Annotated[int, msgspec.Meta(ge=1)] = 3
     settle_period_s: Annotated[float, msgspec.Meta(gt=0, lt=0.5)] = 0.1
     settle_max_s: Positive = 3.0

@@ -52,6 +52,33 @@ _CLIMBING = 0.1
 loaded machine's intermittent poses made the descent jerk: 0.45 m/s at times)."""
 
 
+@dataclass(slots=True)
+class HandBack:
+    """When a vehicle the gateway took over for stale commands goes back to its owner: once the
+    owner's commands have come for `resume_s`, none more than `gap_s` after the one before
+    (`GatewayParams.resume_s`). Given back to the first fresh command, an executor starved in
+    bursts (0.2-0.5 s silent, then 20-100 ms of commands: a saturated machine) had the vehicle
+    back for each burst on an estimate it had carried on over the silence with commands that never
+    acted, and its gateway's landing started afresh after each: in the closed loop (four patterns
+    of bursts, four seeds each) the vehicle was thrown about at 0.5-1.8 m/s, twice onto the ground;
+    an 80-vehicle soak's flyer so flew sideways at 1.15 m/s, 4 cm up, into a parked vehicle
+    (2026-12-07). Held until the commands come steadily, the gateway's landing brings it down, at
+    0.31-0.34 m/s at most (`tests/test_gateway_landing.py`)."""
+
+    resume_s: float
+    gap_s: float
+    since: float | None = None
+    """When the owner's commands began to come again (None: not yet)."""
+    last: float = -math.inf
+
+    def command(self, now: float) -> bool:
+        """The owner's command at `now`: whether the vehicle goes back to it."""
+        if self.since is None or now - self.last > self.gap_s:
+            self.since = now
+        self.last = now
+        return now - self.since >= self.resume_s
+
+
 @dataclass(frozen=True, slots=True)
 class OpenLoopDescent:
     """A level descent of `height` m starting at downward speed `v0`: to `speed` at `accel`, then

@@ -66,7 +66,7 @@ from services.radio_gateway.health import (
     Event,
     LinkHealth,
 )
-from services.radio_gateway.landing import OnboardLanding, SafeLanding
+from services.radio_gateway.landing import HandBack, OnboardLanding, SafeLanding
 
 _UNLOCK = FlightSetpoint(roll=0.0, pitch=0.0, yawrate=0.0, thrust=0)
 
@@ -128,6 +128,7 @@ class VehicleChannel:
         self.cmd_at = -float("inf")
         self.took_over = False
         """The gateway is landing or stopped the vehicle because its command went stale."""
+        self._hand_back = HandBack(params.resume_s, params.stale_s / 2)  # (a new one at each take-over)
         self._flight: FlightSetpoint | None = None
         self._thrusts: deque[float] = deque(maxlen=HOVER_WINDOW)  # vertical thrust (N) of recent setpoints
         self._flight_raw = b""
@@ -176,11 +177,14 @@ class VehicleChannel:
                                            "landing on, motors off once landed")
         events: list[Event] = []
         if isinstance(setpoint, (FlightSetpoint, PositionSetpoint)):
+            attitude = isinstance(setpoint, FlightSetpoint)
+            raw = crtp.encode_setpoint(setpoint) if attitude else crtp.encode_full_state(setpoint)
+            if self.mode == Drive.LANDING and not self._hand_back.command(now):
+                self.cmd_at = now  # the landing goes on until the owner's commands come steadily
+                return events
             if isinstance(setpoint, FlightSetpoint):
-                raw = crtp.encode_setpoint(setpoint)
                 self._flight = setpoint
             else:
-                raw = crtp.encode_full_state(setpoint)
                 self._position = setpoint
             if self.mode == Drive.LANDING:
                 events.append(("cmd_resumed", "fresh flight command during the safety landing"))
@@ -300,6 +304,7 @@ class VehicleChannel:
                                            1.0 / self.params.tick_hz)
             self.mode = Drive.LANDING
             self.took_over = True
+            self._hand_back = HandBack(self.params.resume_s, self.params.stale_s / 2)
             events.append(("stale_cmd_landing", f"no command for {age:.2f} s in flight: hover, then land"))
         elif self.mode == Drive.DRIVE and self.stale(now):
             self._stop()
