@@ -1,14 +1,14 @@
 """When a gateway's stale-command landing is a mission's fault.
 
 A gateway that hears no command for a flying vehicle for `stale_s` (0.2 s) hovers it, then lands
-it (`stale_cmd_landing`, docs/radio.md), and gives it back once fresh commands have come for 0.1 s
-(`cmd_resumed`, `GatewayParams.resume_s`). That silence is the bus or the executor failing, or only an executor that did
-not run for a few tenths of a second (a starved process), or one that died and whose vehicles pass
-to another executor (1.0-1.2 s after a host lost its link: docs/security.md). The last two come
-back on their own; the plan goes on, and a vehicle that drifted from it meanwhile is held by its
-executor's tracking guard (`tracking_hold`, a fault of its own). So a mission takes a stale-command
-landing for a fault only when the commands do not come back within `RESUME_GRACE_S`, or the
-gateway landed the vehicle first (`landed`).
+it (`stale_cmd_landing`, docs/radio.md), and gives it back once fresh commands have come for
+0.1 s (`cmd_resumed`, `GatewayParams.resume_s`). That silence is the bus or the executor failing,
+or only an executor that did not run for a few tenths of a second (a starved process), or one that
+died and whose vehicles pass to another executor (1.0-1.2 s after a host lost its link:
+docs/security.md). The last two come back on their own; the plan goes on, and a vehicle that
+drifted from it meanwhile is held by its executor's tracking guard (`tracking_hold`, a fault of
+its own). So a mission takes a stale-command landing for a fault only when the commands do not
+come back within `RESUME_GRACE_S`, or the gateway landed the vehicle first (`landed`).
 """
 
 from __future__ import annotations

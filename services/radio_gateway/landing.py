@@ -63,7 +63,7 @@ class HandBack:
     of bursts, four seeds each) the vehicle was thrown about at 0.5-1.8 m/s, twice onto the ground;
     an 80-vehicle soak's flyer so flew sideways at 1.15 m/s, 4 cm up, into a parked vehicle
     (2026-12-07). Held until the commands come steadily, the gateway's landing brings it down, at
-    0.31-0.34 m/s at most (`tests/test_gateway_landing.py`)."""
+    0.31-0.36 m/s at most (`tests/test_gateway_landing.py`)."""
 
     resume_s: float
     gap_s: float

@@ -182,7 +182,7 @@ class VehicleChannel:
             if self.mode == Drive.LANDING and not self._hand_back.command(now):
                 self.cmd_at = now  # the landing goes on until the owner's commands come steadily
                 return events
-            if isinstance(setpoint, FlightSetpoint):
+            if attitude:
                 self._flight = setpoint
             else:
                 self._position = setpoint
