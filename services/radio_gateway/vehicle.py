@@ -128,7 +128,7 @@ class VehicleChannel:
         self.cmd_at = -float("inf")
         self.took_over = False
         """The gateway is landing or stopped the vehicle because its command went stale."""
-        self._hand_back = HandBack(params.resume_s, params.stale_s / 2)  # (a new one at each take-over)
+        self._hand_back = HandBack(params.resume_s, params.stale_s / 2)
         self._flight: FlightSetpoint | None = None
         self._thrusts: deque[float] = deque(maxlen=HOVER_WINDOW)  # vertical thrust (N) of recent setpoints
         self._flight_raw = b""
@@ -304,7 +304,7 @@ class VehicleChannel:
                                            1.0 / self.params.tick_hz)
             self.mode = Drive.LANDING
             self.took_over = True
-            self._hand_back = HandBack(self.params.resume_s, self.params.stale_s / 2)
+            self._hand_back.since = None  # (the owner's commands count from the take-over on)
             events.append(("stale_cmd_landing", f"no command for {age:.2f} s in flight: hover, then land"))
         elif self.mode == Drive.DRIVE and self.stale(now):
             self._stop()
