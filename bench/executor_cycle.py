@@ -3,9 +3,9 @@
 An `ExecutorService` that never opens a session is given `--vehicles` plans (`bench.fleet_latency`'s:
 a 100 m drive at 0.1 m/s, or with `--fly` a take-off and a long hover) and runs its cycle on a
 simulated clock, back to back: a motion-capture frame of every vehicle fused (`_fuse`, the
-proximity stop's bodies settled), the proximity stop, the plan clocks, every controller's tick
-and the command batches and states encoded (`_cycle`; each message encoded as a publisher does,
-but not put on the bus). Thread CPU time per round of `--cycles` cycles, per
+proximity stop's bodies settled), the proximity stop, the held vehicles' standoff, the plan
+clocks, every controller's tick and the command batches and states encoded (`_cycle`; each
+message encoded as a publisher does, but not put on the bus). Thread CPU time per round of `--cycles` cycles, per
 vehicle-cycle; the table gives the fastest round and the median of the rounds after a warm-up.
 
 Why beside `bench.fleet_latency` (the whole process, the bus and its threads included, the issue's
@@ -87,6 +87,7 @@ def measure(n: int, fly: bool, rounds: int, cycles: int) -> dict[str, float]:
             svc._fuse([frame])
             svc.bodies.settle(t)
             svc._stop_short(now)
+            svc._keep_apart(now)
             svc._run_clocks(now)
             svc._cycle(now, k, t, t)
             k += 1

@@ -5,6 +5,7 @@ away, keeping its distance or standing still does not."""
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 from collections.abc import Callable
 
@@ -20,13 +21,13 @@ from common.bus.session import ZenohConfig
 from common.domain.planfile import Task
 from common.domain.vehicle_model import Speeds, VehicleModel
 from common.flight.modes import Mode
-from services.executor.proximity import Bodies, standing
+from services.executor.proximity import Bodies, ProximityParams, standing
 from services.executor.service import BODIES_FRESH_S, ExecutorService
 from services.executor.vehicle_controller import VehicleController
 from services.mission.demo import local_fleet
 from services.mission.runner import MissionRunner, MissionSpec
 from services.sim.crazyflie.physics import SimFlyingCar
-from tests.support.closed_loop import on_reference_plan, plan_for, reference_steps, run
+from tests.support.closed_loop import Mocap, on_reference_plan, plan_for, reference_steps, run
 from tests.support.fleet_faults import NO_RECORDER, TOWN_TASKS, Watch, until
 from tests.support.fleet_faults import fly as fly_mission
 
@@ -321,3 +322,70 @@ def test_a_vehicle_stops_short_of_a_body_its_plan_did_not_know(tmp_path) -> None
     for vid in tasks:
         assert watch.at_rest_on_ground(vid), (vid, watch.truth[vid][-1])
     print(held.detail, "|", watch.separation_line())
+
+
+def test_a_held_hover_too_near_another_body_is_pushed_away_level() -> None:
+    """`Bodies.push_apart`: a hover point 1 cm from a body beside it moves 3 cm directly away (to the
+    4 cm standoff), level; not for a body far enough above, nor one the motion capture lost, nor
+    when the move would take it nearer to a body on its other side (squeezed: it stays)."""
+    at = (0.0, 0.0, 0.5)
+    beside = (2 * RADIUS + 0.01, 0.0, 0.5)
+    bodies = Bodies()
+    now = frames(bodies, {"cf1": (at, (0.0, 0.0, 0.0)), "cf2": (beside, (0.0, 0.0, 0.0))})
+    assert bodies.push_apart("cf1", at, RADIUS, HEIGHT, now) == pytest.approx((-0.03, 0.0), abs=1e-9)
+    assert bodies.push_apart("cf1", at, RADIUS, HEIGHT, now + 1.1) is None  # (cf2 not seen for fresh_s)
+    far_above = (0.01, 0.0, 0.5 + HEIGHT + 0.05)
+    bodies = Bodies()
+    now = frames(bodies, {"cf1": (at, (0.0, 0.0, 0.0)), "cf2": (far_above, (0.0, 0.0, 0.0))})
+    assert bodies.push_apart("cf1", at, RADIUS, HEIGHT, now) is None
+    other_side = (-(2 * RADIUS + 0.02), 0.0, 0.5)
+    bodies = Bodies()
+    now = frames(bodies, {"cf1": (at, (0.0, 0.0, 0.0)), "cf2": (beside, (0.0, 0.0, 0.0)),
+                          "cf3": (other_side, (0.0, 0.0, 0.0))})
+    assert bodies.push_apart("cf1", at, RADIUS, HEIGHT, now) is None
+
+
+@pytest.mark.parametrize("standoff", [True, False])
+def test_two_vehicles_held_hovering_near_each_other_move_apart(standoff: bool) -> None:
+    """Two flyers held hovering side by side 2 cm apart (each stopped short of the other, as in an
+    80-vehicle soak where two held 2.7 cm apart wandered into each other): the executor moves each
+    one's hover point away from the other (`ExecutorService._keep_apart`), and in ground truth they
+    come to rest at least the standoff apart, each within `standoff_reach` of where it was held.
+    Without the standoff they stay 2 cm apart."""
+    model = VehicleModel(margin=0.03)
+    radius, _height = model.body()
+    proximity = ProximityParams() if standoff else ProximityParams(standoff=0.0)
+    svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("standoff"), proximity=proximity)
+    beside = 2 * radius + 0.02
+    loops = []
+    for k, vid in enumerate(("cf1", "cf2")):
+        steps = [msgspec.structs.replace(s, pos=(s.pos[0], s.pos[1] + k * beside, s.pos[2]))
+                 for s in reference_steps(model)]
+        sim = SimFlyingCar(vid, model, pos=steps[0].pos, yaw=0.0)
+        ctrl = svc.controllers[vid] = VehicleController(vid, model, owner="e1")
+        ctrl.load(plan_for(vid, steps, model, t0=0.5))
+        a2 = next(s for s in steps if s.node == "a2")
+        run(ctrl, sim, 0.5 + a2.t + 0.5)  # waiting at a2
+        assert ctrl.stop_short(f"stops short of cf{2 - k}")
+        run(ctrl, sim, sim.t + 0.05)
+        assert ctrl.mode == Mode.HOVERING and ctrl.held_hover() is not None
+        loops.append((ctrl, sim, Mocap(seed=k)))
+    held = [(sim.x, sim.y) for _ctrl, sim, _m in loops]
+    gaps = []
+    for k in range(300):
+        now = loops[0][1].t
+        svc.bodies.update(PoseFrame(t=now, seq=k, poses=[FramePose(sim.vid, sim.x, sim.y, sim.z, 0.0)
+                                                         for _ctrl, sim, _m in loops]))
+        svc.bodies.settle(now)
+        svc._keep_apart(now)
+        for ctrl, sim, mocap in loops:
+            run(ctrl, sim, now + DT, mocap=mocap)
+        (_, a, _), (_, b, _) = loops
+        gaps.append(math.hypot(a.x - b.x, a.y - b.y) - 2 * radius)
+    assert all(ctrl.held and ctrl.mode == Mode.HOVERING for ctrl, _sim, _m in loops)
+    moved = [math.hypot(sim.x - x, sim.y - y) for (_c, sim, _m), (x, y) in zip(loops, held, strict=True)]
+    if standoff:
+        assert min(gaps[-100:]) >= proximity.standoff - 0.005, min(gaps[-100:])
+        assert max(moved) <= proximity.standoff_reach + 0.005, moved
+    else:
+        assert max(gaps[-100:]) < 0.03, max(gaps[-100:])

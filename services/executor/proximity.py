@@ -55,7 +55,13 @@ class ProximityParams:
     vehicle counts as heading into it; velocity_s: the window over which a body's velocity is
     measured from its positions (1 mm motion-capture noise is 1.4 cm/s over 0.1 s); fresh_s: a
     body not seen for longer is not counted (the motion capture lost it); samples: the points of the
-    look-ahead at which the two bodies are judged."""
+    look-ahead at which the two bodies are judged; standoff: m between a vehicle held hovering
+    and any other body that it keeps: its hover's point moves away, level, at `standoff_speed` m/s,
+    to at most `standoff_reach` m from where it began to hover (half the reach the replans allow a
+    held vehicle: `services/mission/sweeps.py`'s `SWEEP_REACH`). The proximity stop leaves its
+    movers a few centimetres short of the body they stopped for, and a held vehicle on a starved
+    loop wanders by several: two held 2.7 cm apart in an 80-vehicle soak wandered into each other
+    (2026-12-07), as had two held while converging before (docs/reliability.md)."""
 
     near_gap: float = 0.01
     react_s: float = 0.03
@@ -65,6 +71,9 @@ class ProximityParams:
     velocity_s: float = 0.1
     fresh_s: float = 1.0
     samples: int = 4
+    standoff: float = 0.04
+    standoff_speed: float = 0.1
+    standoff_reach: float = 0.05
 
 
 class Closing(NamedTuple):
@@ -173,6 +182,30 @@ class Bodies:
         """How long (s) a closing at `speed` (m/s) goes on at that speed, counted for the stop: the
         brake's distance, or the hold's at least (`ProximityParams`)."""
         return np.maximum(speed / (2.0 * self.params.brake), self.params.hold_s)
+
+    def push_apart(self, vid: str, at: tuple[float, float, float], radius: float, height: float,
+                   now: float) -> tuple[float, float] | None:
+        """How far (dx, dy, m) the hover point `at` of `vid`'s body should move, level, to be
+        `standoff` from every other body seen within `fresh_s` (bodies of `radius` x `height`,
+        `closing`): the sum of the shortfalls, each directly away from its body; None when none
+        is that near, or when the move would leave it nearer to the nearest body than it is."""
+        p = self.params
+        n = len(self.vids)
+        pos = self.pos[:n]
+        d = np.asarray(at[:2]) - pos[:, :2]
+        across = np.hypot(d[:, 0], d[:, 1])
+        short = p.standoff - (across - 2.0 * radius)
+        others = (np.abs(pos[:, 2] - at[2]) - height < p.standoff) & (now - self.seen[:n] < p.fresh_s)
+        if vid in self.rows:
+            others[self.rows[vid]] = False
+        near = others & (short > 0.0) & (across > 1e-6)
+        if not near.any():
+            return None
+        push = (d[near] * (short[near] / across[near])[:, None]).sum(axis=0)
+        moved = np.hypot(*(np.asarray(at[:2]) + push - pos[others, :2]).T)
+        if moved.min() <= across[others].min():
+            return None
+        return float(push[0]), float(push[1])
 
     def closing(self, movers: list[str], v_self: np.ndarray, radius: float, height: float,
                 now: float, react_s: float = 0.0,

@@ -38,6 +38,7 @@ import argparse
 import asyncio
 import itertools
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -497,6 +498,7 @@ class ExecutorService(Service):
                 self._fuse(drained)
                 self.bodies.settle(newest.t)
             self._stop_short(now)
+            self._keep_apart(now)
             if n % ROUTER_CHECK_TICKS == 0:
                 self._check_router(now)
             arrived = (newest.arrived or newest.t) if newest is not None else 0.0
@@ -538,6 +540,25 @@ class ExecutorService(Service):
                                            lambda: self._going_on(now), self._bend):
             self.controllers[closing.mover].stop_short(
                 f"{closing.why()}; {self._standing(closing.mover, now)}; {self._standing(closing.other, now)}")
+
+    def _keep_apart(self, now: float) -> None:
+        """Every owned vehicle held hovering keeps `ProximityParams.standoff` from the other bodies:
+        its hover's point moves away from those nearer (`Bodies.push_apart`), at most
+        `standoff_speed` a second, up to `standoff_reach` from where it began to hover
+        (`VehicleController.keep_apart`). Off with the guard (`FaultParams.guard`)."""
+        if not self.control.faults.guard:
+            return
+        p = self.bodies.params
+        step = p.standoff_speed * self.period
+        for vid, ctl in self.controllers.items():
+            at = ctl.held_hover()
+            if at is None:
+                continue
+            radius, height = ctl.model.body()
+            push = self.bodies.push_apart(vid, at, radius, height, now)
+            if push is not None:
+                scale = min(1.0, step / max(math.hypot(*push), 1e-12))
+                ctl.keep_apart(scale * push[0], scale * push[1], p.standoff_reach)
 
     def _standing(self, vid: str, now: float) -> str:
         """How `vid` stands (`standing`): an owned vehicle by its last tick, another by its state heard."""

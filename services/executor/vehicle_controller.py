@@ -231,6 +231,7 @@ class VehicleController:
         """The plan that brings a held vehicle back, its trajectory, and when (mission time) its
         reference comes to where the vehicle stands: it follows it from then on."""
         self._hover_ref: RefSample | None = None  # where a held vehicle hovers
+        self._hovered_at: tuple[float, float] = (0.0, 0.0)  # where it began to hover (x, y): `keep_apart`
         self._yield: str | None = None  # another vehicle held where this one's plan goes: hold too
         self._stopped_at: tuple[float, float, float] | None = None  # where a fault on the ground stopped it
         self._slow_since: float | None = None  # since when it keeps the plan's clock below full pace
@@ -680,10 +681,29 @@ class VehicleController:
             self.machine.request(Mode.HOLDING, now, why)
         log.warning("%s: held by the tracking guard: %s", self.vid, why)
 
-    @staticmethod
-    def _hover_here(t: float, est: Estimate) -> RefSample:
+    def _hover_here(self, t: float, est: Estimate) -> RefSample:
         """A reference that holds the vehicle still where it is estimated, facing as it does."""
+        self._hovered_at = (est.x, est.y)
         return RefSample(t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, est.yaw, 0.0, Mode.HOVERING)
+
+    def held_hover(self) -> tuple[float, float, float] | None:
+        """Where a vehicle held in the air hovers (its hover reference), for `keep_apart`; None
+        when it is not held hovering (a fault landing's pause is not a hold: it goes on)."""
+        ref = self._hover_ref
+        if self.held is None or ref is None or self.machine.mode != Mode.HOVERING:
+            return None
+        return ref.x, ref.y, ref.z
+
+    def keep_apart(self, dx: float, dy: float, reach: float) -> None:
+        """Move the held hover's point by (`dx`, `dy`) m, level, to at most `reach` m from where the
+        vehicle began to hover (the executor's `_keep_apart`: a body too near, `ProximityParams.standoff`)."""
+        ref = self._hover_ref
+        if ref is None:
+            return
+        x0, y0 = self._hovered_at
+        ox, oy = ref.x + dx - x0, ref.y + dy - y0
+        scale = min(1.0, reach / max(math.hypot(ox, oy), 1e-12))
+        self._hover_ref = msgspec.structs.replace(ref, x=x0 + scale * ox, y=y0 + scale * oy)
 
     def yield_to(self, vid: str, pos: tuple[float, float, float], now: float, unseen_s: float = 0.0,
                  descending: bool = False) -> bool:
