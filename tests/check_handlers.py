@@ -277,6 +277,11 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("common/deploy/radios.py", "    resume_s: NonNegative = 0.1\n", "    resume_s: NonNegative = 0.0\n"),),
         "tests/test_gateway_landing.py::test_an_executor_starved_in_bursts_gets_its_vehicle_back_only_once_its_commands_come_steadily"),
     Handling(
+        "held hovering vehicles keeping apart",
+        "executor: a vehicle held hovering stays where it began to hover, however near another body",
+        (Edit("services/executor/proximity.py", "    standoff: float = 0.04\n", "    standoff: float = 0.0\n"),),
+        "tests/test_proximity.py::test_two_vehicles_held_hovering_near_each_other_move_apart[True]"),
+    Handling(
         "a stranded vehicle's goal asked for again",
         "mission: a goal a replan left out of reach stays so for the mission",
         (Edit("services/mission/runner.py",

@@ -384,8 +384,8 @@ def test_two_vehicles_held_hovering_near_each_other_move_apart(standoff: bool) -
         gaps.append(math.hypot(a.x - b.x, a.y - b.y) - 2 * radius)
     assert all(ctrl.held and ctrl.mode == Mode.HOVERING for ctrl, _sim, _m in loops)
     moved = [math.hypot(sim.x - x, sim.y - y) for (_c, sim, _m), (x, y) in zip(loops, held, strict=True)]
-    if standoff:
-        assert min(gaps[-100:]) >= proximity.standoff - 0.005, min(gaps[-100:])
-        assert max(moved) <= proximity.standoff_reach + 0.005, moved
+    if standoff:  # (the shipped 4 cm and 5 cm)
+        assert min(gaps[-100:]) >= 0.035, min(gaps[-100:])
+        assert max(moved) <= 0.055, moved
     else:
         assert max(gaps[-100:]) < 0.03, max(gaps[-100:])
