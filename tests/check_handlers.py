@@ -282,6 +282,11 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/proximity.py", "    standoff: float = 0.04\n", "    standoff: float = 0.0\n"),),
         "tests/test_proximity.py::test_two_vehicles_held_hovering_near_each_other_move_apart[True]"),
     Handling(
+        "a held flyer thrown off its point kept off its way back through a body",
+        "executor: a held flyer flies back to its hover point whatever is in the way",
+        (Edit("services/executor/vehicle_controller.py", "ASTRAY_M = 0.05\n", "ASTRAY_M = math.inf\n"),),
+        "tests/test_proximity.py::test_a_held_flyer_blown_off_its_hover_point_does_not_fly_back_through_a_body[True]"),
+    Handling(
         "a stranded vehicle's goal asked for again",
         "mission: a goal a replan left out of reach stays so for the mission",
         (Edit("services/mission/runner.py",
