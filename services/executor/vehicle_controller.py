@@ -722,6 +722,8 @@ class VehicleController:
         if ref is None:
             return
         x0, y0 = self._hovered_at
+        if (ref.x, ref.y) == (x0, y0):
+            log.warning("%s: held hovering too near another body: moves its hover point away", self.vid)
         ox, oy = ref.x + dx - x0, ref.y + dy - y0
         scale = min(1.0, reach / max(math.hypot(ox, oy), 1e-12))
         self._hover_ref = msgspec.structs.replace(ref, x=x0 + scale * ox, y=y0 + scale * oy)
