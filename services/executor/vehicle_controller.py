@@ -73,10 +73,10 @@ PAST_PLAN = frozenset({Mode.DONE, Mode.EMERGENCY_LANDING})
 also serve the control tick's speed: a `Mode.X` costs a tenth of a microsecond, through the enum
 type's `__getattr__` hook, and a hovering vehicle's tick had about 25 in the lines it ran.)"""
 ASTRAY_M = 0.05
-"""m: a vehicle held hovering this far from its hover point with a body in its way back hovers
-where it is instead (`VehicleController._keep_off_the_way_back`: in an 80-vehicle soak two held
-flyers 22 cm apart, thrown 10-20 cm off their points in a 0.4 s stall of their executor, flew back
-to them across each other's way and met head on, 4.6 cm deep)."""
+"""m: a vehicle held hovering this far from its hover point with a body in its way back waits
+where it is until the way is clear (`VehicleController._keep_off_the_way_back`: in an
+80-vehicle soak two held flyers 22 cm apart, thrown 10-20 cm off their points in a 0.4 s stall
+of their executor, flew back to them across each other's way and met head on, 4.6 cm deep)."""
 YIELD_STEP_S = 0.05
 """s between the plan positions `VehicleController.yield_to` looks at (0.05 s is at most 1.5 cm of flight)."""
 YIELD_UNSEEN_MAX = 0.5
@@ -238,6 +238,7 @@ class VehicleController:
         reference comes to where the vehicle stands: it follows it from then on."""
         self._hover_ref: RefSample | None = None  # where a held vehicle hovers
         self._hovered_at: tuple[float, float] = (0.0, 0.0)  # where it began to hover (x, y): `keep_apart`
+        self._waiting: RefSample | None = None  # where a held vehicle waits, its way back blocked
         self._yield: str | None = None  # another vehicle held where this one's plan goes: hold too
         self._stopped_at: tuple[float, float, float] | None = None  # where a fault on the ground stopped it
         self._slow_since: float | None = None  # since when it keeps the plan's clock below full pace
@@ -356,7 +357,7 @@ class VehicleController:
         self.plan, self.trajectory, self._active = plan, traj, traj
         self._lowest_ground = lowest_ground(plan)
         self.held, self.rejoinable, self._rejoin = None, False, None
-        self._yield = self._hover_ref = self._guard_since = None
+        self._yield = self._hover_ref = self._waiting = self._guard_since = None
         log.info("%s: follows its plan again", self.vid)
 
     def take_over(self, state: VehicleState, now: float, pose: Pose | None = None) -> None:
@@ -453,7 +454,7 @@ class VehicleController:
         if self._active is None or self.t0 is None:
             return None
         if self._hover_ref is not None:
-            return self._hover_ref
+            return self._waiting or self._hover_ref
         p = self.pace
         ref = self._active.sample(self._rel(now) + ahead * p)
         if p >= 1.0:
@@ -691,21 +692,28 @@ class VehicleController:
 
     def _hover_here(self, t: float, est: Estimate) -> RefSample:
         """A reference that holds the vehicle still where it is estimated, facing as it does."""
-        self._hovered_at = (est.x, est.y)
+        self._hovered_at, self._waiting = (est.x, est.y), None
         return RefSample(t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, est.yaw, 0.0, Mode.HOVERING)
 
     def _keep_off_the_way_back(self, est: Estimate) -> None:
         """A vehicle held hovering that finds itself more than `ASTRAY_M` from its hover point (a
-        stall of its loop threw it off) with another body in its way back there (`in_way`) hovers
-        where it is instead."""
+        stall of its loop threw it off) with another body in its way back there (`in_way`) waits
+        where it is until the way is clear, then goes back."""
         at = self.held_hover()
-        if at is None or est.stale or math.dist((est.x, est.y, est.z), at) <= ASTRAY_M or self._hover_ref is None:
+        if at is None or est.stale or self._hover_ref is None:
             return
         here = (est.x, est.y, est.z)
-        if (body := next((b for b in self._bodies() if in_way(here, at, b, self.model)), None)) is not None:
+        if self._waiting is None and math.dist(here, at) <= ASTRAY_M:
+            return
+        body = next((b for b in self._bodies() if in_way(here, at, b, self.model)), None)
+        if body is not None and self._waiting is None:
             log.warning("%s: held, %.3f m off its hover point, a body at (%.2f, %.2f, %.2f) in its way back: "
-                        "hovers where it is", self.vid, math.dist(here, at), *body)
-            self._hover_ref = self._hover_here(self._hover_ref.t, est)
+                        "waits where it is", self.vid, math.dist(here, at), *body)
+            self._waiting = RefSample(self._hover_ref.t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                                      self._hover_ref.yaw, 0.0, Mode.HOVERING)
+        elif body is None and self._waiting is not None:
+            log.warning("%s: held, its way back to its hover point clear: goes back", self.vid)
+            self._waiting = None
 
     def held_hover(self) -> tuple[float, float, float] | None:
         """Where a vehicle held in the air hovers (its hover reference), for `keep_apart`; None
@@ -892,7 +900,7 @@ class VehicleController:
                             self._landing_reason)
             self._hover_to_choose_again(now, rel, est, "nowhere clear to land")
             return
-        self._landing_retry = self._hover_ref = None
+        self._landing_retry = self._hover_ref = self._waiting = None
         self._active = Trajectory(steps, self.params.trajectory, yaw0=est.yaw)
         self._landing_end = steps[-1].t
         self._ground_z = steps[-1].pos[2]
