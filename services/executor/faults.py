@@ -214,14 +214,15 @@ def spot_beside(pos: tuple[float, float, float], plan: Sequence[PlanStep], model
 
 
 def in_way(pos: tuple[float, float, float], node: tuple[float, float, float], body: tuple[float, float, float],
-           model: VehicleModel) -> bool:
+           model: VehicleModel, beyond: bool = True) -> bool:
     """Whether `body` is in the way of a fault landing's level flight from `pos` to above `node`:
     at its level (within a height and a margin) and within two radii and a margin of its line in the
-    horizontal, ahead of it (a body the flight only moves away from is not in its way)."""
+    horizontal, ahead of it (a body the flight only moves away from is not in its way); not
+    `beyond`: only between the two (one past `node` is not on the way there)."""
     if abs(body[2] - pos[2]) >= model.height + model.margin:
         return False
     along, off = _projection(body, pos, node)
-    return along > 0.0 and off < 2.0 * model.radius + model.margin
+    return along > 0.0 and (beyond or along < 1.0) and off < 2.0 * model.radius + model.margin
 
 
 def _projection(p: tuple[float, float, float], a: tuple[float, float, float],

@@ -64,6 +64,11 @@ def lowest_ground(plan: VehiclePlan | None) -> float:
     return min([0.0] + ([s.pos[2] for s in plan.steps] if plan is not None else []))
 
 
+def _still(t: float, est: Estimate, yaw: float) -> RefSample:
+    """A hovering reference at time `t` that holds the vehicle still where it is estimated, facing `yaw`."""
+    return RefSample(t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, yaw, 0.0, Mode.HOVERING)
+
+
 MOVING = frozenset({Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING})
 """Modes in which a vehicle moves on its plan (`VehicleController.motion`)."""
 IN_ITS_COLUMN = frozenset({Mode.TAKING_OFF, Mode.LANDING})
@@ -693,24 +698,24 @@ class VehicleController:
     def _hover_here(self, t: float, est: Estimate) -> RefSample:
         """A reference that holds the vehicle still where it is estimated, facing as it does."""
         self._hovered_at, self._waiting = (est.x, est.y), None
-        return RefSample(t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, est.yaw, 0.0, Mode.HOVERING)
+        return _still(t, est, est.yaw)
 
     def _keep_off_the_way_back(self, est: Estimate) -> None:
         """A vehicle held hovering that finds itself more than `ASTRAY_M` from its hover point (a
-        stall of its loop threw it off) with another body in its way back there (`in_way`) waits
-        where it is until the way is clear, then goes back."""
+        stall of its loop threw it off) with another body on its way back there (`in_way`, between
+        the two: one past the point is the standoff's, `keep_apart`) waits where it is until the
+        way is clear, then goes back."""
         at = self.held_hover()
         if at is None or est.stale or self._hover_ref is None:
             return
         here = (est.x, est.y, est.z)
         if self._waiting is None and math.dist(here, at) <= ASTRAY_M:
             return
-        body = next((b for b in self._bodies() if in_way(here, at, b, self.model)), None)
+        body = next((b for b in self._bodies() if in_way(here, at, b, self.model, beyond=False)), None)
         if body is not None and self._waiting is None:
             log.warning("%s: held, %.3f m off its hover point, a body at (%.2f, %.2f, %.2f) in its way back: "
                         "waits where it is", self.vid, math.dist(here, at), *body)
-            self._waiting = RefSample(self._hover_ref.t, est.x, est.y, est.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                                      self._hover_ref.yaw, 0.0, Mode.HOVERING)
+            self._waiting = _still(self._hover_ref.t, est, self._hover_ref.yaw)
         elif body is None and self._waiting is not None:
             log.warning("%s: held, its way back to its hover point clear: goes back", self.vid)
             self._waiting = None
