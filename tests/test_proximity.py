@@ -438,8 +438,8 @@ def test_only_a_body_between_a_held_flyer_and_its_hover_point_is_on_its_way_back
     """`faults.in_way(..., beyond=False)`, as `VehicleController._keep_off_the_way_back` asks: a body
     between the flyer and its point is on its way; one just past the point is not (it is the
     standoff's: in an 80-vehicle soak a held flyer that braked 5.8 cm past its point waited there,
-    towards the body it had yielded to, for one past its point), though a fault landing's flight
-    counts it."""
+    towards the body it had yielded to, for one past its point, and touched the first 40 ms
+    later), though a fault landing's flight counts it."""
     model = VehicleModel(margin=0.03)
     here, point = (0.0, 0.0, 0.5), (0.1, 0.0, 0.5)
     between, past = (0.05, 0.03, 0.5), (0.2, 0.0, 0.5)
