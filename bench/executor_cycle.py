@@ -5,8 +5,9 @@ a 100 m drive at 0.1 m/s, or with `--fly` a take-off and a long hover) and runs 
 simulated clock, back to back: a motion-capture frame of every vehicle fused (`_fuse`, the
 proximity stop's bodies settled), the proximity stop, the held vehicles' standoff, the plan
 clocks, every controller's tick and the command batches and states encoded (`_cycle`; each
-message encoded as a publisher does, but not put on the bus). Thread CPU time per round of `--cycles` cycles, per
-vehicle-cycle; the table gives the fastest round and the median of the rounds after a warm-up.
+message encoded as a publisher does, but not put on the bus). Thread CPU time per round of
+`--cycles` cycles, per vehicle-cycle; the table gives the fastest round and the median of the
+rounds after a warm-up.
 
 Why beside `bench.fleet_latency` (the whole process, the bus and its threads included, the issue's
 figure): that one's run-to-run spread on this 2-core virtual machine is +-10-15 % (the host's load),
