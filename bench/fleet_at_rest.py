@@ -4,7 +4,8 @@ motion-capture bridge) with `--vehicles` parked on city934 and no mission, each 
 /proc over `--seconds` after `--warmup`, and within each process its threads' CPU grouped: the
 event loop (the process's main thread), its other Python threads (a gateway's: cflib's per link and
 the radios' senders), zenoh's (by name). On 2026-12-07 (80 vehicles, fortieth session) this was
-1.06 of the two cores before any vehicle moved: the floor under every mission's figures.
+0.90-1.06 of the two cores before any vehicle moved (two runs an hour apart): the floor under
+every mission's figures.
 
     python -m bench.fleet_at_rest [--vehicles 80] [--warmup 30] [--seconds 30]
 """
