@@ -20,11 +20,11 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+from bench.machine_cpu import task_cpu_seconds
 from bench.soak import MAP, draw_tasks, proc_sample, soak_fleet
 from bench.tables import bench_parser, format_table, new_figure, save_figure
 from services.planner.maps.loading import load_graph
 
-_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 ZENOH_THREAD = re.compile(r"^(rx|tx|net|app|acc|keepalive)-\d+$")
 """zenoh's runtime threads (Linux thread names)."""
 
@@ -43,9 +43,8 @@ def thread_cpu(pid: int) -> dict[str, float]:
         except OSError:
             continue
         name = stat[stat.index("(") + 1:stat.rindex(")")]
-        fields = stat.rsplit(")", 1)[1].split()
         group = "event loop" if tid == str(pid) else "zenoh" if ZENOH_THREAD.match(name) else "other Python threads"
-        groups[group] += (int(fields[11]) + int(fields[12])) / _TICKS
+        groups[group] += task_cpu_seconds(stat)
     return dict(groups)
 
 

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.machine_cpu import task_cpu_seconds
 from bench.tables import bench_parser, format_table, new_figure, plot_series, save_figure
 from common.bus.keys import Keys
 from common.bus.liveliness import watch_alive
@@ -54,7 +55,6 @@ KEYS = Keys("bench")
 SPEED = 0.1
 RATE_HZ = 100.0
 GATEWAYS = 4
-_TICKS = os.sysconf("SC_CLK_TCK")
 
 
 def bench_plan(vid: str, y: float, t0: float, fly: bool) -> VehiclePlan:
@@ -74,9 +74,7 @@ def bench_plan(vid: str, y: float, t0: float, fly: bool) -> VehiclePlan:
 
 def cpu_seconds(pid: int) -> float:
     """User + system CPU time of process `pid` (every thread), s."""
-    with open(f"/proc/{pid}/stat") as f:
-        fields = f.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / _TICKS
+    return task_cpu_seconds(Path(f"/proc/{pid}/stat").read_text())
 
 
 def where(t: float, t0: float, y: float, fly: bool) -> tuple[float, float, float]:

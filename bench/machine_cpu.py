@@ -10,10 +10,19 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 STAT = Path("/proc/stat")
+_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def task_cpu_seconds(stat: str) -> float:
+    """User + system CPU time (s) in a process's or a thread's `/proc/<pid>[/task/<tid>]/stat` text
+    (fields 14 and 15, counted after the parenthesised name, which may hold spaces)."""
+    fields = stat.rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / _TICKS
 BUSY_IDLE_MAX = 0.05
 """A window with less idle CPU time than this share counts as saturated (every core busy)."""
 

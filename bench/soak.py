@@ -36,7 +36,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bench.machine_cpu import MachineCpu, sample_machine
+from bench.machine_cpu import MachineCpu, sample_machine, task_cpu_seconds
 from bench.tables import bench_parser, cpu_probe, format_table, new_figure, save_figure
 from common.bus.messages import ControlMode, ServiceStats, SimTruth
 from common.bus.pubsub import subscribe
@@ -77,7 +77,6 @@ failed mission's abort lands the vehicles still in the air, by their safe landin
 then down), which the soak's end overtook: a 32-vehicle soak judged cf10 "not at rest" while it
 was coming down."""
 _PAGE_KB = os.sysconf("SC_PAGE_SIZE") / 1024
-_TICKS = os.sysconf("SC_CLK_TCK")
 
 
 def draw_tasks(graph: FleetGraph, starts: dict[str, str], rng: random.Random) -> dict[str, Task]:
@@ -154,10 +153,10 @@ def proc_sample(pid: int) -> tuple[float, float] | None:
     """(resident MB, CPU seconds) of a process, None if it is gone."""
     try:
         rss_pages = int(Path(f"/proc/{pid}/statm").read_text().split()[1])
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        cpu = task_cpu_seconds(Path(f"/proc/{pid}/stat").read_text())
     except (OSError, IndexError, ValueError):
         return None
-    return rss_pages * _PAGE_KB / 1024, (int(fields[11]) + int(fields[12])) / _TICKS
+    return rss_pages * _PAGE_KB / 1024, cpu
 
 
 @dataclass
