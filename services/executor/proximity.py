@@ -61,7 +61,9 @@ class ProximityParams:
     held vehicle: `services/mission/sweeps.py`'s `SWEEP_REACH`). The proximity stop leaves its
     movers a few centimetres short of the body they stopped for, and a held vehicle on a starved
     loop wanders by several: two held 2.7 cm apart in an 80-vehicle soak wandered into each other
-    (2026-12-07), as had two held while converging before (docs/reliability.md)."""
+    (2026-12-07), as had two held while converging before (docs/reliability.md); trust_plans: a
+    closing found is judged once more on the two vehicles' plans, and the mover goes on when both
+    keep to theirs and they keep them apart (`services/executor/plan_clearance.py`)."""
 
     near_gap: float = 0.01
     react_s: float = 0.03
@@ -74,6 +76,7 @@ class ProximityParams:
     standoff: float = 0.04
     standoff_speed: float = 0.1
     standoff_reach: float = 0.05
+    trust_plans: bool = True
 
 
 class Closing(NamedTuple):

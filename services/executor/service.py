@@ -73,7 +73,8 @@ from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, 
 from common.flight.modes import Mode
 from common.flight.plan_clock import ClockParams, PlanClock, latency_pace
 from services.executor.faults import ASIDE, STRAIGHT_DOWN, FaultParams
-from services.executor.proximity import Bodies, ProximityParams, standing
+from services.executor.plan_clearance import PlanWay, kept_apart, on_its_way
+from services.executor.proximity import Bodies, Closing, ProximityParams, standing
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
 from services.executor.vehicle_controller import ControlParams, VehicleController
@@ -96,6 +97,11 @@ ROUTER_CHECK_TICKS = 10
 """Control ticks between two looks at the router link (a look costs about a microsecond)."""
 BODIES_FRESH_S = 2.0
 """s: a vehicle seen in a frame this recent is where a fault landing of another may not come down."""
+STATE_FRESH_S = 0.25
+"""s: another executor's vehicle whose state is older counts as not keeping to its plan (its
+executor may have stalled) for the proximity stop's judging on the plans (five state periods)."""
+ON_PLAN_MODES = frozenset({Mode.PARKED, Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING, Mode.DONE})
+"""The modes of a vehicle that keeps to its plan, when not held and not in a fault landing."""
 REACT_WINDOW = 200
 """Cycles (2 s at 100 Hz) over which the proximity stop's reaction is measured (`LoopStats.recent_latency`)."""
 FRAME_WAIT = 1.5
@@ -181,6 +187,8 @@ class ExecutorService(Service):
         """Other executors' vehicles in a fault or an emergency landing, which no proximity stop
         stops (`_going_on`): vid -> when heard."""
         self._heard: dict[str, VehicleState] = {}
+        self._ways: dict[str, tuple[VehiclePlan, PlanWay]] = {}
+        """Each vehicle's plan as positions (`_plans_keep_apart`), made when first asked for."""
         """Other executors' vehicles' latest states, for the proximity stop's report (`_standing`)."""
         self.gateway_of: dict[str, str] = {}
         """Each vehicle's gateway, from its telemetry: where its commands go."""
@@ -538,8 +546,54 @@ class ExecutorService(Service):
         v_self = np.array(velocities).reshape(len(movers), 2, 3)
         for closing in self.bodies.closing(movers, v_self, radius, height, now, react,
                                            lambda: self._going_on(now), self._bend):
+            if self._plans_keep_apart(closing, radius, height, now):
+                self.counters.inc("proximity_kept_apart_by_plans")
+                continue
             self.controllers[closing.mover].stop_short(
                 f"{closing.why()}; {self._standing(closing.mover, now)}; {self._standing(closing.other, now)}")
+
+    def _plans_keep_apart(self, closing: Closing, radius: float, height: float, now: float) -> bool:
+        """Whether the mover and the other body of `closing` both keep to their plans of one mission
+        and these keep them apart until the mover could have stopped (`plan_clearance.py`): the
+        mover goes on. Off with `ProximityParams.trust_plans`."""
+        p = self.bodies.params
+        ctl = self.controllers[closing.mover]
+        clock = ctl.plan_clock(now)
+        if not p.trust_plans or clock is None or ctl.plan is None:
+            return False
+        mission, rel, pace = clock
+        other = self._keeping_to_plan(closing.other, mission, now)
+        if other is None:
+            return False
+        rows = [self.bodies.rows[closing.mover], self.bodies.rows[closing.other]]
+        pos, vel = self.bodies.pos[rows], self.bodies.vel[rows]
+        speed = max(float(np.sqrt(np.einsum("bx,bx->b", vel, vel)).sum()), closing.speed)
+        taus = np.linspace(0.0, closing.react + float(self.bodies.stop_time(speed)), 2 * p.samples + 1)
+        ways = [on_its_way(self._way(plan), pos[k], vel[k], rel, pace, taus, ctl.model.margin)
+                for k, plan in enumerate((ctl.plan, other))]
+        return kept_apart(*ways, radius, height, p.near_gap)
+
+    def _keeping_to_plan(self, vid: str, mission: str, now: float) -> VehiclePlan | None:
+        """`vid`'s plan if it keeps to it in `mission`: an owned vehicle by its controller
+        (`VehicleController.plan_clock`), another by its state of the last `STATE_FRESH_S`
+        (in a mode of its plan, not held, no fault landing); None otherwise."""
+        ctl = self.controllers.get(vid)
+        if ctl is not None:
+            clock = ctl.plan_clock(now)
+            return ctl.plan if clock is not None and clock[0] == mission else None
+        state, plan = self._heard.get(vid), self.plans.get(vid)
+        if (state is None or plan is None or plan.mission != mission or state.mission != mission
+                or now - state.t > STATE_FRESH_S or state.held or state.landing is not None
+                or not state.pose_ok or state.mode not in ON_PLAN_MODES):
+            return None
+        return plan
+
+    def _way(self, plan: VehiclePlan) -> PlanWay:
+        """`plan` as positions (made once per plan)."""
+        known = self._ways.get(plan.vid)
+        if known is None or known[0] is not plan:
+            known = self._ways[plan.vid] = (plan, PlanWay(plan.steps))
+        return known[1]
 
     def _keep_apart(self, now: float) -> None:
         """Every owned vehicle held hovering keeps `ProximityParams.standoff` from the other bodies:

@@ -809,6 +809,15 @@ class VehicleController:
             return None
         return est.vx, est.vy, est.vz, ref.vx, ref.vy, ref.vz
 
+    def plan_clock(self, now: float) -> tuple[str, float, float] | None:
+        """Its mission, its plan's time at `now` and its clock's pace, while the vehicle follows its
+        own plan and may be held (`_may_yield`; not a hold's, a detour's or a landing's reference),
+        for the proximity stop's judging on the plans (`services/executor/plan_clearance.py`);
+        None otherwise."""
+        if self.plan is None or not self._may_yield() or self._active is not self.trajectory or self._hover_ref is not None:
+            return None
+        return self.plan.mission, self._rel(now), self.pace
+
     def bend(self, taus: np.ndarray) -> np.ndarray:
         """How far the plan followed at the last tick takes the vehicle in `taus` s beyond the
         straight line at its reference's velocity then (len(taus) x 3, m; at the clock's pace): the
