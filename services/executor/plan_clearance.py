@@ -10,47 +10,32 @@ of cf54, 0.7 and 1.3 cm from their references, where the plan passes them 5.0 cm
 margin), and the stop's hold became a replan that could not place the vehicles around it.
 
 So a closing the stop finds is judged once more on the plans, for two vehicles of one mission that
-both follow theirs (`PlanWay`): each goes on along its plan, offset from it as it is now, and
-drifting from it at the difference between its velocity and its plan's (a vehicle stalled on its
-way, its executor starved, goes on standing where it is; one ahead of its plan, faster). If neither
-is farther than the margin from its plan now and the two come no nearer than `near_gap` over the
-look-ahead, the plans keep them apart and the mover goes on."""
+both follow theirs: each goes on along the reference its executor makes of its plan (`Trajectory`:
+the plan's corners blended, within 5 mm of it), offset from it as it is now, and drifting from it
+at the difference between its velocity and its reference's over the same window (a vehicle stalled
+on its way, its executor starved, goes on standing where it is; one catching up with its plan,
+faster). If neither is farther than the margin from its reference now and the two come no nearer
+than `near_gap` over the look-ahead, the plans keep them apart and the mover goes on."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 
-from common.bus.messages import PlanStep
-
-VELOCITY_DT = 0.02
-"""s over which a plan's velocity is taken (its own positions, forward from now)."""
+from services.executor.trajectory import Trajectory
 
 
-class PlanWay:
-    """A plan's own positions (its nodes at their times, linear between): `at(ts)`."""
-
-    def __init__(self, steps: Sequence[PlanStep]) -> None:
-        self.times = np.array([s.t for s in steps])
-        self.nodes = np.array([s.pos for s in steps], dtype=float)
-
-    def at(self, ts: np.ndarray) -> np.ndarray:
-        """The plan's positions at the plan times `ts` (len(ts) x 3; its first and last before and after)."""
-        return np.stack([np.interp(ts, self.times, self.nodes[:, k]) for k in range(3)], axis=1)
-
-
-def on_its_way(way: PlanWay, pos: np.ndarray, vel: np.ndarray, rel: float, pace: float, taus: np.ndarray,
-               margin: float) -> np.ndarray | None:
-    """Where a vehicle at `pos` moving at `vel` (m, m/s, world) is after `taus` s (len(taus) x 3)
-    going on along its plan (`way`, at plan time `rel` now, its clock at `pace`) offset from it as
-    now, drifting at the difference between its velocity and its plan's; None when it is farther
-    than `margin` from its plan now."""
-    at = way.at(rel + pace * np.concatenate(((0.0, VELOCITY_DT), taus)))
-    off = pos - at[0]
+def on_its_way(way: Trajectory, pos: np.ndarray, vel: np.ndarray, rel: float, pace: float, taus: np.ndarray,
+               margin: float, window: float) -> np.ndarray | None:
+    """Where a vehicle at `pos` is after `taus` s (len(taus) x 3) going on along its reference
+    (`way`, at plan time `rel` now, its clock at `pace`) offset from it as now, drifting at the
+    difference between its velocity `vel` (measured over the last `window` s) and its reference's
+    over that window; None when it is farther than `margin` from its reference now."""
+    ts = rel + pace * np.concatenate(((-window, 0.0), taus))
+    at = np.array([(r.x, r.y, r.z) for r in map(way.sample, ts.tolist())])
+    off = pos - at[1]
     if float(off @ off) > margin * margin:
         return None
-    drift = vel - (at[1] - at[0]) / VELOCITY_DT
+    drift = vel - (at[1] - at[0]) / window
     return at[2:] + off + np.outer(taus, drift)
 
 

@@ -73,10 +73,11 @@ from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, 
 from common.flight.modes import Mode
 from common.flight.plan_clock import ClockParams, PlanClock, latency_pace
 from services.executor.faults import ASIDE, STRAIGHT_DOWN, FaultParams
-from services.executor.plan_clearance import PlanWay, kept_apart, on_its_way
+from services.executor.plan_clearance import kept_apart, on_its_way
 from services.executor.proximity import Bodies, Closing, ProximityParams, standing
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
+from services.executor.trajectory import Trajectory
 from services.executor.vehicle_controller import ControlParams, VehicleController
 
 log = logging.getLogger(__name__)
@@ -187,8 +188,9 @@ class ExecutorService(Service):
         """Other executors' vehicles in a fault or an emergency landing, which no proximity stop
         stops (`_going_on`): vid -> when heard."""
         self._heard: dict[str, VehicleState] = {}
-        self._ways: dict[str, tuple[VehiclePlan, PlanWay]] = {}
-        """Each vehicle's plan as positions (`_plans_keep_apart`), made when first asked for."""
+        self._ways: dict[str, tuple[VehiclePlan, Trajectory]] = {}
+        """Other executors' vehicles' references, as their executors make them of their plans
+        (`_plans_keep_apart`), each made when first asked for."""
         """Other executors' vehicles' latest states, for the proximity stop's report (`_standing`)."""
         self.gateway_of: dict[str, str] = {}
         """Each vehicle's gateway, from its telemetry: where its commands go."""
@@ -559,7 +561,7 @@ class ExecutorService(Service):
         p = self.bodies.params
         ctl = self.controllers[closing.mover]
         clock = ctl.plan_clock(now)
-        if not p.trust_plans or clock is None or ctl.plan is None:
+        if not p.trust_plans or clock is None or ctl.trajectory is None:
             return False
         mission, rel, pace = clock
         other = self._keeping_to_plan(closing.other, mission, now)
@@ -569,30 +571,26 @@ class ExecutorService(Service):
         pos, vel = self.bodies.pos[rows], self.bodies.vel[rows]
         speed = max(float(np.sqrt(np.einsum("bx,bx->b", vel, vel)).sum()), closing.speed)
         taus = np.linspace(0.0, closing.react + float(self.bodies.stop_time(speed)), 2 * p.samples + 1)
-        ways = [on_its_way(self._way(plan), pos[k], vel[k], rel, pace, taus, ctl.model.margin)
-                for k, plan in enumerate((ctl.plan, other))]
+        ways = [on_its_way(way, pos[k], vel[k], rel, pace, taus, ctl.model.margin, p.velocity_s)
+                for k, way in enumerate((ctl.trajectory, other))]
         return kept_apart(*ways, radius, height, p.near_gap)
 
-    def _keeping_to_plan(self, vid: str, mission: str, now: float) -> VehiclePlan | None:
-        """`vid`'s plan if it keeps to it in `mission`: an owned vehicle by its controller
+    def _keeping_to_plan(self, vid: str, mission: str, now: float) -> Trajectory | None:
+        """`vid`'s reference if it keeps to its plan in `mission`: an owned vehicle by its controller
         (`VehicleController.plan_clock`), another by its state of the last `STATE_FRESH_S`
         (in a mode of its plan, not held, no fault landing); None otherwise."""
         ctl = self.controllers.get(vid)
         if ctl is not None:
             clock = ctl.plan_clock(now)
-            return ctl.plan if clock is not None and clock[0] == mission else None
+            return ctl.trajectory if clock is not None and clock[0] == mission else None
         state, plan = self._heard.get(vid), self.plans.get(vid)
         if (state is None or plan is None or plan.mission != mission or state.mission != mission
                 or now - state.t > STATE_FRESH_S or state.held or state.landing is not None
                 or not state.pose_ok or state.mode not in ON_PLAN_MODES):
             return None
-        return plan
-
-    def _way(self, plan: VehiclePlan) -> PlanWay:
-        """`plan` as positions (made once per plan)."""
-        known = self._ways.get(plan.vid)
+        known = self._ways.get(vid)
         if known is None or known[0] is not plan:
-            known = self._ways[plan.vid] = (plan, PlanWay(plan.steps))
+            known = self._ways[vid] = (plan, Trajectory(plan.steps, self.control.trajectory))
         return known[1]
 
     def _keep_apart(self, now: float) -> None:
