@@ -15,7 +15,7 @@ from common.bus.messages import FramePose, PlanStep, PoseFrame, VehicleState
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
-from services.executor.plan_clearance import kept_apart, on_its_way
+from services.executor.plan_clearance import drift_time, nearest, on_its_way
 from services.executor.proximity import Closing, ProximityParams
 from services.executor.service import STATE_FRESH_S, ExecutorService
 from services.executor.trajectory import Trajectory
@@ -128,27 +128,29 @@ def test_another_executors_vehicle_keeps_to_its_plan_by_its_state(why: str, hear
 
 def test_a_vehicle_goes_on_along_its_plan_offset_and_drifting_as_now() -> None:
     """`on_its_way`: on a reference along +x at 0.3 m/s, a vehicle 1 cm beside it at its speed goes
-    on 1 cm beside; one stalled (at rest) stands where it is; one farther than the margin is not
-    judged on its plan. Through a corner (to +y) the reference's own turn is no drift: a vehicle
-    on it goes on along it."""
+    on 1 cm beside; one stalled (at rest) lags its reference by its speed for the reaction (0.1 s),
+    then less and less (`drift_time`); one farther than the margin is not judged on its plan.
+    Through a corner (to +y) the reference's own turn is no drift: a vehicle on it goes on along it."""
     way = Trajectory([PlanStep("a", 0.0, (0.0, 0.0, 0.5), "air"), PlanStep("b", 10.0, (3.0, 0.0, 0.5), "air", "fly"),
                       PlanStep("c", 20.0, (3.0, 3.0, 0.5), "air", "fly")])
     taus = np.linspace(0.0, 0.2, 5)
-    beside = on_its_way(way, np.array([1.5, 0.01, 0.5]), np.array([0.3, 0.0, 0.0]), 5.0, 1.0, taus, 0.03, 0.1)
+    beside = on_its_way(way, np.array([1.5, 0.01, 0.5]), np.array([0.3, 0.0, 0.0]), 5.0, 1.0, taus, 0.03, 0.1, 0.1, 0.12)
     assert beside is not None and beside[-1] == pytest.approx((1.56, 0.01, 0.5))
-    stalled = on_its_way(way, np.array([1.49, 0.0, 0.5]), np.zeros(3), 5.0, 1.0, taus, 0.03, 0.1)
-    assert stalled is not None and np.allclose(stalled, (1.49, 0.0, 0.5))
-    assert on_its_way(way, np.array([1.5, 0.04, 0.5]), np.array([0.3, 0.0, 0.0]), 5.0, 1.0, taus, 0.03, 0.1) is None
+    stalled = on_its_way(way, np.array([1.49, 0.0, 0.5]), np.zeros(3), 5.0, 1.0, taus, 0.03, 0.1, 0.1, 0.12)
+    lag = drift_time(taus, 0.1, 0.12)
+    assert lag[:3] == pytest.approx(taus[:3]) and lag[-1] == pytest.approx(0.1 + 0.12 * (1.0 - math.exp(-0.1 / 0.12)))
+    assert stalled is not None and np.allclose(stalled[:, 0], 1.49 + 0.3 * (taus - lag)) and stalled[-1, 0] < 1.5
+    assert on_its_way(way, np.array([1.5, 0.04, 0.5]), np.array([0.3, 0.0, 0.0]), 5.0, 1.0, taus, 0.03, 0.1, 0.1, 0.12) is None
     ref = [way.sample(t) for t in (9.95, 10.05)]  # the reference's velocity over the last 0.1 s, through the corner
     vel = np.subtract((ref[1].x, ref[1].y, ref[1].z), (ref[0].x, ref[0].y, ref[0].z)) / 0.1
-    on_it = on_its_way(way, np.array([ref[1].x, ref[1].y, ref[1].z]), vel, 10.05, 1.0, taus, 0.03, 0.1)
+    on_it = on_its_way(way, np.array([ref[1].x, ref[1].y, ref[1].z]), vel, 10.05, 1.0, taus, 0.03, 0.1, 0.1, 0.12)
     assert on_it is not None
     assert np.allclose(on_it, [(r.x, r.y, r.z) for r in map(way.sample, 10.05 + taus)], atol=1e-9)
     radius, height = MODEL.body()
     other = np.tile((1.56 + 2 * radius + 0.015, 0.01, 0.5), (5, 1))  # 1.5 cm beyond where it goes
-    assert kept_apart(beside, other, radius, height, 0.01)
-    assert not kept_apart(beside, other - (0.01, 0.0, 0.0), radius, height, 0.01)
-    assert not kept_apart(None, other, radius, height, 0.01)
+    assert nearest(beside, other, radius, height) == pytest.approx(0.015)
+    assert nearest(beside, other - (0.02, 0.0, 0.0), radius, height) == pytest.approx(-0.005)
+    assert nearest(None, other, radius, height) == -math.inf
 
 
 def test_a_closing_between_vehicles_of_no_plan_is_not_spared() -> None:

@@ -73,7 +73,7 @@ from common.flight.estimator import EstimatorParams, KalmanBank, PoseEstimator, 
 from common.flight.modes import Mode
 from common.flight.plan_clock import ClockParams, PlanClock, latency_pace
 from services.executor.faults import ASIDE, STRAIGHT_DOWN, FaultParams
-from services.executor.plan_clearance import kept_apart, on_its_way
+from services.executor.plan_clearance import nearest, on_its_way
 from services.executor.proximity import Bodies, Closing, ProximityParams, standing
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
@@ -188,6 +188,8 @@ class ExecutorService(Service):
         """Other executors' vehicles in a fault or an emergency landing, which no proximity stop
         stops (`_going_on`): vid -> when heard."""
         self._heard: dict[str, VehicleState] = {}
+        self._spared: set[tuple[str, str]] = set()
+        """(mover, other) pairs a proximity stop was spared for (`_plans_keep_apart`), told once."""
         self._ways: dict[str, tuple[VehiclePlan, Trajectory]] = {}
         """Other executors' vehicles' references, as their executors make them of their plans
         (`_plans_keep_apart`), each made when first asked for."""
@@ -571,9 +573,14 @@ class ExecutorService(Service):
         pos, vel = self.bodies.pos[rows], self.bodies.vel[rows]
         speed = max(float(np.sqrt(np.einsum("bx,bx->b", vel, vel)).sum()), closing.speed)
         taus = np.linspace(0.0, closing.react + float(self.bodies.stop_time(speed)), 2 * p.samples + 1)
-        ways = [on_its_way(way, pos[k], vel[k], rel, pace, taus, ctl.model.margin, p.velocity_s)
+        ways = [on_its_way(way, pos[k], vel[k], rel, pace, taus, ctl.model.margin, p.velocity_s, closing.react, p.hold_s)
                 for k, way in enumerate((ctl.trajectory, other))]
-        return kept_apart(*ways, radius, height, p.near_gap)
+        gap = nearest(*ways, radius, height)
+        if gap > p.near_gap and (closing.mover, closing.other) not in self._spared:
+            self._spared.add((closing.mover, closing.other))
+            log.info("%s: goes on past %s, both keeping to plans that keep them %.1f cm apart", closing.mover,
+                     closing.other, 100 * gap)
+        return gap > p.near_gap
 
     def _keeping_to_plan(self, vid: str, mission: str, now: float) -> Trajectory | None:
         """`vid`'s reference if it keeps to its plan in `mission`: an owned vehicle by its controller
