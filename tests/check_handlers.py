@@ -287,6 +287,11 @@ HANDLINGS: tuple[Handling, ...] = (
         (Edit("services/executor/vehicle_controller.py", "ASTRAY_M = 0.05\n", "ASTRAY_M = math.inf\n"),),
         "tests/test_proximity.py::test_a_held_flyer_blown_off_its_hover_point_does_not_fly_back_through_a_body[True]"),
     Handling(
+        "a proximity stop judged on the plans of two vehicles keeping to them",
+        "executor: a proximity stop judges from the motion capture alone",
+        (Edit("services/executor/proximity.py", "    trust_plans: bool = True\n", "    trust_plans: bool = False\n"),),
+        "tests/test_plan_clearance.py::test_two_flyers_on_plans_that_cross_at_their_margin_go_on[True]"),
+    Handling(
         "a stranded vehicle's goal asked for again",
         "mission: a goal a replan left out of reach stays so for the mission",
         (Edit("services/mission/runner.py",

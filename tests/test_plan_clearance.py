@@ -83,7 +83,7 @@ def fly_crossing(trust: bool, hold_cf2_at: float | None = None, react: float = 0
 def test_two_flyers_on_plans_that_cross_at_their_margin_go_on(trust: bool) -> None:
     """cf2 crosses cf1's way 0.57 s before it, the plans 3.1 cm apart at their nearest. Seen from
     the motion capture alone, cf2 at the crossing stands in cf1's way, and cf1 stopped short
-    (three of four failed 80-vehicle soaks began with such a stop, 2026-12-07); judged on the
+    (each of four failed 80-vehicle soaks began with such a stop, 2026-12-07); judged on the
     plans, both keep to theirs and go on, and in ground truth their bodies never touch."""
     svc, nearest = fly_crossing(trust)
     cf1, cf2 = svc.controllers["cf1"], svc.controllers["cf2"]

@@ -4,10 +4,11 @@ A plan is collision-free while every vehicle stays within the margin it was plan
 (`VehicleModel.margin`; the planners keep that clearance between every two bodies). The proximity
 stop (`services/executor/proximity.py`) judges from the motion capture alone: the mover on its
 velocity bent as its plan bends, the other body standing where it is if it comes closer. Where two
-plans pass at their margin, that is a touch foretold for two vehicles each within 2 cm of its
-plan: three of four 80-vehicle soaks that failed on 2026-12-07 began so (cf55 stopped 6.5 cm short
-of cf54, 0.7 and 1.3 cm from their references, where the plan passes them 5.0 cm apart, the whole
-margin), and the stop's hold became a replan that could not place the vehicles around it.
+plans pass at their margin, that is a touch foretold for two vehicles each a centimetre or two
+from its plan: each of the four 80-vehicle soaks that failed on 2026-12-07 (fortieth session)
+began with such a stop of one flyer for another, both 0.7-3.2 cm from their references (cf55
+stopped 6.5 cm short of cf54, 0.7 and 1.3 cm from theirs, where their plans pass 5.0 cm apart,
+the whole margin), and the stop's hold became replans that could not place the vehicles around it.
 
 So a closing the stop finds is judged once more on the plans, for two vehicles of one mission that
 both follow theirs: each goes on along the reference its executor makes of its plan (`Trajectory`:
