@@ -126,6 +126,15 @@ def test_another_executors_vehicle_keeps_to_its_plan_by_its_state(why: str, hear
     assert (svc._keeping_to_plan("cf2", mission, 100.1) is not None) == keeps, why
 
 
+def test_another_executors_vehicle_on_a_plan_no_executor_can_follow_keeps_to_none() -> None:
+    """A plan with two entries at one time (no trajectory can be made of it) is no plan to judge on."""
+    svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("clearance"))
+    steps = crossing_steps()["cf2"]
+    svc.plans["cf2"] = plan_for("cf2", [*steps[:2], msgspec.structs.replace(steps[2], t=steps[1].t)], MODEL, t0=0.5)
+    svc._heard["cf2"] = state()
+    assert svc._keeping_to_plan("cf2", "sim", 100.1) is None
+
+
 def test_a_vehicle_goes_on_along_its_plan_offset_and_drifting_as_now() -> None:
     """`on_its_way`: on a reference along +x at 0.3 m/s, a vehicle 1 cm beside it at its speed goes
     on 1 cm beside; one stalled (at rest) lags its reference by its speed for the reaction (0.1 s),

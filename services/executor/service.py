@@ -188,12 +188,12 @@ class ExecutorService(Service):
         """Other executors' vehicles in a fault or an emergency landing, which no proximity stop
         stops (`_going_on`): vid -> when heard."""
         self._heard: dict[str, VehicleState] = {}
+        """Other executors' vehicles' latest states, for the proximity stop's report (`_standing`)."""
         self._spared: set[tuple[str, str]] = set()
         """(mover, other) pairs a proximity stop was spared for (`_plans_keep_apart`), told once."""
         self._ways: dict[str, tuple[VehiclePlan, Trajectory]] = {}
         """Other executors' vehicles' references, as their executors make them of their plans
         (`_plans_keep_apart`), each made when first asked for."""
-        """Other executors' vehicles' latest states, for the proximity stop's report (`_standing`)."""
         self.gateway_of: dict[str, str] = {}
         """Each vehicle's gateway, from its telemetry: where its commands go."""
         self._maps: dict[str, MapSpec | None] = {}
@@ -597,7 +597,11 @@ class ExecutorService(Service):
             return None
         known = self._ways.get(vid)
         if known is None or known[0] is not plan:
-            known = self._ways[vid] = (plan, Trajectory(plan.steps, self.control.trajectory))
+            try:
+                way = Trajectory(plan.steps, self.control.trajectory)
+            except ValueError:  # (a plan its own executor cannot follow either)
+                return None
+            known = self._ways[vid] = (plan, way)
         return known[1]
 
     def _keep_apart(self, now: float) -> None:
