@@ -289,7 +289,8 @@ HANDLINGS: tuple[Handling, ...] = (
     Handling(
         "a proximity stop judged on the plans of two vehicles keeping to them",
         "executor: a proximity stop judges from the motion capture alone",
-        (Edit("services/executor/proximity.py", "    trust_plans: bool = True\n", "    trust_plans: bool = False\n"),),
+        (Edit("services/executor/service.py", "            if self._plans_keep_apart(closing, radius, height, now):\n",
+              "            if False:\n"),),
         "tests/test_plan_clearance.py::test_two_flyers_on_plans_that_cross_at_their_margin_go_on[True]"),
     Handling(
         "a stranded vehicle's goal asked for again",
