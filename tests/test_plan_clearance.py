@@ -59,10 +59,10 @@ def fly_crossing(trust: bool, hold_cf2_at: float | None = None, react: float = 0
         ctrl = svc.controllers[vid] = VehicleController(vid, MODEL, owner="e1")
         ctrl.load(plan_for(vid, steps, MODEL, t0=0.5))
         loops.append((ctrl, sim, Mocap(seed=k)))
-    (cf1, sim1, _), (cf2, sim2, _) = loops
+    (_, sim1, _), (cf2, sim2, _) = loops
     a1 = next(s for s in crossing_steps()["cf1"] if s.node == "a1")
     end = 0.5 + a1.t + (CROSSING[0] - a1.pos[0] + 0.4) / 0.3
-    nearest = math.inf
+    closest = math.inf
     k = 0
     while sim1.t < end:
         now = sim1.t
@@ -74,9 +74,9 @@ def fly_crossing(trust: bool, hold_cf2_at: float | None = None, react: float = 0
         for ctrl, sim, mocap in loops:
             run(ctrl, sim, now + DT, mocap=mocap)
         if abs(sim1.z - sim2.z) < height:
-            nearest = min(nearest, math.hypot(sim1.x - sim2.x, sim1.y - sim2.y) - 2 * radius)
+            closest = min(closest, math.hypot(sim1.x - sim2.x, sim1.y - sim2.y) - 2 * radius)
         k += 1
-    return svc, nearest
+    return svc, closest
 
 
 @pytest.mark.parametrize("trust", [True, False])
@@ -85,23 +85,23 @@ def test_two_flyers_on_plans_that_cross_at_their_margin_go_on(trust: bool) -> No
     the motion capture alone, cf2 at the crossing stands in cf1's way, and cf1 stopped short
     (each of four failed 80-vehicle soaks began with such a stop, 2026-12-07); judged on the
     plans, both keep to theirs and go on, and in ground truth their bodies never touch."""
-    svc, nearest = fly_crossing(trust)
+    svc, closest = fly_crossing(trust)
     cf1, cf2 = svc.controllers["cf1"], svc.controllers["cf2"]
     if not trust:
         assert cf1.held and "stops short of cf2" in cf1.held, cf1.held
         return
     assert not cf1.held and not cf2.held and cf1.mode == cf2.mode == Mode.FLYING
     assert svc.counters.get("proximity_kept_apart_by_plans") > 0
-    assert 0.015 < nearest < 0.045, nearest
+    assert 0.015 < closest < 0.045, closest
 
 
 def test_a_flyer_crossing_the_way_of_one_held_off_its_plan_stops_short() -> None:
     """cf2 is held hovering 2 cm before the crossing (its plan goes on without it): it keeps to no
     plan, and cf1 is judged as before: it stops short, and in ground truth they never touch."""
-    svc, nearest = fly_crossing(True, hold_cf2_at=0.02)
+    svc, closest = fly_crossing(True, hold_cf2_at=0.02)
     cf1 = svc.controllers["cf1"]
     assert cf1.held and "stops short of cf2" in cf1.held, cf1.held
-    assert nearest > 0.0, nearest
+    assert closest > 0.0, closest
 
 
 def state(mode: str = "flying", t: float = 100.0, **kw) -> VehicleState:
