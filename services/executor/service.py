@@ -78,7 +78,7 @@ from services.executor.proximity import Bodies, Closing, ProximityParams, standi
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
 from services.executor.trajectory import Trajectory
-from services.executor.vehicle_controller import ControlParams, VehicleController
+from services.executor.vehicle_controller import MOVING, ControlParams, VehicleController
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +101,7 @@ BODIES_FRESH_S = 2.0
 STATE_FRESH_S = 0.25
 """s: another executor's vehicle whose state is older counts as not keeping to its plan (its
 executor may have stalled) for the proximity stop's judging on the plans (five state periods)."""
-ON_PLAN_MODES = frozenset({Mode.PARKED, Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING, Mode.DONE})
+ON_PLAN_MODES = MOVING | {Mode.PARKED, Mode.DONE}
 """The modes of a vehicle that keeps to its plan, when not held and not in a fault landing."""
 REACT_WINDOW = 200
 """Cycles (2 s at 100 Hz) over which the proximity stop's reaction is measured (`LoopStats.recent_latency`)."""
