@@ -10,7 +10,6 @@ import subprocess
 import sys
 from collections import Counter
 from pathlib import Path
-from typing import Any
 
 import pytest
 
@@ -22,6 +21,7 @@ from common.flight.plan_clock import ClockParams
 from services.executor.service import REACT_WINDOW, ExecutorService
 from services.executor.vehicle_controller import VehicleController
 from tests.support.closed_loop import plan_for, reference_steps
+from tests.support.sent import SentMessages
 
 pytestmark = pytest.mark.compute
 
@@ -60,17 +60,6 @@ class Sent:
 
     def put(self, key: str, _msg: object) -> None:
         self.puts.append(key)
-
-
-class SentMessages:
-    """Stands in for one publisher (`Publisher.put`) or a set keyed by mission or vehicle
-    (`KeyedPublishers.put`): the messages put."""
-
-    def __init__(self) -> None:
-        self.msgs: list[Any] = []
-
-    def put(self, *key_and_msg: object) -> None:
-        self.msgs.append(key_and_msg[-1])
 
 
 def test_each_vehicles_state_goes_out_once_in_five_cycles_and_every_cycle_sends_a_fifth() -> None:

@@ -63,7 +63,12 @@ class ProximityParams:
     loop wanders by several: two held 2.7 cm apart in an 80-vehicle soak wandered into each other
     (2026-12-07), as had two held while converging before (docs/reliability.md); trust_plans: a
     closing found is judged once more on the two vehicles' plans, and the mover goes on when both
-    keep to theirs and they keep them apart (`services/executor/plan_clearance.py`)."""
+    keep to theirs and they keep them apart (`services/executor/plan_clearance.py`); pause: a mover
+    that heads into a vehicle keeping to its plan of the same mission pauses instead of being held
+    (`VehicleController.pause`): the mission's plan clock stands, every vehicle comes to rest where
+    its plan has it, and after at least `pause_settle_s` the mover goes on once the two plans are
+    judged to keep them apart from there at full pace; a pause that has not ended by `pause_max_s`
+    becomes the hold it would have been (the mission plans around it)."""
 
     near_gap: float = 0.01
     react_s: float = 0.03
@@ -77,6 +82,9 @@ class ProximityParams:
     standoff_speed: float = 0.1
     standoff_reach: float = 0.05
     trust_plans: bool = True
+    pause: bool = True
+    pause_settle_s: float = 0.5
+    pause_max_s: float = 5.0
 
 
 class Closing(NamedTuple):

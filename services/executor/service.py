@@ -509,6 +509,7 @@ class ExecutorService(Service):
             if newest is not None:
                 self._fuse(drained)
                 self.bodies.settle(newest.t)
+            self._end_pauses(now)
             self._stop_short(now)
             self._keep_apart(now)
             if n % ROUTER_CHECK_TICKS == 0:
@@ -553,34 +554,88 @@ class ExecutorService(Service):
             if self._plans_keep_apart(closing, radius, height, now):
                 self.counters.inc("proximity_kept_apart_by_plans")
                 continue
-            self.controllers[closing.mover].stop_short(
-                f"{closing.why()}; {self._standing(closing.mover, now)}; {self._standing(closing.other, now)}")
+            ctl = self.controllers[closing.mover]
+            why = f"{closing.why()}; {self._standing(closing.mover, now)}; {self._standing(closing.other, now)}"
+            if self._may_pause(closing.mover, closing.other, now):
+                new = ctl.paused is None
+                if ctl.pause(why, closing.other, now):
+                    if new:
+                        self.counters.inc("proximity_paused")
+                    continue
+            ctl.stop_short(why)
+
+    def _may_pause(self, mover: str, other: str, now: float) -> bool:
+        """Whether `mover` may pause for `other` rather than be held (`ProximityParams.pause`, with
+        `trust_plans`: a pause ends when the plans are judged to keep the two apart): both keep to
+        their plans of one mission (`_keeping_to_plan`)."""
+        clock = self.controllers[mover].plan_clock(now)
+        p = self.bodies.params
+        return (p.pause and p.trust_plans and clock is not None
+                and self._keeping_to_plan(other, clock[0], now) is not None)
+
+    def _end_pauses(self, now: float) -> None:
+        """Every owned vehicle paused (`VehicleController.pause`) for at least `pause_settle_s`
+        goes back onto its plan's place (the others have come to theirs meanwhile), and goes on
+        once its plan and the other vehicle's keep them apart from where they stand, both
+        going on at full pace (`_gap_on_plans`, over the look-ahead of a closing at the two
+        vehicles' fastest); one paused for `pause_max_s` is held instead, as it would have been
+        without the pause."""
+        p = self.bodies.params
+        for vid, ctl in self.controllers.items():
+            pause = ctl.paused
+            if pause is None or now - pause.since < p.pause_settle_s:
+                continue
+            if now - pause.since >= p.pause_max_s:
+                self.counters.inc("proximity_pause_held")
+                ctl.go_on(now)
+                ctl.stop_short(f"{pause.why}; paused {now - pause.since:.1f} s, the plans not keeping the two apart")
+                continue
+            ctl.back_onto_plan()
+            m = ctl.model
+            react = self.bodies.reaction(now, self.stats.recent_latency(), self.period)
+            radius, height = m.body()
+            if self._gap_on_plans(vid, pause.other, react, 2.0 * max(m.speed.drive, m.speed.fly), now, 1.0,
+                                  radius, height) > p.near_gap:
+                self.counters.inc("proximity_pause_ended")
+                ctl.go_on(now)
 
     def _plans_keep_apart(self, closing: Closing, radius: float, height: float, now: float) -> bool:
         """Whether the mover and the other body of `closing` both keep to their plans of one mission
         and these keep them apart until the mover could have stopped (`plan_clearance.py`): the
         mover goes on. Off with `ProximityParams.trust_plans`."""
         p = self.bodies.params
-        ctl = self.controllers[closing.mover]
-        clock = ctl.plan_clock(now)
-        if not p.trust_plans or clock is None or ctl.trajectory is None:
+        if not p.trust_plans:
             return False
-        mission, rel, pace = clock
-        other = self._keeping_to_plan(closing.other, mission, now)
-        if other is None:
-            return False
-        rows = [self.bodies.rows[closing.mover], self.bodies.rows[closing.other]]
-        pos, vel = self.bodies.pos[rows], self.bodies.vel[rows]
-        speed = max(float(np.sqrt(np.einsum("bx,bx->b", vel, vel)).sum()), closing.speed)
-        taus = np.linspace(0.0, closing.react + float(self.bodies.stop_time(speed)), 2 * p.samples + 1)
-        ways = [on_its_way(way, pos[k], vel[k], rel, pace, taus, ctl.model.margin, p.velocity_s, closing.react, p.hold_s)
-                for k, way in enumerate((ctl.trajectory, other))]
-        gap = nearest(*ways, radius, height)
+        gap = self._gap_on_plans(closing.mover, closing.other, closing.react, closing.speed, now, None, radius, height)
         if gap > p.near_gap and (closing.mover, closing.other) not in self._spared:
             self._spared.add((closing.mover, closing.other))
             log.info("%s: goes on past %s, both keeping to plans that keep them %.1f cm apart", closing.mover,
                      closing.other, 100 * gap)
         return gap > p.near_gap
+
+    def _gap_on_plans(self, mover: str, other: str, react: float, speed: float, now: float, pace: float | None,
+                      radius: float, height: float) -> float:
+        """How near (m, `plan_clearance.nearest`) the bodies of `mover` (owned) and `other` come going
+        on along their plans of one mission (`on_its_way`; at `pace`, or their clock's) until a
+        closing at `speed` (at least; m/s) could have been stopped after `react` s; -inf when
+        either keeps to no plan of that mission (`_keeping_to_plan`)."""
+        p = self.bodies.params
+        ctl = self.controllers[mover]
+        clock = ctl.plan_clock(now)
+        if clock is None or ctl.trajectory is None or mover not in self.bodies.rows or other not in self.bodies.rows:
+            return -math.inf
+        mission, rel, own_pace = clock
+        way = self._keeping_to_plan(other, mission, now)
+        if way is None:
+            return -math.inf
+        rows = [self.bodies.rows[mover], self.bodies.rows[other]]
+        pos, vel = self.bodies.pos[rows], self.bodies.vel[rows]
+        speed = max(float(np.sqrt(np.einsum("bx,bx->b", vel, vel)).sum()), speed)
+        taus = np.linspace(0.0, react + float(self.bodies.stop_time(speed)), 2 * p.samples + 1)
+        pace = own_pace if pace is None else pace
+        ways = [on_its_way(w, pos[k], vel[k], rel, pace, taus, ctl.model.margin, p.velocity_s, react, p.hold_s)
+                for k, w in enumerate((ctl.trajectory, way))]
+        return nearest(*ways, radius, height)
 
     def _keeping_to_plan(self, vid: str, mission: str, now: float) -> Trajectory | None:
         """`vid`'s reference if it keeps to its plan in `mission`: an owned vehicle by its controller

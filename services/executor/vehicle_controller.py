@@ -13,6 +13,7 @@ import logging
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import msgspec
 import numpy as np
@@ -71,6 +72,8 @@ def _still(t: float, est: Estimate, yaw: float) -> RefSample:
 
 MOVING = frozenset({Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING})
 """Modes in which a vehicle moves on its plan (`VehicleController.motion`)."""
+PAUSABLE = frozenset({Mode.DRIVING, Mode.FLYING})
+"""Modes in which a vehicle on its plan may pause (`VehicleController.pause`): not in its spot's column."""
 IN_ITS_COLUMN = frozenset({Mode.TAKING_OFF, Mode.LANDING})
 """Modes in which a vehicle on its plan moves up or down its spot's column."""
 PAST_PLAN = frozenset({Mode.DONE, Mode.EMERGENCY_LANDING})
@@ -106,6 +109,14 @@ on the delay: in the closed loop with its commands acting 40 ms late on 30 ms ol
 peak to peak at up to 0.24 m/s, 60 ms late 15 cm; led by 50 ms, 0.4 and 4.4 cm; led with no
 delay to lead, 0.2 cm (unled 0.3; `tests/test_closed_loop.py`). An 80-vehicle soak's flyers swung
 +-3 cm at 0.3 m/s, and the proximity stop held them for it (docs/reliability.md)."""
+
+
+class Pause(NamedTuple):
+    """A proximity pause (`VehicleController.pause`): why, for which other vehicle, since when (s)."""
+
+    why: str
+    other: str
+    since: float
 
 
 @dataclass(frozen=True)
@@ -197,6 +208,8 @@ class VehicleController:
         self.pursuit = PurePursuit(self.params.wheels, self.params.pursuit)
         self.machine = ModeMachine(vid)
         self.plan: VehiclePlan | None = None
+        self.pauses = 0
+        """Proximity pauses so far (`pause`)."""
         self.holds = 0
         """Holds so far, each one to be reported (a refused return into the plan counts again:
         the mission had planned the others as if it came back)."""
@@ -231,6 +244,9 @@ class VehicleController:
         self._abort: str | None = None
         self._last_tick: float | None = None
         self._guard_since: float | None = None  # since when the tracking error is past the margin
+        self._paused: Pause | None = None  # the proximity pause (`pause`)
+        self._pause_ref: RefSample | None = None  # where a paused flyer hovers, from its first tick paused
+        self._pause_here = False  # paused, it stays where it stopped (not yet back onto its standing plan)
         self._guard_from = 0.0  # the guard sleeps until then (after a take-over)
         self.held: str | None = None
         """Why the tracking guard holds the vehicle (None: it does not)."""
@@ -460,6 +476,8 @@ class VehicleController:
             return None
         if self._hover_ref is not None:
             return self._waiting or self._hover_ref
+        if self._pause_ref is not None:
+            return self._pause_ref
         p = self.pace
         ref = self._active.sample(self._rel(now) + ahead * p)
         if p >= 1.0:
@@ -534,6 +552,8 @@ class VehicleController:
             if self._yield is not None and ref is not None:
                 self._hold(now, est, ref, self._yield, rejoinable=True)
                 return
+            if self._still_paused(est, ref):
+                return
             if self._guard(now, est, ref):
                 return
             self._follow_plan(now, rel, est)
@@ -547,6 +567,8 @@ class VehicleController:
             return  # stopped until the mission brings it back (`_take_back`), if it does
         if self._yield is not None and ref is not None:
             self._hold(now, est, ref, self._yield, rejoinable=True)
+            return
+        if self._still_paused(est, ref):
             return
         if m.mode == Mode.DRIVING and self._guard(now, est, ref):
             return
@@ -572,6 +594,9 @@ class VehicleController:
         `ClockParams.max_wait_s` is held (the tracking guard's hold: reported, the mission plans
         around it), rejoinable if stopped by a fault that may clear."""
         c, mode = self.params.clock, self.machine.mode
+        if self._paused is not None:
+            self.clock_pace = 0.0
+            return
         error = None
         if ((mode in MOVING or mode == Mode.HOLDING) and c.enabled and ref is not None and self._hover_ref is None
                 and now >= self._guard_from and self._may_yield()):
@@ -688,6 +713,7 @@ class VehicleController:
         clear, or held late on its plan's way: `_on_its_way`) the mission brings it back."""
         self.held, self.rejoinable = why, rejoinable
         self.holds += 1
+        self._paused = self._pause_ref = None
         if self.machine.airborne:
             self._hover_ref = self._hover_here(ref.t, est)
             self.machine.request(Mode.HOVERING, now, why)
@@ -845,6 +871,57 @@ class VehicleController:
         self._yield = why
         return True
 
+    def pause(self, why: str, other: str, now: float) -> bool:
+        """The proximity pause (`ExecutorService._stop_short`): this vehicle, driving or flying on
+        its plan, heads into `other`, which keeps to its plan of the same mission (`why`): it stops
+        where it is (at its next tick: hovering there, or its wheels stopped; `back_onto_plan`
+        later) and keeps its plan's
+        clock standing (`clock_pace` 0 from now: its executor's clock stops in this cycle, the
+        others' as they hear it), so that every vehicle of the mission stands where its plan has it
+        at one time, which keeps them apart, until its executor lets it go on (`go_on`) or holds it
+        (`stop_short`). Not reported: it stays in the mission, on its plan. Whether it is paused
+        (not in a take-off or landing, nor when it may not be held: `_may_yield`)."""
+        if self._paused is not None:
+            return True
+        if (not self._may_yield() or self.machine.mode not in PAUSABLE or self._hover_ref is not None
+                or self._active is not self.trajectory):
+            return False
+        self._paused, self._pause_here = Pause(why, other, now), True
+        self.clock_pace = 0.0
+        self.pauses += 1
+        log.info("%s: pauses, its plan's clock standing: %s", self.vid, why)
+        return True
+
+    @property
+    def paused(self) -> Pause | None:
+        """The proximity pause the vehicle is in (`pause`), or None."""
+        return self._paused
+
+    def back_onto_plan(self) -> None:
+        """Paused (`pause`), it leaves the place where it stopped for the one its plan has it at
+        (its clock standing, every other vehicle of the mission has come to its plan's place too)."""
+        self._pause_here, self._pause_ref = False, None
+
+    def go_on(self, now: float) -> None:
+        """End the proximity pause: the vehicle follows its plan again, and its clock runs as it
+        lets it (`_pace_clock`)."""
+        if self._paused is not None:
+            log.info("%s: goes on after a pause of %.2f s for %s", self.vid, now - self._paused.since,
+                     self._paused.other)
+        self._paused = self._pause_ref = None
+
+    def _still_paused(self, est: Estimate, ref: RefSample | None) -> bool:
+        """Whether the vehicle is paused (`pause`) at this tick; a flyer hovers where it was at the
+        first tick paused. A pose gone stale ends the pause: the fault's own handling takes over."""
+        if self._paused is None:
+            return False
+        if est.stale or ref is None:
+            self._paused = self._pause_ref = None
+            return False
+        if self._pause_here and self._pause_ref is None and self.machine.airborne:
+            self._pause_ref = _still(ref.t, est, est.yaw)
+        return True
+
     def _follow_plan(self, now: float, rel: float, est: Estimate) -> None:
         traj = self._active
         assert traj is not None
@@ -981,6 +1058,8 @@ class VehicleController:
             return sp
         if mode == Mode.EMERGENCY_LANDING:
             return self._emergency(now, est)
+        if mode == Mode.DRIVING and self._paused is not None and self._pause_here:
+            return StopSetpoint()  # (where it is: pure pursuit would drive on to its plan's place)
         if mode == Mode.DRIVING and ref is not None and not est.stale:
             assert self._active is not None
             turn = self._turn_in_wait(est, ref)
