@@ -293,6 +293,12 @@ HANDLINGS: tuple[Handling, ...] = (
               "            if False:\n"),),
         "tests/test_plan_clearance.py::test_two_flyers_on_plans_that_cross_at_their_margin_go_on[True]"),
     Handling(
+        "a proximity stop for a vehicle keeping to its plan paused on the mission's clock",
+        "executor: a proximity stop holds the vehicle for the rest of the mission (the others planned around it)",
+        (Edit("services/executor/service.py", "            if self._may_pause(closing.mover, closing.other, now):\n",
+              "            if False:\n"),),
+        "tests/test_proximity_pause.py::test_a_flyer_heading_into_one_blown_off_its_plan_pauses_and_goes_on"),
+    Handling(
         "a stranded vehicle's goal asked for again",
         "mission: a goal a replan left out of reach stays so for the mission",
         (Edit("services/mission/runner.py",

@@ -11,82 +11,16 @@ import numpy as np
 import pytest
 
 from common.bus.keys import Keys
-from common.bus.messages import FramePose, PlanStep, PoseFrame, VehicleState
+from common.bus.messages import PlanStep, VehicleState
 from common.bus.session import ZenohConfig
-from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
 from services.executor.plan_clearance import drift_time, nearest, on_its_way
 from services.executor.proximity import Closing, ProximityParams
 from services.executor.service import STATE_FRESH_S, ExecutorService
 from services.executor.trajectory import Trajectory
 from services.executor.vehicle_controller import VehicleController
-from services.sim.crazyflie.physics import SimFlyingCar
-from tests.support.closed_loop import Mocap, plan_for, reference_steps, run
-from tests.support.sent import SentMessages
-
-MODEL = VehicleModel(margin=0.03)
-GX, GY = -1.0, 0.0
-DT = 0.01
-CROSSING = (1.4, 0.45)
-"""Where the two flyers' ways cross: cf1 flies along +x (the reference plan's flight), cf2 along +y."""
-AHEAD_S = 0.57
-"""s by which cf2 crosses before cf1: at 0.3 m/s each their centres come 0.121 m near, their bodies
-(radius 0.045) 3.1 cm: the plans' 3 cm margin."""
-
-
-def crossing_steps() -> dict[str, list[PlanStep]]:
-    """cf1's reference plan, and cf2's: the same turned a quarter about `CROSSING` (its flight along
-    +y through it) and AHEAD_S s earlier after its first wait."""
-    steps = reference_steps(MODEL)
-    cx, cy = CROSSING
-
-    def turned(s: PlanStep, k: int) -> PlanStep:
-        x, y, z = s.pos
-        return msgspec.structs.replace(s, pos=(cx - (y - cy), cy + (x - cx), z), t=s.t - AHEAD_S * (k > 0))
-    return {"cf1": steps, "cf2": [turned(s, k) for k, s in enumerate(steps)]}
-
-
-def fly_crossing(trust: bool, hold_cf2_at: float | None = None, react: float = 0.1, pause: bool = True,
-                 gust: float = 0.0) -> tuple[ExecutorService, float]:
-    """Both flyers in one executor, judged by its proximity stop every cycle on their bodies in
-    ground truth, their plan's clock run by it, until cf1 is past the crossing (or held): the
-    executor and the nearest their bodies came (m, ground truth). `hold_cf2_at`: cf2 stops short
-    that far (m) before the crossing, as a vehicle its executor holds; `gust`: cf2 is blown
-    towards cf1's side at that acceleration (m/s^2) as it comes to the crossing."""
-    svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("clearance"),
-                          proximity=ProximityParams(trust_plans=trust, pause=pause))
-    svc._delay = SentMessages()  # (one executor: its clock's delay told to no one)
-    svc.stats.add_latency(react, react)  # a loaded executor's pose-to-command p99 (80-vehicle soaks: 0.07-0.1 s)
-    radius, height = MODEL.body()
-    loops = []
-    for k, (vid, steps) in enumerate(crossing_steps().items()):
-        sim = SimFlyingCar(vid, MODEL, pos=steps[0].pos, yaw=0.0)
-        ctrl = svc.controllers[vid] = VehicleController(vid, MODEL, owner="e1")
-        ctrl.load(plan := plan_for(vid, steps, MODEL, t0=0.5))
-        svc.plans[vid] = plan
-        loops.append((ctrl, sim, Mocap(seed=k)))
-    (_, sim1, _), (cf2, sim2, _) = loops
-    a1 = next(s for s in crossing_steps()["cf1"] if s.node == "a1")
-    end = 0.5 + a1.t + (CROSSING[0] - a1.pos[0] + 0.4) / 0.3
-    closest = math.inf
-    k = 0
-    while sim1.t < end:
-        now = sim1.t
-        svc.bodies.update(PoseFrame(t=now, seq=k, poses=[FramePose(s.vid, s.x, s.y, s.z, 0.0) for _c, s, _m in loops]))
-        svc.bodies.settle(now)
-        if hold_cf2_at is not None and not cf2.held and sim2.z > 0.4 and CROSSING[1] - sim2.y < hold_cf2_at:
-            assert cf2.stop_short("held by its executor")
-        if gust and sim2.z > 0.4 and abs(CROSSING[1] - 0.12 - sim2.y) < 0.005:
-            sim2.push(GX * gust, GY * gust, now + 0.2)
-        svc._end_pauses(now)
-        svc._stop_short(now)
-        svc._run_clocks(now)
-        for ctrl, sim, mocap in loops:
-            run(ctrl, sim, now + DT, mocap=mocap)
-        if abs(sim1.z - sim2.z) < height:
-            closest = min(closest, math.hypot(sim1.x - sim2.x, sim1.y - sim2.y) - 2 * radius)
-        k += 1
-    return svc, closest
+from tests.support.closed_loop import plan_for
+from tests.support.crossing import MODEL, crossing_steps, fly_crossing
 
 
 @pytest.mark.parametrize("trust", [True, False])
@@ -95,7 +29,7 @@ def test_two_flyers_on_plans_that_cross_at_their_margin_go_on(trust: bool) -> No
     the motion capture alone, cf2 at the crossing stands in cf1's way, and cf1 stopped short
     (each of four failed 80-vehicle soaks began with such a stop, 2026-12-07); judged on the
     plans, both keep to theirs and go on, and in ground truth their bodies never touch."""
-    svc, closest = fly_crossing(trust, pause=False)
+    svc, closest = fly_crossing(ProximityParams(trust_plans=trust, pause=False))
     cf1, cf2 = svc.controllers["cf1"], svc.controllers["cf2"]
     if not trust:
         assert cf1.held and "stops short of cf2" in cf1.held, cf1.held
@@ -108,7 +42,7 @@ def test_two_flyers_on_plans_that_cross_at_their_margin_go_on(trust: bool) -> No
 def test_a_flyer_crossing_the_way_of_one_held_off_its_plan_stops_short() -> None:
     """cf2 is held hovering 2 cm before the crossing (its plan goes on without it): it keeps to no
     plan, and cf1 is judged as before: it stops short, and in ground truth they never touch."""
-    svc, closest = fly_crossing(True, hold_cf2_at=0.02)
+    svc, closest = fly_crossing(ProximityParams(), hold_cf2_at=0.02)
     cf1 = svc.controllers["cf1"]
     assert cf1.held and "stops short of cf2" in cf1.held, cf1.held
     assert closest > 0.0, closest

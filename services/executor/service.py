@@ -583,12 +583,14 @@ class ExecutorService(Service):
         p = self.bodies.params
         for vid, ctl in self.controllers.items():
             pause = ctl.paused
-            if pause is None or now - pause.since < p.pause_settle_s:
+            if pause is None:
                 continue
             if now - pause.since >= p.pause_max_s:
                 self.counters.inc("proximity_pause_held")
                 ctl.go_on(now)
                 ctl.stop_short(f"{pause.why}; paused {now - pause.since:.1f} s, the plans not keeping the two apart")
+                continue
+            if now - pause.since < p.pause_settle_s:
                 continue
             ctl.back_onto_plan()
             m = ctl.model

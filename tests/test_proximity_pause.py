@@ -1,0 +1,94 @@
+"""The proximity pause (issue 15, `ExecutorService._stop_short`, `VehicleController.pause`): a
+vehicle that heads into another keeping to its plan of the same mission stops where it is and
+stands the mission's plan clock, instead of being held and planned around; every vehicle comes to
+its plan's place of one time, which keeps them apart, and the paused one goes on when the two plans
+are judged to keep them apart from there. Judged in ground truth."""
+
+from __future__ import annotations
+
+import math
+
+from common.bus.keys import Keys
+from common.bus.session import ZenohConfig
+from common.domain.vehicle_model import VehicleModel
+from common.flight.modes import Mode
+from services.executor.proximity import ProximityParams
+from services.executor.service import ExecutorService
+from services.executor.vehicle_controller import VehicleController
+from services.sim.crazyflie.physics import SimFlyingCar
+from tests.support.closed_loop import Mocap, plan_for, reference_steps, run
+from tests.support.crossing import fly_crossing
+from tests.support.sent import SentMessages
+
+BLOWN = (-2.0, 0.0)
+"""m/s^2: cf2 blown towards cf1's side of the crossing, 12 cm before it, for 0.2 s: it passes
+about 2 cm nearer cf1's way than its plan, and judged on the plans too cf1 would touch it."""
+
+
+def test_a_flyer_heading_into_one_blown_off_its_plan_pauses_and_goes_on() -> None:
+    """cf1 heads into cf2, blown off its plan: it pauses, the plan's clock stands while cf2 comes
+    back to its plan's place, and cf1 goes on along its plan; neither is held (the mission plans
+    no one around), and in ground truth their bodies never touch."""
+    svc, closest = fly_crossing(ProximityParams(), gust=BLOWN)
+    cf1, cf2 = svc.controllers["cf1"], svc.controllers["cf2"]
+    assert not cf1.held and not cf2.held, (cf1.held, cf2.held)
+    assert (cf1.pauses, cf2.pauses) == (1, 0)
+    assert svc.counters.get("proximity_paused") == svc.counters.get("proximity_pause_ended") == 1
+    assert cf1.paused is None and cf1.mode == Mode.FLYING
+    assert 0.3 < cf1.delay < 2.0, cf1.delay  # the plan's clock stood for the pause
+    assert closest > 0.01, closest
+
+
+def test_without_the_pause_the_same_closing_holds_the_flyer() -> None:
+    """The same flight with the pause off: cf1 stops short of cf2 and is held for good (the
+    mission would plan the others around it), and the plan's clock never stood."""
+    svc, closest = fly_crossing(ProximityParams(pause=False), gust=BLOWN)
+    cf1 = svc.controllers["cf1"]
+    assert cf1.held and "stops short of cf2" in cf1.held, cf1.held
+    assert cf1.pauses == 0 and cf1.delay == 0.0
+    assert closest > 0.01, closest
+
+
+def test_a_pause_not_ended_in_time_becomes_the_hold() -> None:
+    """A pause the plans have not ended within `pause_max_s` holds the vehicle, as the proximity
+    stop would have, with why."""
+    svc, closest = fly_crossing(ProximityParams(pause_settle_s=1.0, pause_max_s=0.3), gust=BLOWN)
+    cf1 = svc.controllers["cf1"]
+    assert cf1.held and "stops short of cf2" in cf1.held and "paused 0.3 s" in cf1.held, cf1.held
+    assert svc.counters.get("proximity_pause_held") == 1 and svc.counters.get("proximity_pause_ended") is None
+    assert cf1.paused is None
+    assert closest > 0.01, closest
+
+
+def test_a_driver_paused_stops_where_it_is_and_drives_on_from_there() -> None:
+    """A driver paused on its road stops its wheels where it is and stands its plan's clock (its
+    executor's delay grows as long as it pauses); let go, it follows its plan again and keeps
+    within its margin of it."""
+    model = VehicleModel(margin=0.03)
+    svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("pause"))
+    svc._delay = SentMessages()  # (one executor: its clock's delay told to no one)
+    ctl = svc.controllers["cf1"] = VehicleController("cf1", model, owner="e1")
+    ctl.load(plan := plan_for("cf1", reference_steps(model), model, t0=0.5))
+    svc.plans["cf1"] = plan
+    sim, mocap = SimFlyingCar("cf1", model, pos=(0.0, 0.0, 0.0), yaw=0.0), Mocap()
+    paused_at = resumed_at = None
+    errors = []
+    while sim.t < 7.0:
+        now = sim.t
+        if paused_at is None and now >= 5.0:
+            assert ctl.mode == Mode.DRIVING and ctl.pause("for a test", "cf2", now)
+            paused_at = (sim.x, sim.y)
+        if resumed_at is None and now >= 6.0:
+            ctl.back_onto_plan()
+            ctl.go_on(now)
+            resumed_at, delay = (sim.x, sim.y), ctl.delay
+        svc._run_clocks(now)
+        run(ctl, sim, now + 0.01, mocap=mocap)
+        if resumed_at is not None and (ref := ctl.reference(sim.t)) is not None:
+            errors.append(math.hypot(sim.x - ref.x, sim.y - ref.y))
+    assert paused_at is not None and resumed_at is not None
+    assert math.dist(paused_at, resumed_at) < 0.01, (paused_at, resumed_at)  # 0.1 m/s, stopped within a centimetre
+    assert 0.95 < delay < 1.05, delay  # the clock stood for the second paused
+    assert ctl.mode == Mode.DRIVING and ctl.paused is None and not ctl.held
+    assert sim.x > resumed_at[0] + 0.05  # it drove on along its road
+    assert max(errors) < model.margin, max(errors)
