@@ -324,7 +324,9 @@ def report(log: SoakLog, seconds: float) -> str:
                      f"{f.get('pose_to_cmd_max_ms', 0):.0f} ms, from the bridge p50/p99 "
                      f"{f.get('frame_to_cmd_p50_ms', 0):.1f}/{f.get('frame_to_cmd_p99_ms', 0):.1f} ms, poses "
                      f"rejected {f.get('poses_rejected', 0):.0f} (estimator restarts {f.get('estimator_restarts', 0):.0f}), "
-                     f"slowed by its latency {f.get('slowed_cycles', 0):.0f} cycles")
+                     f"slowed by its latency {f.get('slowed_cycles', 0):.0f} cycles; proximity stops spared by the plans "
+                     f"{st.counters.get('proximity_kept_apart_by_plans', 0)}, pauses {st.counters.get('proximity_paused', 0)} "
+                     f"(ended {st.counters.get('proximity_pause_ended', 0)}, held {st.counters.get('proximity_pause_held', 0)})")
         elif st.service == "sim":
             extra = (f"truth behind {st.counters.get('truth_behind', 0)}x, watchdog level/cut "
                      f"{f.get('watchdog_levels', 0):.0f}/{f.get('watchdog_cuts', 0):.0f}, radio lost "
