@@ -52,11 +52,30 @@ def test_without_the_pause_the_same_closing_holds_the_flyer() -> None:
 def test_a_pause_not_ended_in_time_becomes_the_hold() -> None:
     """A pause the plans have not ended within `pause_max_s` holds the vehicle, as the proximity
     stop would have, with why."""
-    svc, closest = fly_crossing(ProximityParams(pause_settle_s=1.0, pause_max_s=0.3), gust=BLOWN)
+    svc, closest = fly_crossing(ProximityParams(pause_settle_s=0.3, pause_max_s=0.3), gust=BLOWN)
     cf1 = svc.controllers["cf1"]
     assert cf1.held and "stops short of cf2" in cf1.held and "paused 0.3 s" in cf1.held, cf1.held
     assert svc.counters.get("proximity_pause_held") == 1 and svc.counters.get("proximity_pause_ended") is None
     assert cf1.paused is None
+    assert closest > 0.01, closest
+
+
+def test_a_pause_for_a_vehicle_held_meanwhile_becomes_the_hold() -> None:
+    """cf2 is held by its executor while cf1, paused for it, stands (0.3 s into the pause): the
+    clock standing brings cf2 back to no place of its plan, so cf1 is held too once its pause has
+    settled (the mission plans the others around both at once), with why; in ground truth they
+    never touch."""
+    def hold_cf2(svc: ExecutorService, now: float) -> None:
+        cf1, cf2 = svc.controllers["cf1"], svc.controllers["cf2"]
+        if cf1.paused is not None and now - cf1.paused.since > 0.3 and not cf2.held:
+            assert cf2.stop_short("held by its executor")
+
+    svc, closest = fly_crossing(ProximityParams(), gust=BLOWN, on_cycle=hold_cf2)
+    cf1, cf2 = svc.controllers["cf1"], svc.controllers["cf2"]
+    assert cf2.held == "held by its executor"
+    assert cf1.held and "stops short of cf2" in cf1.held and "cf2 keeping to no plan now" in cf1.held, cf1.held
+    assert "paused 0.5 s" in cf1.held, cf1.held  # as soon as it settled
+    assert svc.counters.get("proximity_pause_held") == 1 and svc.counters.get("proximity_pause_ended") is None
     assert closest > 0.01, closest
 
 

@@ -889,7 +889,7 @@ class VehicleController:
         self._paused, self._pause_here = Pause(why, other, now), True
         self.clock_pace = 0.0
         self.pauses += 1
-        log.info("%s: pauses, its plan's clock standing: %s", self.vid, why)
+        log.warning("%s: pauses, its plan's clock standing: %s", self.vid, why)
         return True
 
     @property
@@ -906,7 +906,7 @@ class VehicleController:
         """End the proximity pause: the vehicle follows its plan again, and its clock runs as it
         lets it (`_pace_clock`)."""
         if self._paused is not None:
-            log.info("%s: goes on after a pause of %.2f s for %s", self.vid, now - self._paused.since,
+            log.warning("%s: goes on after a pause of %.2f s for %s", self.vid, now - self._paused.since,
                      self._paused.other)
         self._paused = self._pause_ref = None
 

@@ -4,6 +4,7 @@ proximity stop and plan clock (`tests/test_plan_clearance.py`, `tests/test_proxi
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import msgspec
 
@@ -40,12 +41,14 @@ def crossing_steps() -> dict[str, list[PlanStep]]:
 
 
 def fly_crossing(proximity: ProximityParams, hold_cf2_at: float | None = None, react: float = 0.1,
-                 gust: tuple[float, float] = (0.0, 0.0)) -> tuple[ExecutorService, float]:
+                 gust: tuple[float, float] = (0.0, 0.0),
+                 on_cycle: Callable[[ExecutorService, float], None] | None = None) -> tuple[ExecutorService, float]:
     """Both flyers in one executor, judged by its proximity stop every cycle on their bodies in
     ground truth, their plan's clock run by it, until cf1 is past the crossing (or held): the
     executor and the nearest their bodies came (m, ground truth). `hold_cf2_at`: cf2 stops short
     that far (m) before the crossing, as a vehicle its executor holds; `gust`: cf2 is blown at
-    that acceleration (m/s^2, world x and y) for 0.2 s from 12 cm before the crossing."""
+    that acceleration (m/s^2, world x and y) for 0.2 s from 12 cm before the crossing; `on_cycle(svc,
+    now)` runs before each cycle's proximity stop."""
     svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("clearance"),
                           proximity=proximity)
     svc._delay = SentMessages()  # (one executor: its clock's delay told to no one)
@@ -71,6 +74,8 @@ def fly_crossing(proximity: ProximityParams, hold_cf2_at: float | None = None, r
             assert cf2.stop_short("held by its executor")
         if any(gust) and sim2.z > 0.4 and abs(CROSSING[1] - 0.12 - sim2.y) < 0.005:
             sim2.push(*gust, now + 0.2)
+        if on_cycle is not None:
+            on_cycle(svc, now)
         svc._end_pauses(now)
         svc._stop_short(now)
         svc._run_clocks(now)
