@@ -79,10 +79,30 @@ def test_a_pause_for_a_vehicle_held_meanwhile_becomes_the_hold() -> None:
     assert closest > 0.01, closest
 
 
+def test_a_paused_flyer_whose_mission_is_aborted_lands_and_stands_its_clock_no_more() -> None:
+    """cf1's mission is aborted while it pauses: the abort's landing goes on (a fault landing is
+    not paused) and its plan's clock runs again; in ground truth they never touch."""
+    aborted: list[float] = []
+
+    def abort_cf1(svc: ExecutorService, now: float) -> None:
+        cf1 = svc.controllers["cf1"]
+        if cf1.paused is not None and not aborted:
+            cf1.abort("the mission is aborted")
+            aborted.append(svc.clocks["sim"].delay)
+
+    svc, closest = fly_crossing(ProximityParams(), gust=BLOWN, on_cycle=abort_cf1)
+    cf1 = svc.controllers["cf1"]
+    assert aborted and cf1.paused is None and cf1.clock_pace == 1.0
+    assert cf1.mode in (Mode.LANDING, Mode.DONE), cf1.mode
+    assert svc.clocks["sim"].delay - aborted[0] < 0.1  # the clock stood no longer than the abort took
+    assert closest > 0.01, closest
+
+
 def test_a_driver_paused_stops_where_it_is_and_drives_on_from_there() -> None:
     """A driver paused on its road stops its wheels where it is and stands its plan's clock (its
     executor's delay grows as long as it pauses); let go, it follows its plan again and keeps
-    within its margin of it."""
+    within its margin of it. Paused again for the same vehicle within `REPAUSE_S`, the pause
+    continues the last one (its time from that one's start); for another, it starts anew."""
     model = VehicleModel(margin=0.03)
     svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("pause"))
     svc._delay = SentMessages()  # (one executor: its clock's delay told to no one)
@@ -92,11 +112,11 @@ def test_a_driver_paused_stops_where_it_is_and_drives_on_from_there() -> None:
     sim, mocap = SimFlyingCar("cf1", model, pos=(0.0, 0.0, 0.0), yaw=0.0), Mocap()
     paused_at = resumed_at = None
     errors = []
-    while sim.t < 7.0:
+    while sim.t < 6.8:
         now = sim.t
         if paused_at is None and now >= 5.0:
             assert ctl.mode == Mode.DRIVING and ctl.pause("for a test", "cf2", now)
-            paused_at = (sim.x, sim.y)
+            paused_at, first = (sim.x, sim.y), now
         if resumed_at is None and now >= 6.0:
             ctl.back_onto_plan()
             ctl.go_on(now)
@@ -111,3 +131,8 @@ def test_a_driver_paused_stops_where_it_is_and_drives_on_from_there() -> None:
     assert ctl.mode == Mode.DRIVING and ctl.paused is None and not ctl.held
     assert sim.x > resumed_at[0] + 0.05  # it drove on along its road
     assert max(errors) < model.margin, max(errors)
+    now = sim.t
+    assert ctl.pause("again", "cf2", now) and ctl.paused is not None
+    assert (ctl.paused.since, ctl.paused.stopped) == (first, now), ctl.paused  # (0.8 s after going on)
+    ctl.go_on(now)
+    assert ctl.pause("for another", "cf3", now) and ctl.paused is not None and ctl.paused.since == now

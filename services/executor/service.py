@@ -574,26 +574,26 @@ class ExecutorService(Service):
                 and self._keeping_to_plan(other, clock[0], now) is not None)
 
     def _end_pauses(self, now: float) -> None:
-        """Every owned vehicle paused (`VehicleController.pause`) for at least `pause_settle_s`
-        goes back onto its plan's place (the others have come to theirs meanwhile), and goes on
-        once its plan and the other vehicle's keep them apart from where they stand, both
-        going on at full pace (`_gap_on_plans`, over the look-ahead of a closing at the two
-        vehicles' fastest); one paused for `pause_max_s`, or whose other vehicle keeps to its plan
-        no more (held, landing after a fault: the clock standing brings it back to no place of its
-        plan), is held instead, as it would have been without the pause."""
+        """Every owned vehicle stopped by its pause (`VehicleController.pause`) at least
+        `pause_settle_s` ago goes back onto its plan's place (the others have come to theirs
+        meanwhile), and goes on once its plan and the other vehicle's keep them apart from where
+        they stand, both going on at full pace (`_gap_on_plans`, over the look-ahead of a closing
+        at the two vehicles' fastest); one paused for `pause_max_s` (the pauses it continues
+        counted), or whose other vehicle keeps to its plan no more (held, landing after a fault:
+        the clock standing brings it back to no place of its plan), is held instead, as it would
+        have been without the pause."""
         p = self.bodies.params
         for vid, ctl in self.controllers.items():
             pause = ctl.paused
             if pause is None:
                 continue
-            if now - pause.since < p.pause_settle_s:
+            if now - pause.stopped < p.pause_settle_s:
                 continue
             clock = ctl.plan_clock(now)
             gone = clock is None or self._keeping_to_plan(pause.other, clock[0], now) is None
             if gone or now - pause.since >= p.pause_max_s:
                 self.counters.inc("proximity_pause_held")
-                ctl.go_on(now)
-                ctl.stop_short(f"{pause.why}; paused {now - pause.since:.1f} s, "
+                ctl.stop_short(f"{pause.why}; paused {now - pause.since:.1f} s, "  # (held at its next tick: the pause ends)
                                + (f"{pause.other} keeping to no plan now" if gone else "the plans not keeping the two apart"))
                 continue
             ctl.back_onto_plan()

@@ -72,6 +72,8 @@ def _still(t: float, est: Estimate, yaw: float) -> RefSample:
 
 MOVING = frozenset({Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING})
 """Modes in which a vehicle moves on its plan (`VehicleController.motion`)."""
+REPAUSE_S = 1.0
+"""s after going on from a pause within which another for the same vehicle continues it (`VehicleController.pause`)."""
 PAUSABLE = frozenset({Mode.DRIVING, Mode.FLYING})
 """Modes in which a vehicle on its plan may pause (`VehicleController.pause`): not in its spot's column."""
 IN_ITS_COLUMN = frozenset({Mode.TAKING_OFF, Mode.LANDING})
@@ -112,11 +114,13 @@ delay to lead, 0.2 cm (unled 0.3; `tests/test_closed_loop.py`). An 80-vehicle so
 
 
 class Pause(NamedTuple):
-    """A proximity pause (`VehicleController.pause`): why, for which other vehicle, since when (s)."""
+    """A proximity pause (`VehicleController.pause`): why, for which other vehicle, since when (s;
+    the first of the pauses it continues) and when its own stop began (s)."""
 
     why: str
     other: str
     since: float
+    stopped: float
 
 
 @dataclass(frozen=True)
@@ -247,6 +251,7 @@ class VehicleController:
         self._paused: Pause | None = None  # the proximity pause (`pause`)
         self._pause_ref: RefSample | None = None  # where a paused flyer hovers, from its first tick paused
         self._pause_here = False  # paused, it stays where it stopped (not yet back onto its standing plan)
+        self._last_pause: tuple[Pause, float] | None = None  # the last pause it went on from, and when
         self._guard_from = 0.0  # the guard sleeps until then (after a take-over)
         self.held: str | None = None
         """Why the tracking guard holds the vehicle (None: it does not)."""
@@ -501,8 +506,10 @@ class VehicleController:
         if self._active is not None and self.t0 is not None:
             active, ref = self._active, self.reference(now)
             self._supervise(now, self._rel(now), est, ref)
+            if self._paused is not None and not self._may_yield():  # it left its plan (a fault landing,
+                self._paused = self._pause_ref = None  # an abort, a hold): no pause, its clock runs on
             self._pace_clock(now, est, ref)
-            if self._active is not active or self._hover_ref is not None:
+            if self._active is not active or self._hover_ref is not None or self._pause_ref is not None:
                 ref = self.reference(now)
         setpoint = self._control(now, est, ref, before)
         self.charge_used_ah += self.model.charge_ah(self._power(ref), dt)
@@ -879,14 +886,20 @@ class VehicleController:
         clock standing (`clock_pace` 0 from now: its executor's clock stops in this cycle, the
         others' as they hear it), so that every vehicle of the mission stands where its plan has it
         at one time, which keeps them apart, until its executor lets it go on (`go_on`) or holds it
-        (`stop_short`). Not reported: it stays in the mission, on its plan. Whether it is paused
-        (not in a take-off or landing, nor when it may not be held: `_may_yield`)."""
+        (`stop_short`). Not reported: it stays in the mission, on its plan. A pause for the same
+        vehicle within `REPAUSE_S` of going on continues the last one: its time counts from that
+        one's start, so that pauses one after another stand the mission no longer than one
+        (an 80-vehicle soak's driver went on and paused again for the same car three times in 2
+        s). Whether it is paused (not in a take-off or landing, nor when it may not be held:
+        `_may_yield`)."""
         if self._paused is not None:
             return True
         if (not self._may_yield() or self.machine.mode not in PAUSABLE or self._hover_ref is not None
                 or self._active is not self.trajectory):
             return False
-        self._paused, self._pause_here = Pause(why, other, now), True
+        last, self._last_pause = self._last_pause, None
+        since = last[0].since if last is not None and last[0].other == other and now - last[1] < REPAUSE_S else now
+        self._paused, self._pause_here = Pause(why, other, since, now), True
         self.clock_pace = 0.0
         self.pauses += 1
         log.warning("%s: pauses, its plan's clock standing: %s", self.vid, why)
@@ -907,7 +920,8 @@ class VehicleController:
         lets it (`_pace_clock`)."""
         if self._paused is not None:
             log.warning("%s: goes on after a pause of %.2f s for %s", self.vid, now - self._paused.since,
-                     self._paused.other)
+                        self._paused.other)
+            self._last_pause = (self._paused, now)
         self._paused = self._pause_ref = None
 
     def _still_paused(self, est: Estimate, ref: RefSample | None) -> bool:
