@@ -882,11 +882,11 @@ class VehicleController:
         """The proximity pause (`ExecutorService._stop_short`): this vehicle, driving or flying on
         its plan, heads into `other`, which keeps to its plan of the same mission (`why`): it stops
         where it is (at its next tick: hovering there, or its wheels stopped; `back_onto_plan`
-        later) and keeps its plan's
-        clock standing (`clock_pace` 0 from now: its executor's clock stops in this cycle, the
-        others' as they hear it), so that every vehicle of the mission stands where its plan has it
-        at one time, which keeps them apart, until its executor lets it go on (`go_on`) or holds it
-        (`stop_short`). Not reported: it stays in the mission, on its plan. A pause for the same
+        later) and keeps its plan's clock standing (`clock_pace` 0 from now: its executor's clock
+        stops in this cycle, the others' as they hear it), so that every vehicle of the mission
+        stands where its plan has it at one time, which keeps them apart, until its executor lets
+        it go on (`go_on`) or holds it (`stop_short`). Not reported: it stays in the mission, on
+        its plan; leaving its plan (a fault landing, an abort, a hold) ends it. A pause for the same
         vehicle within `REPAUSE_S` of going on continues the last one: its time counts from that
         one's start, so that pauses one after another stand the mission no longer than one
         (an 80-vehicle soak's driver went on and paused again for the same car three times in 2
