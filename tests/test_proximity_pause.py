@@ -12,9 +12,10 @@ from common.bus.keys import Keys
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
 from common.flight.modes import Mode
+from common.flight.plan_clock import ClockParams
 from services.executor.proximity import ProximityParams
 from services.executor.service import ExecutorService
-from services.executor.vehicle_controller import VehicleController
+from services.executor.vehicle_controller import ControlParams, VehicleController
 from services.sim.crazyflie.physics import SimFlyingCar
 from tests.support.closed_loop import Mocap, plan_for, reference_steps, run
 from tests.support.crossing import fly_crossing
@@ -46,6 +47,16 @@ def test_without_the_pause_the_same_closing_holds_the_flyer() -> None:
     cf1 = svc.controllers["cf1"]
     assert cf1.held and "stops short of cf2" in cf1.held, cf1.held
     assert cf1.pauses == 0 and cf1.delay == 0.0
+    assert closest > 0.01, closest
+
+
+def test_without_the_plans_clock_the_same_closing_holds_the_flyer() -> None:
+    """On the wall clock (`fleet executor --no-plan-clock`) the plans would run on without a paused
+    vehicle: cf1 is held, as without the pause."""
+    svc, closest = fly_crossing(ProximityParams(), gust=BLOWN, control=ControlParams(clock=ClockParams(enabled=False)))
+    cf1 = svc.controllers["cf1"]
+    assert cf1.held and "stops short of cf2" in cf1.held, cf1.held
+    assert cf1.pauses == 0 and svc.counters.get("proximity_paused") is None
     assert closest > 0.01, closest
 
 

@@ -566,11 +566,12 @@ class ExecutorService(Service):
 
     def _may_pause(self, mover: str, other: str, now: float) -> bool:
         """Whether `mover` may pause for `other` rather than be held (`ProximityParams.pause`, with
-        `trust_plans`: a pause ends when the plans are judged to keep the two apart): both keep to
-        their plans of one mission (`_keeping_to_plan`)."""
+        `trust_plans`: a pause ends when the plans are judged to keep the two apart; and with the
+        plan's clock, `ClockParams.enabled`: on the wall clock the plans would run on without the
+        mover): both keep to their plans of one mission (`_keeping_to_plan`)."""
         clock = self.controllers[mover].plan_clock(now)
         p = self.bodies.params
-        return (p.pause and p.trust_plans and clock is not None
+        return (p.pause and p.trust_plans and self.control.clock.enabled and clock is not None
                 and self._keeping_to_plan(other, clock[0], now) is not None)
 
     def _end_pauses(self, now: float) -> None:

@@ -14,7 +14,7 @@ from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
 from services.executor.proximity import ProximityParams
 from services.executor.service import ExecutorService
-from services.executor.vehicle_controller import VehicleController
+from services.executor.vehicle_controller import ControlParams, VehicleController
 from services.sim.crazyflie.physics import SimFlyingCar
 from tests.support.closed_loop import Mocap, plan_for, reference_steps, run
 from tests.support.sent import SentMessages
@@ -42,22 +42,25 @@ def crossing_steps() -> dict[str, list[PlanStep]]:
 
 def fly_crossing(proximity: ProximityParams, hold_cf2_at: float | None = None, react: float = 0.1,
                  gust: tuple[float, float] = (0.0, 0.0),
-                 on_cycle: Callable[[ExecutorService, float], None] | None = None) -> tuple[ExecutorService, float]:
+                 on_cycle: Callable[[ExecutorService, float], None] | None = None,
+                 control: ControlParams | None = None) -> tuple[ExecutorService, float]:
     """Both flyers in one executor, judged by its proximity stop every cycle on their bodies in
     ground truth, their plan's clock run by it, until cf1 is past the crossing (or held): the
     executor and the nearest their bodies came (m, ground truth). `hold_cf2_at`: cf2 stops short
     that far (m) before the crossing, as a vehicle its executor holds; `gust`: cf2 is blown at
-    that acceleration (m/s^2, world x and y) for 0.2 s from 12 cm before the crossing; `on_cycle(svc,
-    now)` runs before each cycle's proximity stop."""
+    that acceleration (m/s^2, world x and y) for 0.2 s from 12 cm before the crossing;
+    `on_cycle(svc, now)` runs before each cycle's proximity stop; `control`: the executor's and
+    its controllers' (the defaults without)."""
+    control = control or ControlParams()
     svc = ExecutorService("e1", ZenohConfig.client("tcp/127.0.0.1:1"), Keys("clearance"),
-                          proximity=proximity)
+                          proximity=proximity, control=control)
     svc._delay = SentMessages()  # (one executor: its clock's delay told to no one)
     svc.stats.add_latency(react, react)  # a loaded executor's pose-to-command p99 (80-vehicle soaks: 0.07-0.1 s)
     radius, height = MODEL.body()
     loops = []
     for k, (vid, steps) in enumerate(crossing_steps().items()):
         sim = SimFlyingCar(vid, MODEL, pos=steps[0].pos, yaw=0.0)
-        ctrl = svc.controllers[vid] = VehicleController(vid, MODEL, owner="e1")
+        ctrl = svc.controllers[vid] = VehicleController(vid, MODEL, owner="e1", params=control)
         ctrl.load(plan := plan_for(vid, steps, MODEL, t0=0.5))
         svc.plans[vid] = plan
         loops.append((ctrl, sim, Mocap(seed=k)))
