@@ -22,6 +22,8 @@ from services.executor.vehicle_controller import VehicleController
 from tests.support.closed_loop import plan_for
 from tests.support.crossing import MODEL, crossing_steps, fly_crossing
 
+pytestmark = pytest.mark.compute  # (no service, no loop on the clock)
+
 
 @pytest.mark.parametrize("trust", [True, False])
 def test_two_flyers_on_plans_that_cross_at_their_margin_go_on(trust: bool) -> None:

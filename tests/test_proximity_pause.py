@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from common.bus.keys import Keys
 from common.bus.session import ZenohConfig
 from common.domain.vehicle_model import VehicleModel
@@ -20,6 +22,8 @@ from services.sim.crazyflie.physics import SimFlyingCar
 from tests.support.closed_loop import Mocap, plan_for, reference_steps, run
 from tests.support.crossing import fly_crossing
 from tests.support.sent import SentMessages
+
+pytestmark = pytest.mark.compute  # (no service, no loop on the clock)
 
 BLOWN = (-2.0, 0.0)
 """m/s^2: cf2 blown towards cf1's side of the crossing, 12 cm before it, for 0.2 s: it passes
@@ -138,7 +142,7 @@ def test_a_driver_paused_stops_where_it_is_and_drives_on_from_there() -> None:
             errors.append(math.hypot(sim.x - ref.x, sim.y - ref.y))
     assert paused_at is not None and resumed_at is not None
     assert math.dist(paused_at, resumed_at) < 0.01, (paused_at, resumed_at)  # 0.1 m/s, stopped within a centimetre
-    assert 0.95 < delay < 1.05, delay  # the clock stood for the second paused
+    assert 0.95 < delay < 1.05, delay  # the clock stood for the second it paused
     assert ctl.mode == Mode.DRIVING and ctl.paused is None and not ctl.held
     assert sim.x > resumed_at[0] + 0.05  # it drove on along its road
     assert max(errors) < model.margin, max(errors)
