@@ -349,16 +349,19 @@ CITY_32 = ("cf01:P2_3_0>P7_8_0 cf02:P9_6_1>P9_7_0 cf03:P1_0_1>P3_7_0 cf04:P4_3_1
 one flight came down, hit the crossing of a prefix's last step."""
 
 
-def test_a_replan_whose_vehicles_cross_a_prefix_is_planned_again_in_another_order(tmp_path: Path) -> None:
+def test_a_replan_whose_vehicles_cross_a_prefix_is_planned_again_in_another_order(tmp_path: Path, monkeypatch) -> None:
     """SIPP reserves a prefix's last step only once its vehicle is placed, so one placed earlier
     may cross it; the validator finds the contact and SIPP plans again with the later of the two
     first (a 32-vehicle soak's replan failed this way). In the last replan cf21's and cf25's
     prefixes end at g4_4 (8.9 s, 12.4 s): the first order now places cf25 first (`priority`) and is
-    valid; cf21 first, as that order did, it crossed cf25's last step."""
+    valid; cf21 first, as that order did, it now plans against cf25's last step into g4_4
+    (`replan._coming_near`) and is valid too; without that, it crossed cf25's last step, which is
+    what the validation and the next order are for."""
     from services.mission.sweeps import left_vehicle
     from services.planner.maps.generate import VEHICLE, city934, to_yaml
     from services.planner.maps.loading import load_graph
     from services.planner.registry import _replan_with
+    from services.planner.sipp import replan
 
     city = tmp_path / "city934.yaml"  # as the soak planned it: no turns budgeted at corners (sipp/turns.py)
     city.write_text(to_yaml(msgspec.structs.replace(city934(), vehicle=VEHICLE)))
@@ -373,13 +376,17 @@ def test_a_replan_whose_vehicles_cross_a_prefix_is_planned_again_in_another_orde
         req = PlanRequest(map=str(city), tasks={}, time_limit=1.0,
                           replan=Replan(base=plan, at=t + 1.0, left=[vid], sweeps=sweeps, strand=True))
         first, _ = _replan_with(load_graph(city), req, "sipp", 1.0)
-        once, later = _replan_with(load_graph(city), req, "sipp", 1.0, ["cf21"])
+        once, _ = _replan_with(load_graph(city), req, "sipp", 1.0, ["cf21"])
+        with monkeypatch.context() as m:
+            m.setattr(replan, "_coming_near", lambda graph, order: {})
+            blind, later = _replan_with(load_graph(city), req, "sipp", 1.0, ["cf21"])
         reply = solve(req)
         assert reply.ok and reply.plan is not None, reply.error
         assert validate_plan(reply.plan).ok
         plan = reply.plan
     assert first.ok, first.error
-    assert not once.ok and "contact" in once.error and later == "cf25", once.error
+    assert once.ok, once.error
+    assert not blind.ok and "contact" in blind.error and later == "cf25", blind.error
 
 
 @pytest.mark.compute
@@ -429,6 +436,26 @@ def test_a_soaks_replan_whose_first_order_met_head_on_is_valid_on_its_first_orde
     assert reply.ok and later is None, reply.error
     order = [leg.vid for leg in priority(split(graph, req.replan)[1])]
     assert order.index("cf21") < order.index("cf73") and order.index("cf04") < order.index("cf38")
+
+
+@pytest.mark.compute
+def test_a_vehicle_placed_before_another_plans_against_its_last_step() -> None:
+    """An 80-vehicle soak's replan (city934 around cf71 and cf17, from 10.6 s): cf29 waits at g2_0
+    until 10.59 s while cf49 comes up the road into it (there at 12.37 s). Placed before cf49, cf29
+    searched without cf49's last step and took off at g2_0 with cf49 12.8 cm away; the validation
+    refused the plan, the other order could not place cf29, and the mission aborted. Now a vehicle
+    plans against the last steps coming near its switch node (`replan._coming_near`): in either
+    order cf29 drives on along the road first and the plan is valid on its first order."""
+    req = read_request(DATA / "replan_last_step.msgpack")
+    assert req.replan is not None
+    graph = load_graph(req.map)
+    req = msgspec.structs.replace(req, time_limit=60.0)
+    for first in ([], ["cf29"]):
+        reply, later = _replan_with(graph, req, "sipp", 60.0, first)
+        assert reply.ok and reply.plan is not None and later is None, (first, reply.error)
+        after = [e.node for e in reply.plan.paths["cf29"] if e.t > req.replan.at]
+        assert next(n for n in after if n != "g2_0") == "g3_0", after[:3]
+        assert validate_plan(reply.plan, check_cost=False).ok
 
 
 def test_a_stranded_vehicle_goes_on_to_its_goal_once_a_later_replan_finds_it_in_reach(

@@ -290,6 +290,28 @@ def test_carve_removes_open_windows_and_keeps_their_ends() -> None:
     assert len(starts) == 2
 
 
+def test_claims_moving_meanwhile_are_lifted_after_the_block() -> None:
+    """`Reservations.moving_meanwhile`: a traversal's claims hold inside the block (the node it
+    comes into is claimed over it, and so are departures on the edges it touches) and are gone
+    after it, every interval as it was, the claims made before kept."""
+    from services.planner.sipp.safe_intervals import Reservations
+
+    graph = load_graph("town")
+    res = Reservations(graph)
+    res.rest(graph.index["WP10"], 0.0, 5.0)
+    before = ([s[:] for s in res.node_start], [e[:] for e in res.node_end],
+              [s[:] for s in res.edge_start], [e[:] for e in res.edge_end])
+    edge = next(iter(graph.edge_index.values()))
+    end = int(graph.edges[edge][1])
+    arrive = 10.0 + float(graph.duration[edge])
+    assert res.interval_at(end, arrive) is not None
+    with res.moving_meanwhile([(edge, 10.0)]):
+        assert res.interval_at(end, arrive - 1e-3) is None
+        assert any(len(s) > 1 or s[0] != -math.inf for s in res.edge_start)
+    assert (res.node_start, res.node_end, res.edge_start, res.edge_end) == before
+    assert res.interval_at(graph.index["WP10"], 2.0) is None
+
+
 def test_edge_pair_windows_are_exact() -> None:
     """Against dense sampling on random segment pairs: every sampled contact lies inside the window,
     and the window is no wider than the sampling resolution allows."""

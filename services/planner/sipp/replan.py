@@ -62,7 +62,7 @@ from services.planner.replanning import Leg, failed, split, touched_by_segment
 from services.planner.result import PlanResult, battery_shortfall
 from services.planner.sipp.heuristic import CostToGo
 from services.planner.sipp.planner import path_entries
-from services.planner.sipp.safe_intervals import Reservations, carve
+from services.planner.sipp.safe_intervals import Footprints, Reservations, carve
 from services.planner.sipp.search import SearchGraph, SearchTimeout, TimedPath, sipp
 
 INF = math.inf
@@ -213,6 +213,7 @@ def _plan_order(graph: FleetGraph, res: Reservations, order: list[Leg], mu: floa
     """One pass of prioritized planning in `order` on `res` (`_claimed`, a copy: it is changed);
     on failure the vehicle it could not place, why, and whether its search ran out of time."""
     out: dict[str, TimedPath] = {}
+    coming = _coming_near(graph, order)
     for leg in order:
         ctg = CostToGo.of(graph, mu, leg.task.capabilities)
         where = f"{graph.ids[leg.start]!r} at {leg.depart:.1f} s -> {graph.ids[leg.goal]!r}"
@@ -220,9 +221,13 @@ def _plan_order(graph: FleetGraph, res: Reservations, order: list[Leg], mu: floa
         if leg.hold:  # it stays where it stops, whatever closed that node
             path = TimedPath([leg.start], [leg.depart], [INF], [], 0.0, 0.0)
         else:
+            meanwhile = [(graph.edge_index[(graph.index[x.prefix[-2].node], graph.index[x.prefix[-1].node])],
+                          x.prefix[-2].t) for x in coming.get(leg.start, ())
+                         if x.vid != leg.vid and x.vid not in out and x.prefix[-1].t > leg.depart]
             try:
-                path = sipp(SearchGraph.of(graph, mu, leg.task.capabilities), res, leg.start, leg.goal,
-                            ctg.h[leg.goal], ctg.q[leg.goal], leg.usable, deadline, t_start=leg.depart)
+                with res.moving_meanwhile(meanwhile):  # (their last steps, for its search alone: `_coming_near`)
+                    path = sipp(SearchGraph.of(graph, mu, leg.task.capabilities), res, leg.start, leg.goal,
+                                ctg.h[leg.goal], ctg.q[leg.goal], leg.usable, deadline, t_start=leg.depart)
             except SearchTimeout:
                 return leg.vid, f"time limit reached while planning {where}", True
         if path is None:
@@ -236,6 +241,23 @@ def _plan_order(graph: FleetGraph, res: Reservations, order: list[Leg], mu: floa
                 res.move(path.edges[i], path.depart[i])
         out[leg.vid] = path
     return out
+
+
+def _coming_near(graph: FleetGraph, order: list[Leg]) -> dict[int, list[Leg]]:
+    """The legs whose prefix's last step is a traversal that comes near a node (the node's body
+    could touch its body on the way: `Footprints.move_nodes`, its switch node among them), by node.
+    A vehicle placed before one of these whose switch node that is leaves it on a suffix planned
+    against those last steps (for its search alone: reserved for good, a last step would close
+    its own vehicle's exits, module doc). Without them an 80-vehicle soak's replan had cf29,
+    waiting at g2_0, take off there while cf49 came up the road into g2_0, 12.8 cm apart; the
+    validation refused the plan, and in the other order cf29 could not be placed (2026-12-08)."""
+    move_nodes = Footprints.of(graph).move_nodes
+    near: dict[int, list[Leg]] = {}
+    for leg in order:
+        if len(leg.prefix) > 1 and (a := leg.prefix[-2].node) != (b := leg.prefix[-1].node):
+            for m, _, _ in move_nodes[graph.edge_index[(graph.index[a], graph.index[b])]]:
+                near.setdefault(m, []).append(leg)
+    return near
 
 
 def _reserve_entries(res: Reservations, graph: FleetGraph, entries: list[PathEntry], forever: bool) -> None:

@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_left, bisect_right
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -153,6 +155,30 @@ class Reservations:
             carve(self.node_start[m], self.node_end[m], t1, t2)
         for f, a, b in fp.rest_edges[node]:
             carve(self.edge_start[f], self.edge_end[f], t1 + a, t2 + b)
+
+    @contextmanager
+    def moving_meanwhile(self, moves: list[tuple[int, float]]) -> Iterator[None]:
+        """The claims of bodies traversing `moves` (edge, entry time) while the block runs, lifted
+        after it (what they had carved restored: a vehicle placed before another searches against
+        the other's last step into its switch node, which reserved for good would close that
+        vehicle's own exits, `services/planner/sipp/replan.py`)."""
+        if not moves:
+            yield
+            return
+        fp = self.footprints
+        nodes = {m for e, _ in moves for m, _, _ in fp.move_nodes[e]}
+        edges = {f for e, _ in moves for f, _, _ in fp.move_edges[e]}
+        kept = ([(n, self.node_start[n][:], self.node_end[n][:]) for n in nodes],
+                [(f, self.edge_start[f][:], self.edge_end[f][:]) for f in edges])
+        for e, t1 in moves:
+            self.move(e, t1)
+        try:
+            yield
+        finally:
+            for n, starts, ends in kept[0]:
+                self.node_start[n], self.node_end[n] = starts, ends
+            for f, starts, ends in kept[1]:
+                self.edge_start[f], self.edge_end[f] = starts, ends
 
     def move(self, edge: int, t1: float) -> None:
         """A planned body enters `edge` at t1 and traverses it in its duration."""
