@@ -15,8 +15,11 @@ against:
 
 A prefix's last step (the traversal or wait into its switch node) is reserved only once its own
 vehicle is placed: against itself it would close the node's exits for as long as two bodies would
-touch (the same body cannot); a vehicle placed earlier may then cross a later one's last step,
-which the validation of the whole spliced plan catches (the replan then fails).
+touch (the same body cannot). A vehicle placed earlier searches against the later ones' last
+steps that come near its own switch node, for its search alone (`_coming_near`,
+`Reservations.moving_meanwhile`): it must leave that node before they come, or wait for them to
+pass; it may still cross a later one's last step elsewhere, which the validation of the whole
+spliced plan catches (the replan then tries the later one first, `registry.solve_replan`).
 
 Priority: the vehicles that must move first (earliest switch node) first, those whose prefixes end
 at one node together, the last to arrive first (`priority`); a vehicle that cannot be placed is
