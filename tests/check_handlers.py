@@ -548,6 +548,12 @@ HANDLINGS: tuple[Handling, ...] = (
               "(ahead.get(leg.vid, len(ahead)), leg.depart, leg.vid)"),),
         "tests/test_replan.py::test_a_soaks_replan_whose_first_order_met_head_on_is_valid_on_its_first_order"),
     Handling(
+        "a replan's vehicle placed first plans against the last steps coming to its switch node",
+        "planner: a vehicle placed before another searches without the other's last step",
+        (Edit("services/planner/sipp/replan.py", "    coming = _coming_near(graph, order)\n",
+              "    coming: dict[int, list[Leg]] = {}\n"),),
+        "tests/test_replan.py::test_a_vehicle_placed_before_another_plans_against_its_last_step"),
+    Handling(
         "a fault landing off the graph keeps out of the map's obstacles",
         "executor: a fault landing comes down straight or beside it whatever the map has there",
         (Edit("services/executor/faults.py", "    if ground is None or not spots:\n", "    if True:\n"),),
