@@ -326,7 +326,9 @@ def report(log: SoakLog, seconds: float) -> str:
                      f"rejected {f.get('poses_rejected', 0):.0f} (estimator restarts {f.get('estimator_restarts', 0):.0f}), "
                      f"slowed by its latency {f.get('slowed_cycles', 0):.0f} cycles; proximity stops spared by the plans "
                      f"{st.counters.get('proximity_kept_apart_by_plans', 0)}, pauses {st.counters.get('proximity_paused', 0)} "
-                     f"(ended {st.counters.get('proximity_pause_ended', 0)}, held {st.counters.get('proximity_pause_held', 0)})")
+                     f"(ended {st.counters.get('proximity_pause_ended', 0)}, held {st.counters.get('proximity_pause_held', 0)}), "
+                     f"for their own tracking {st.counters.get('tracking_paused', 0)} (ended "
+                     f"{st.counters.get('tracking_pause_ended', 0)}, held {st.counters.get('tracking_pause_held', 0)})")
         elif st.service == "sim":
             extra = (f"truth behind {st.counters.get('truth_behind', 0)}x, watchdog level/cut "
                      f"{f.get('watchdog_levels', 0):.0f}/{f.get('watchdog_cuts', 0):.0f}, radio lost "

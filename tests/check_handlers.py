@@ -299,6 +299,13 @@ HANDLINGS: tuple[Handling, ...] = (
               "            if False:\n"),),
         "tests/test_proximity_pause.py::test_a_flyer_heading_into_one_blown_off_its_plan_pauses_and_goes_on"),
     Handling(
+        "a flyer the guard would hold for its own tracking pauses the mission first",
+        "executor: the guard holds a flyer off its plan at once (the others planned around it)",
+        (Edit("services/executor/vehicle_controller.py",
+              "        if error <= f.guard_burst * margin and self._pause_for_tracking(why, now):\n",
+              "        if False:\n"),),
+        "tests/test_proximity_pause.py::test_a_flyer_blown_off_its_plan_pauses_the_mission_and_goes_on"),
+    Handling(
         "a stranded vehicle's goal asked for again",
         "mission: a goal a replan left out of reach stays so for the mission",
         (Edit("services/mission/runner.py",

@@ -2,12 +2,15 @@
 vehicle that heads into another keeping to its plan of the same mission stops where it is and
 stands the mission's plan clock, instead of being held and planned around; every vehicle comes to
 its plan's place of one time, which keeps them apart, and the paused one goes on when the two plans
-are judged to keep them apart from there. Judged in ground truth."""
+are judged to keep them apart from there. Judged in ground truth. A flyer the tracking guard would
+hold for its own tracking pauses too (`VehicleController._pause_for_tracking`), and goes on once
+back within its margin of its plan's standing place."""
 
 from __future__ import annotations
 
 import math
 
+import msgspec
 import pytest
 
 from common.bus.keys import Keys
@@ -35,13 +38,19 @@ def test_a_flyer_heading_into_one_blown_off_its_plan_pauses_and_goes_on() -> Non
     back to its plan's place, and cf1 goes on along its plan; neither is held (the mission plans
     no one around), and in ground truth their bodies never touch."""
     svc, closest = fly_crossing(ProximityParams(), gust=BLOWN)
-    cf1, cf2 = svc.controllers["cf1"], svc.controllers["cf2"]
-    assert not cf1.held and not cf2.held, (cf1.held, cf2.held)
-    assert (cf1.pauses, cf2.pauses) == (1, 0)
-    assert svc.counters.get("proximity_paused") == svc.counters.get("proximity_pause_ended") == 1
-    assert cf1.paused is None and cf1.mode == Mode.FLYING
-    assert 0.3 < cf1.delay < 2.0, cf1.delay  # the plan's clock stood for the pause
+    went_on(svc, "cf1", "proximity")
     assert closest > 0.01, closest
+
+
+def went_on(svc: ExecutorService, paused: str, counted: str) -> None:
+    """Neither flyer is held; `paused` paused once (counted begun and ended as `counted`) and flies
+    on, the other never paused; the plan's clock stood for the pause."""
+    assert not any(ctl.held for ctl in svc.controllers.values()), {v: c.held for v, c in svc.controllers.items()}
+    assert {v: c.pauses for v, c in svc.controllers.items()} == {v: int(v == paused) for v in svc.controllers}
+    assert svc.counters.get(f"{counted}_paused") == svc.counters.get(f"{counted}_pause_ended") == 1
+    ctl = svc.controllers[paused]
+    assert ctl.paused is None and ctl.mode == Mode.FLYING
+    assert 0.3 < ctl.delay < 2.0, ctl.delay
 
 
 def test_without_the_pause_the_same_closing_holds_the_flyer() -> None:
@@ -151,3 +160,52 @@ def test_a_driver_paused_stops_where_it_is_and_drives_on_from_there() -> None:
     assert (ctl.paused.since, ctl.paused.stopped) == (first, now), ctl.paused  # (0.8 s after going on)
     ctl.go_on(now)
     assert ctl.pause("for another", "cf3", now) and ctl.paused is not None and ctl.paused.since == now
+
+
+# ---- a pause for a flyer's own tracking ---------------------------------------------------------
+
+WIDE = VehicleModel(margin=0.05)
+"""The city maps' margin: the guard holds a flyer 10 cm off its plan for 0.3 s, 15 cm at once."""
+WIND = (0.0, 2.0)
+"""m/s^2 across cf2's way for 1 s in cruise: it is blown 10-12 cm off its plan for over 0.3 s,
+short of the guard's burst (the LQR takes a sustained push up slowly)."""
+
+
+def blow_cf2(proximity: ProximityParams) -> ExecutorService:
+    """cf1 on the reference plan, cf2 on the same a metre aside, one executor; cf2 blown by `WIND`
+    once past x = 1 m in cruise."""
+    steps = reference_steps(WIDE)
+    aside = [msgspec.structs.replace(s, pos=(s.pos[0], s.pos[1] + 1.0, s.pos[2])) for s in steps]
+    svc, _closest = fly_crossing(proximity, gust=WIND, gust_s=1.0, model=WIDE, steps={"cf1": steps, "cf2": aside},
+                                 gust_when=lambda body: body.z > 0.4 and body.x > 1.0)
+    return svc
+
+
+def test_a_flyer_blown_off_its_plan_pauses_the_mission_and_goes_on() -> None:
+    """cf2, blown 10 cm off its plan for 0.3 s (where the guard would hold it), pauses the
+    mission: the plan's clock stands (cf1 stands at its plan's place too), cf2 flies back onto its
+    plan's place and goes on once within its margin; neither is held, so the mission plans no one
+    around it."""
+    svc = blow_cf2(ProximityParams())
+    went_on(svc, "cf2", "tracking")
+    assert svc.controllers["cf1"].delay == svc.controllers["cf2"].delay  # (cf1 stood as long)
+    assert svc.controllers["cf2"].state().tracking_error < WIDE.margin
+
+
+def test_without_the_tracking_pause_the_blown_flyer_is_held() -> None:
+    """The same flight with the tracking pause off: the guard holds cf2 where it is (the mission
+    would plan the others around it), and the plan's clock never stood."""
+    svc = blow_cf2(ProximityParams(pause_tracking=False))
+    cf2 = svc.controllers["cf2"]
+    assert cf2.held and cf2.held.startswith("tracking error"), cf2.held
+    assert cf2.pauses == 0 and svc.controllers["cf1"].delay == 0.0
+
+
+def test_a_tracking_pause_not_ended_in_time_becomes_the_guards_hold() -> None:
+    """A pause for its own tracking that has not ended within `pause_max_s` holds the flyer as the
+    guard would have, with why; the plan's clock runs again."""
+    svc = blow_cf2(ProximityParams(pause_settle_s=0.3, pause_max_s=0.3))
+    cf2 = svc.controllers["cf2"]
+    assert cf2.held and cf2.held.startswith("tracking error") and "paused 0.3 s" in cf2.held, cf2.held
+    assert svc.counters.get("tracking_pause_held") == 1 and svc.counters.get("tracking_pause_ended") is None
+    assert cf2.paused is None and cf2.clock_pace == 1.0

@@ -445,7 +445,10 @@ def test_a_starved_executor_holds_its_vehicles_and_nothing_touches(tmp_path) -> 
             thread.join()
             marks["fed"] = time.time()
 
-    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="guard", without=NO_RECORDER) as fleet:
+    # the guard's hold itself: a flyer off its plan (not a burst) first pauses its mission by default,
+    # and the starved loop, paused, got back within its margin and went on (`tests/test_proximity_pause.py`)
+    with local_fleet("town", TOWN_TASKS, tmp_path / "run", executors=2, fleet="guard", without=NO_RECORDER,
+                     extra_args={"executor": ["--no-tracking-pause"]}) as fleet:
         result, watch = fly_mission(fleet, spec, scenario)
 
     assert result.contacts == 0, result.summary()

@@ -14,6 +14,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-tracking-guard", dest="tracking_guard", action="store_false",
                    help="do not hold vehicles whose tracking leaves the plan's margin (rehearsals and tests only: "
                         "without the guard a slow control loop can bring bodies into contact)")
+    p.add_argument("--no-tracking-pause", dest="tracking_pause", action="store_false",
+                   help="hold a flyer whose tracking leaves the plan's margin at once, instead of pausing its "
+                        "mission while it gets back onto its plan (tests of the guard's hold)")
     p.add_argument("--no-plan-clock", dest="plan_clock", action="store_false",
                    help="run plans on the wall clock: the plan's clock does not wait for vehicles behind their "
                         "plans (comparisons only: a late vehicle then meets the others on time)")

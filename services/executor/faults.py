@@ -57,7 +57,9 @@ class FaultParams:
     margins, not one: the shipped maps' 3 cm is below what a loaded 2-core machine's loop tracks
     (driving 4.6-5.3 cm for 0.2 s in a 32-vehicle soak, flying 6 cm bursts), and the plans' closest
     approaches are rarely at the margin; a vehicle that leaves it that far is held
-    (hovering or stopped where it is) and reported (`tracking_hold`); `guard` False disables it.
+    (hovering or stopped where it is) and reported (`tracking_hold`), unless it is a flyer whose
+    executor pauses its mission first (`VehicleController._pause_for_tracking`,
+    `ProximityParams.pause_tracking`); `guard` False disables it.
     After a take-over the guard waits `guard_rejoin_s` for the vehicle to get back onto its
     reference (it drifted, or its gateway landed it, while it had no owner); it also waits
     `guard_drive_start_s` after a drive starts from rest: a vehicle parked facing away from its

@@ -68,7 +68,11 @@ class ProximityParams:
     (`VehicleController.pause`): the mission's plan clock stands, every vehicle comes to rest where
     its plan has it, and after at least `pause_settle_s` the mover goes on once the two plans are
     judged to keep them apart from there at full pace; a pause that has not ended by `pause_max_s`
-    becomes the hold it would have been (the mission plans around it)."""
+    becomes the hold it would have been (the mission plans around it); pause_tracking: a flyer on
+    its plan that the tracking guard would hold for its own tracking (not a burst) pauses too
+    (`VehicleController._pause_for_tracking`): it flies back onto its plan's standing place and
+    goes on once within the margin of it, after at least `pause_settle_s`, or is held as the guard
+    would have held it at `pause_max_s`."""
 
     near_gap: float = 0.01
     react_s: float = 0.03
@@ -83,6 +87,7 @@ class ProximityParams:
     standoff_reach: float = 0.05
     trust_plans: bool = True
     pause: bool = True
+    pause_tracking: bool = True
     pause_settle_s: float = 0.5
     pause_max_s: float = 5.0
 

@@ -78,7 +78,7 @@ from services.executor.proximity import Bodies, Closing, ProximityParams, standi
 from services.executor.takeover import VehicleOwnership
 from services.executor.team_robots import TeamExecutor
 from services.executor.trajectory import Trajectory
-from services.executor.vehicle_controller import MOVING, ControlParams, VehicleController
+from services.executor.vehicle_controller import MOVING, OWN_TRACKING, ControlParams, VehicleController
 
 log = logging.getLogger(__name__)
 
@@ -304,7 +304,8 @@ class ExecutorService(Service):
         if (vid, plan.mission) in self._failed:
             return
         ctl = VehicleController(vid, plan.model, owner=self.instance, params=self.control, bank=self.bank,
-                                bodies=lambda: self._bodies_besides(vid), ground=self._map(plan.map))
+                                bodies=lambda: self._bodies_besides(vid), ground=self._map(plan.map),
+                                tracking_pause=self.tracking_pause(), count=self.counters.inc)
         ctl.load(plan)
         t0 = plan.t0 or self.starts.get(plan.mission)
         if t0:
@@ -564,6 +565,16 @@ class ExecutorService(Service):
                     continue
             ctl.stop_short(why)
 
+    def tracking_pause(self) -> tuple[float, float] | None:
+        """(settle s, longest s) of a pause for a vehicle's own tracking
+        (`VehicleController._pause_for_tracking`, `ProximityParams.pause_tracking`), with the plan's
+        clock that stands for it (`ClockParams.enabled`) and the guard (`FaultParams.guard`); None:
+        the guard holds at once."""
+        p = self.bodies.params
+        if not (p.pause_tracking and self.control.clock.enabled and self.control.faults.guard):
+            return None
+        return p.pause_settle_s, p.pause_max_s
+
     def _may_pause(self, mover: str, other: str, now: float) -> bool:
         """Whether `mover` may pause for `other` rather than be held (`ProximityParams.pause`, with
         `trust_plans`: a pause ends when the plans are judged to keep the two apart; and with the
@@ -586,7 +597,7 @@ class ExecutorService(Service):
         p = self.bodies.params
         for vid, ctl in self.controllers.items():
             pause = ctl.paused
-            if pause is None:
+            if pause is None or pause.other == OWN_TRACKING:  # (that one its controller ends: `_judge_tracking_pause`)
                 continue
             if now - pause.stopped < p.pause_settle_s:
                 continue
@@ -828,5 +839,6 @@ def cmd_executor(args: argparse.Namespace) -> int:
     control = ControlParams(faults=FaultParams(guard=args.tracking_guard),
                             clock=ClockParams(enabled=args.plan_clock))
     svc = ExecutorService(args.instance, zconfig_from_args(args), keys_from_args(args),
-                          rate_hz=args.rate, state_hz=args.state_rate, control=control)
+                          rate_hz=args.rate, state_hz=args.state_rate, control=control,
+                          proximity=ProximityParams(pause_tracking=args.tracking_pause))
     return run_service(svc)

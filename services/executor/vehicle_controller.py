@@ -74,6 +74,8 @@ MOVING = frozenset({Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING})
 """Modes in which a vehicle moves on its plan (`VehicleController.motion`)."""
 REPAUSE_S = 1.0
 """s after going on from a pause within which another for the same vehicle continues it (`VehicleController.pause`)."""
+OWN_TRACKING = ""
+"""`Pause.other` of a pause for the vehicle's own tracking (`VehicleController._pause_for_tracking`)."""
 PAUSABLE = frozenset({Mode.DRIVING, Mode.FLYING})
 """Modes in which a vehicle on its plan may pause (`VehicleController.pause`): not in its spot's column."""
 IN_ITS_COLUMN = frozenset({Mode.TAKING_OFF, Mode.LANDING})
@@ -114,8 +116,9 @@ delay to lead, 0.2 cm (unled 0.3; `tests/test_closed_loop.py`). An 80-vehicle so
 
 
 class Pause(NamedTuple):
-    """A proximity pause (`VehicleController.pause`): why, for which other vehicle, since when (s;
-    the first of the pauses it continues) and when its own stop began (s)."""
+    """A pause of the mission's clock: a proximity pause (`VehicleController.pause`) or one for its
+    own tracking (`OWN_TRACKING`, `VehicleController._pause_for_tracking`): why, for which other
+    vehicle, since when (s; the first of the pauses it continues) and when its own stop began (s)."""
 
     why: str
     other: str
@@ -197,12 +200,19 @@ class VehicleController:
     def __init__(self, vid: str, model: VehicleModel | None = None, owner: str = "",
                  params: ControlParams | None = None, bank: KalmanBank | None = None,
                  bodies: Callable[[], Iterable[tuple[float, float, float]]] | None = None,
-                 ground: Callable[[], MapSpec | None] | None = None) -> None:
+                 ground: Callable[[], MapSpec | None] | None = None,
+                 tracking_pause: tuple[float, float] | None = None,
+                 count: Callable[[str], object] | None = None) -> None:
         """`bank`: the executor's, shared by its vehicles' estimators (`fuse_poses` a frame at once);
         `bodies`: where the other vehicles are, or land in a fault landing (a fault landing keeps
         off their columns: `safe_landing_steps`); `ground`: the plan's map as it is known, whose
-        no-fly zones and obstacles a fault landing off the graph keeps off (None: not known)."""
+        no-fly zones and obstacles a fault landing off the graph keeps off (None: not known);
+        `tracking_pause`: (settle s, longest s) of a pause for its own tracking
+        (`_pause_for_tracking`), given by an executor that runs its plan's clock; None: the guard
+        holds at once; `count`: counts its pauses' ends by name (the executor's counters)."""
         self.vid = vid
+        self.tracking_pause = tracking_pause
+        self._count = count or (lambda _name: None)
         self._bodies = bodies or (lambda: ())
         self._ground = ground or (lambda: None)
         self.owner = owner
@@ -213,7 +223,7 @@ class VehicleController:
         self.machine = ModeMachine(vid)
         self.plan: VehiclePlan | None = None
         self.pauses = 0
-        """Proximity pauses so far (`pause`)."""
+        """Pauses so far, proximity pauses (`pause`) and for its own tracking (`_pause_for_tracking`)."""
         self.holds = 0
         """Holds so far, each one to be reported (a refused return into the plan counts again:
         the mission had planned the others as if it came back)."""
@@ -559,7 +569,7 @@ class VehicleController:
             if self._yield is not None and ref is not None:
                 self._hold(now, est, ref, self._yield, rejoinable=True)
                 return
-            if self._still_paused(est, ref):
+            if self._still_paused(now, est, ref):
                 return
             if self._guard(now, est, ref):
                 return
@@ -575,7 +585,7 @@ class VehicleController:
         if self._yield is not None and ref is not None:
             self._hold(now, est, ref, self._yield, rejoinable=True)
             return
-        if self._still_paused(est, ref):
+        if self._still_paused(now, est, ref):
             return
         if m.mode == Mode.DRIVING and self._guard(now, est, ref):
             return
@@ -666,9 +676,50 @@ class VehicleController:
         since = self._guard_since = self._guard_since if self._guard_since is not None else now
         if error <= f.guard_burst * margin and now - since < f.guard_s:
             return False
+        why = f"tracking error {error:.3f} m past the plan's margin {margin:.3f} m for {now - since:.2f} s in {self.machine.mode}"
+        if error <= f.guard_burst * margin and self._pause_for_tracking(why, now):
+            return True
         late, way = self._on_its_way(est, ref)
-        self._hold(now, est, ref, f"tracking error {error:.3f} m past the plan's margin {margin:.3f} m "
-                                  f"for {now - since:.2f} s in {self.machine.mode}{way}", late)
+        self._hold(now, est, ref, why + way, late)
+        return True
+
+    def _pause_for_tracking(self, why: str, now: float) -> bool:
+        """A flyer on its plan the guard would hold for its own tracking (past `guard_factor` x the
+        margin for `guard_s`, not past `guard_burst` x) pauses its mission instead, when its
+        executor runs the plan's clock (`tracking_pause`): the clock stands, every vehicle of the
+        mission comes to rest where its plan has it at one time, and this one flies back onto its
+        plan's place and goes on once within the margin of it (`_judge_tracking_pause`). The two
+        10-minute 80-vehicle soaks of 2026-12-08 that failed a mission and the 64-vehicle one of the
+        night before began with a flyer held 11-16 cm off its plan in cruise (a late loop's height
+        swing where traced), after which the yields and replans around it could not place everyone.
+        Whether it pauses."""
+        if (self.tracking_pause is None or self.machine.mode != Mode.FLYING or self._hover_ref is not None
+                or self._active is not self.trajectory or not self._may_yield()):
+            return False
+        self._begin_pause(why, OWN_TRACKING, now, here=False)
+        self._count("tracking_paused")
+        return True
+
+    def _judge_tracking_pause(self, now: float, est: Estimate, ref: RefSample) -> bool:
+        """Paused for its own tracking (`_pause_for_tracking`): it goes on once at least the settle
+        time paused and within the plan's margin of its (standing) reference; held as the guard
+        would have held it once paused for the longest time (the pauses it continues counted) or
+        off by more than `guard_burst` x the margin. Whether this tick's supervision ends here
+        (still paused, or held now)."""
+        pause, f, margin = self._paused, self.params.faults, self.model.margin
+        assert pause is not None and self.tracking_pause is not None
+        settle, longest = self.tracking_pause
+        error = math.dist((est.x, est.y, est.z), (ref.x, ref.y, ref.z))
+        if error > f.guard_burst * margin or now - pause.since >= longest:
+            self._count("tracking_pause_held")
+            late, way = self._on_its_way(est, ref)
+            self._hold(now, est, ref, f"{pause.why}; paused {now - pause.since:.1f} s, {error:.3f} m from its "
+                                      f"plan's place{way}", late)
+            return True
+        if now - pause.stopped >= settle and error <= margin:
+            self._count("tracking_pause_ended")
+            self.go_on(now)
+            return False
         return True
 
     def _on_its_way(self, est: Estimate, ref: RefSample) -> tuple[bool, str]:
@@ -892,18 +943,24 @@ class VehicleController:
         (an 80-vehicle soak's driver went on and paused again for the same car three times in 2
         s). Whether it is paused (not in a take-off or landing, nor when it may not be held:
         `_may_yield`)."""
-        if self._paused is not None:
-            return True
+        if self._paused is not None:  # (paused for its own tracking, it moves: held if it heads into one)
+            return self._paused.other != OWN_TRACKING
         if (not self._may_yield() or self.machine.mode not in PAUSABLE or self._hover_ref is not None
                 or self._active is not self.trajectory):
             return False
+        self._begin_pause(why, other, now, here=True)
+        return True
+
+    def _begin_pause(self, why: str, other: str, now: float, here: bool) -> None:
+        """Pause (`pause`, `_pause_for_tracking`), continuing the last pause for the same `other`
+        if it went on from it within `REPAUSE_S`; `here`: it stops where it is first, else it makes
+        straight for its plan's standing place."""
         last, self._last_pause = self._last_pause, None
         since = last[0].since if last is not None and last[0].other == other and now - last[1] < REPAUSE_S else now
-        self._paused, self._pause_here = Pause(why, other, since, now), True
+        self._paused, self._pause_here = Pause(why, other, since, now), here
         self.clock_pace = 0.0
         self.pauses += 1
         log.warning("%s: pauses, its plan's clock standing: %s", self.vid, why)
-        return True
 
     @property
     def paused(self) -> Pause | None:
@@ -920,18 +977,22 @@ class VehicleController:
         lets it (`_pace_clock`)."""
         if self._paused is not None:
             log.warning("%s: goes on after a pause of %.2f s for %s", self.vid, now - self._paused.since,
-                        self._paused.other)
+                        self._paused.other or "its own tracking")
             self._last_pause = (self._paused, now)
         self._paused = self._pause_ref = None
 
-    def _still_paused(self, est: Estimate, ref: RefSample | None) -> bool:
+    def _still_paused(self, now: float, est: Estimate, ref: RefSample | None) -> bool:
         """Whether the vehicle is paused (`pause`) at this tick; a flyer hovers where it was at the
-        first tick paused. A pose gone stale ends the pause: the fault's own handling takes over."""
+        first tick paused. A pose gone stale ends the pause: the fault's own handling takes over.
+        One paused for its own tracking is judged (`_judge_tracking_pause`: held, it is not paused
+        and its supervision ends here too)."""
         if self._paused is None:
             return False
         if est.stale or ref is None:
             self._paused = self._pause_ref = None
             return False
+        if self._paused.other == OWN_TRACKING:
+            return self._judge_tracking_pause(now, est, ref)
         if self._pause_here and self._pause_ref is None and self.machine.airborne:
             self._pause_ref = _still(ref.t, est, est.yaw)
         return True
