@@ -75,6 +75,12 @@ MOVING = frozenset({Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING})
 REPAUSE_S = 1.0
 """s after going on from a pause within which another for the same vehicle continues it (`VehicleController.pause`)."""
 OWN_TRACKING = ""
+RESUME_S = 1.0
+"""s over which a vehicle going on from a pause lets its plan's clock come back to full pace
+(`VehicleController.go_on`, `_pace_clock`): at once, every reference of the mission jumped from
+rest to its plan's speed and the flyers lagged theirs by a few centimetres as they caught up; in an
+80-vehicle soak (2026-12-08) cf65 went on from a pause for cf14, both 2-3.4 cm off their
+references a quarter of a second later, and their bodies met, 1.4 cm deep."""
 """`Pause.other` of a pause for the vehicle's own tracking (`VehicleController._pause_for_tracking`)."""
 PAUSABLE = frozenset({Mode.DRIVING, Mode.FLYING})
 """Modes in which a vehicle on its plan may pause (`VehicleController.pause`): not in its spot's column."""
@@ -262,6 +268,7 @@ class VehicleController:
         self._pause_ref: RefSample | None = None  # where a paused flyer hovers, from its first tick paused
         self._pause_here = False  # paused, it stays where it stopped (not yet back onto its standing plan)
         self._last_pause: tuple[Pause, float] | None = None  # the last pause it went on from, and when
+        self._resumed: float | None = None  # when it went on from its last pause (`RESUME_S`)
         self._guard_from = 0.0  # the guard sleeps until then (after a take-over)
         self.held: str | None = None
         """Why the tracking guard holds the vehicle (None: it does not)."""
@@ -609,11 +616,22 @@ class VehicleController:
         pose or a lost link, by how far the reference is from where it stopped; full pace otherwise
         (parked, held, in a fault landing). One that has kept the clock below full pace for
         `ClockParams.max_wait_s` is held (the tracking guard's hold: reported, the mission plans
-        around it), rejoinable if stopped by a fault that may clear."""
-        c, mode = self.params.clock, self.machine.mode
+        around it), rejoinable if stopped by a fault that may clear. Paused, it stands the clock;
+        going on, it brings it back to full pace over `RESUME_S`."""
         if self._paused is not None:
             self.clock_pace = 0.0
             return
+        self._pace_by_tracking(now, est, ref)
+        if self._resumed is not None:
+            ramp = (now - self._resumed) / RESUME_S
+            if ramp >= 1.0 or self.held or not self._may_yield():
+                self._resumed = None
+            else:
+                self.clock_pace = min(self.clock_pace, ramp)
+
+    def _pace_by_tracking(self, now: float, est: Estimate, ref: RefSample | None) -> None:
+        """`_pace_clock` by how far the vehicle is behind its reference (or its stop)."""
+        c, mode = self.params.clock, self.machine.mode
         error = None
         if ((mode in MOVING or mode == Mode.HOLDING) and c.enabled and ref is not None and self._hover_ref is None
                 and now >= self._guard_from and self._may_yield()):
@@ -973,12 +991,12 @@ class VehicleController:
         self._pause_here, self._pause_ref = False, None
 
     def go_on(self, now: float) -> None:
-        """End the proximity pause: the vehicle follows its plan again, and its clock runs as it
-        lets it (`_pace_clock`)."""
+        """End the pause: the vehicle follows its plan again, and its clock runs as it lets it
+        (`_pace_clock`), back to full pace over `RESUME_S`."""
         if self._paused is not None:
             log.warning("%s: goes on after a pause of %.2f s for %s", self.vid, now - self._paused.since,
                         self._paused.other or "its own tracking")
-            self._last_pause = (self._paused, now)
+            self._last_pause, self._resumed = (self._paused, now), now
         self._paused = self._pause_ref = None
 
     def _still_paused(self, now: float, est: Estimate, ref: RefSample | None) -> bool:
