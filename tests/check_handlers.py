@@ -306,6 +306,12 @@ HANDLINGS: tuple[Handling, ...] = (
               "        if False:\n"),),
         "tests/test_proximity_pause.py::test_a_flyer_blown_off_its_plan_pauses_the_mission_and_goes_on"),
     Handling(
+        "a vehicle going on from a pause brings the clock back to full pace over a second",
+        "executor: the clock a pause stood runs at full pace again at once",
+        (Edit("services/executor/vehicle_controller.py", "            ramp = (now - self._resumed) / RESUME_S\n",
+              "            ramp = 1.0\n"),),
+        "tests/test_proximity_pause.py::test_a_flyer_going_on_from_a_pause_keeps_near_its_reference_as_the_clock_comes_back[ramped]"),
+    Handling(
         "a stranded vehicle's goal asked for again",
         "mission: a goal a replan left out of reach stays so for the mission",
         (Edit("services/mission/runner.py",
