@@ -75,13 +75,13 @@ MOVING = frozenset({Mode.DRIVING, Mode.TAKING_OFF, Mode.FLYING, Mode.LANDING})
 REPAUSE_S = 1.0
 """s after going on from a pause within which another for the same vehicle continues it (`VehicleController.pause`)."""
 OWN_TRACKING = ""
+"""`Pause.other` of a pause for the vehicle's own tracking (`VehicleController._pause_for_tracking`)."""
 RESUME_S = 1.0
 """s over which a vehicle going on from a pause lets its plan's clock come back to full pace
 (`VehicleController.go_on`, `_pace_clock`): at once, every reference of the mission jumped from
 rest to its plan's speed and the flyers lagged theirs by a few centimetres as they caught up; in an
 80-vehicle soak (2026-12-08) cf65 went on from a pause for cf14, both 2-3.4 cm off their
 references a quarter of a second later, and their bodies met, 1.4 cm deep."""
-"""`Pause.other` of a pause for the vehicle's own tracking (`VehicleController._pause_for_tracking`)."""
 PAUSABLE = frozenset({Mode.DRIVING, Mode.FLYING})
 """Modes in which a vehicle on its plan may pause (`VehicleController.pause`): not in its spot's column."""
 IN_ITS_COLUMN = frozenset({Mode.TAKING_OFF, Mode.LANDING})
