@@ -564,7 +564,7 @@ HANDLINGS: tuple[Handling, ...] = (
         "a replan's vehicle placed first plans against the last steps coming to its switch node",
         "planner: a vehicle placed before another searches without the other's last step",
         (Edit("services/planner/sipp/replan.py", "    coming = _coming_near(graph, order)\n",
-              "    coming: dict[int, list[Leg]] = {}\n"),),
+              "    coming: dict[int, list[tuple[Leg, int]]] = {}\n"),),
         "tests/test_replan.py::test_a_vehicle_placed_before_another_plans_against_its_last_step"),
     Handling(
         "a fault landing off the graph keeps out of the map's obstacles",

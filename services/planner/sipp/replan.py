@@ -224,8 +224,7 @@ def _plan_order(graph: FleetGraph, res: Reservations, order: list[Leg], mu: floa
         if leg.hold:  # it stays where it stops, whatever closed that node
             path = TimedPath([leg.start], [leg.depart], [INF], [], 0.0, 0.0)
         else:
-            meanwhile = [(graph.edge_index[(graph.index[x.prefix[-2].node], graph.index[x.prefix[-1].node])],
-                          x.prefix[-2].t) for x in coming.get(leg.start, ())
+            meanwhile = [(edge, x.prefix[-2].t) for x, edge in coming.get(leg.start, ())
                          if x.vid != leg.vid and x.vid not in out and x.prefix[-1].t > leg.depart]
             try:
                 with res.moving_meanwhile(meanwhile):  # (their last steps, for its search alone: `_coming_near`)
@@ -246,20 +245,22 @@ def _plan_order(graph: FleetGraph, res: Reservations, order: list[Leg], mu: floa
     return out
 
 
-def _coming_near(graph: FleetGraph, order: list[Leg]) -> dict[int, list[Leg]]:
+def _coming_near(graph: FleetGraph, order: list[Leg]) -> dict[int, list[tuple[Leg, int]]]:
     """The legs whose prefix's last step is a traversal that comes near a node (the node's body
-    could touch its body on the way: `Footprints.move_nodes`, its switch node among them), by node.
+    could touch its body on the way: `Footprints.move_nodes`, its switch node among them), each
+    with that step's edge, by node.
     A vehicle placed before one of these whose switch node that is leaves it on a suffix planned
     against those last steps (for its search alone: reserved for good, a last step would close
     its own vehicle's exits, module doc). Without them an 80-vehicle soak's replan had cf29,
     waiting at g2_0, take off there while cf49 came up the road into g2_0, 12.8 cm apart; the
     validation refused the plan, and in the other order cf29 could not be placed (2026-12-08)."""
     move_nodes = Footprints.of(graph).move_nodes
-    near: dict[int, list[Leg]] = {}
+    near: dict[int, list[tuple[Leg, int]]] = {}
     for leg in order:
         if len(leg.prefix) > 1 and (a := leg.prefix[-2].node) != (b := leg.prefix[-1].node):
-            for m, _, _ in move_nodes[graph.edge_index[(graph.index[a], graph.index[b])]]:
-                near.setdefault(m, []).append(leg)
+            edge = graph.edge_index[(graph.index[a], graph.index[b])]
+            for m, _, _ in move_nodes[edge]:
+                near.setdefault(m, []).append((leg, edge))
     return near
 
 
